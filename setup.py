@@ -1,0 +1,43 @@
+"""ament_python build of toc_ros (also installable with pip into a plain venv)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'toc_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'benchmarks']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in a plain venv,
+    # from the PyPI wheels named in the 'ros' extra.
+    install_requires=['setuptools', 'numpy', 'numba', 'scipy', 'mcap', 'pyyaml', 'matplotlib'],
+    extras_require={
+        'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
+        'test': ['pytest', 'psutil', 'mcap-ros2-support', 'rosbags'],
+        'bench': ['casadi'],
+    },
+    zip_safe=True,
+    maintainer='toc_ros developers',
+    maintainer_email='dev@toc-ros.invalid',
+    description='Minimum-time trajectories by BPTT for a 2-DOF robot with obstacles, on ROS 2.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'solver_node = toc_ros.nodes.solver_node:main',
+            'plant_node = toc_ros.nodes.plant_node:main',
+            'recorder_node = toc_ros.nodes.recorder_node:main',
+            'replay_node = toc_ros.nodes.replay_node:main',
+            'toc-solve = toc_ros.solve:main',
+            'toc-demo = toc_ros.demo:main',
+            'toc-analyze = toc_ros.analysis.cli:main',
+        ],
+    },
+)

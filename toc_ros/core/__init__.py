@@ -1,0 +1,27 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""ROS-free numeric core of toc_ros: model, BPTT gradient, solvers, result types."""
+
+from .model import hand_position, RobotParams
+from .obstacles import arm_clearance
+from .problem import measure_violations, PaperOptions, Problem, ProblemError, SolverOptions
+from .result import Progress, SolveResult, Status, Violations
+from .solver import solve, warm_up
+
+__all__ = [
+    'arm_clearance', 'hand_position', 'measure_violations', 'PaperOptions', 'Problem',
+    'ProblemError', 'Progress', 'RobotParams', 'SolveResult', 'SolverOptions', 'solve',
+    'Status', 'Violations', 'warm_up',
+]

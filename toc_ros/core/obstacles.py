@@ -1,0 +1,127 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Circular obstacles and the arm: the paper's penalty (eqs. 38-46) and exact clearance.
+
+The arm is the segment from the base (origin) to the hand, [0, (a + q2) e(q1)] with
+e = (cos q1, sin q1).  Obstacles are rows (cx, cy, R) of an array, R = R' + dR already
+inflated by the margin dR.
+
+Generalisation of eqs. (38)-(41): the paper intersects the line y = x tan q1 with one circle in
+the first quadrant and takes r_min = r1.  Here the ray s e(q1), s >= 0, meets the circle where
+s^2 - 2 b s + (|c|^2 - R^2) = 0 with b = c . e, so for any quadrant
+    r_min = b - sqrt(D),   D = b^2 - |c|^2 + R^2   (D is eq. 40 divided by 4 (1 + tan^2 q1)),
+and the ray hits the circle ahead of the base iff D > 0 and b > 0 (the base is outside every
+circle, which Problem validation enforces).  Eq. (41): a + q2 <= r_min.
+"""
+
+import math
+
+from numba import njit
+import numpy as np
+
+# Obstacle-gradient variants of the paper's penalty.
+GRAD_EXACT = 0      # eqs. (44)-(45)
+GRAD_SHORTCUT = 1   # eq. (46): dJ3/dq1 = 0, dJ3/dq2 = K_p H
+
+
+@njit(cache=True)
+def ray_penetration(q1, q2, a, cx, cy, radius):
+    """Return (r_min - a - q2, d r_min / d q1, active) of eqs. (39)-(43) for one circle.
+
+    active is H-(r_min - q2 - a) H+(D) of eq. (43); the other two are 0 when inactive.
+    """
+    c, s = math.cos(q1), math.sin(q1)
+    b = cx * c + cy * s
+    disc = b * b - (cx * cx + cy * cy - radius * radius)
+    if disc <= 0.0 or b <= 0.0:
+        return 0.0, 0.0, False
+    root = math.sqrt(disc)
+    gap = b - root - a - q2
+    if gap >= 0.0:
+        return 0.0, 0.0, False
+    db = -cx * s + cy * c
+    return gap, db * (1.0 - b / root), True
+
+
+@njit(cache=True)
+def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
+    """J3 of eq. (42) summed over circles and nodes 0..N; adds dJ3/dx to grad_x (N+1 x 4).
+
+    grad_mode GRAD_EXACT uses eq. (44) with the exact d r_min/d q1 (eq. 45); GRAD_SHORTCUT
+    the paper's eq. (46), which is not the gradient of J3 (only a descent heuristic).
+    """
+    total = 0.0
+    n_circles = circles.shape[0]
+    # The ray at angle q1 can only meet circle k within its angular half-width around the
+    # centre's bearing; testing that first skips the trigonometry at most nodes.
+    bearing = np.empty(n_circles)
+    half_width = np.empty(n_circles)
+    for k in range(n_circles):
+        bearing[k] = math.atan2(circles[k, 1], circles[k, 0])
+        half_width[k] = math.asin(min(1.0, circles[k, 2] / math.hypot(circles[k, 0],
+                                                                       circles[k, 1])))
+    for i in range(states.shape[0]):
+        q1, q2 = states[i, 0], states[i, 2]
+        for k in range(n_circles):
+            off = q1 - bearing[k]
+            off -= 2.0 * math.pi * math.floor(off / (2.0 * math.pi) + 0.5)
+            if abs(off) >= half_width[k]:
+                continue
+            gap, dr_dq1, active = ray_penetration(q1, q2, a, circles[k, 0], circles[k, 1],
+                                                  circles[k, 2])
+            if not active:
+                continue
+            total += k_p * gap * gap
+            if grad_mode == GRAD_EXACT:
+                grad_x[i, 0] += 2.0 * k_p * dr_dq1 * gap
+                grad_x[i, 2] += -2.0 * k_p * gap
+            else:
+                grad_x[i, 2] += k_p
+    return total
+
+
+@njit(cache=True)
+def segment_distance_sq(q1, q2, a, cx, cy):
+    """Squared distance from the arm segment to (cx, cy) and its derivatives wrt q1, q2.
+
+    The closest point is at s = clamp(c . e, 0, L), L = a + q2; the result is C1 in (q1, q2).
+    """
+    c, s = math.cos(q1), math.sin(q1)
+    proj = cx * c + cy * s
+    dproj = -cx * s + cy * c
+    reach = a + q2
+    centre_sq = cx * cx + cy * cy
+    if proj <= 0.0:
+        return centre_sq, 0.0, 0.0
+    if proj < reach:
+        return centre_sq - proj * proj, -2.0 * proj * dproj, 0.0
+    return reach * reach - 2.0 * reach * proj + centre_sq, -2.0 * reach * dproj, \
+        2.0 * (reach - proj)
+
+
+def arm_clearance(states, a, circles):
+    """Distance from the arm segment to each circle's edge at every node: (N+1, K) [m].
+
+    Plain numpy (independent of the kernels): negative means the arm cuts the inflated circle.
+    """
+    states = np.atleast_2d(states)
+    circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
+    e = np.stack([np.cos(states[:, 0]), np.sin(states[:, 0])], axis=1)
+    reach = a + states[:, 2]
+    out = np.empty((states.shape[0], circles.shape[0]))
+    for k, (cx, cy, radius) in enumerate(circles):
+        s = np.clip(e @ np.array([cx, cy]), 0.0, reach)
+        out[:, k] = np.hypot(s * e[:, 0] - cx, s * e[:, 1] - cy) - radius
+    return out

@@ -1,0 +1,191 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Problem definition, solver options and input validation (before any iteration runs)."""
+
+from dataclasses import dataclass, field
+import math
+from typing import Optional, Tuple
+
+import numpy as np
+
+from .integrators import integrator_id, rollout
+from .model import RobotParams
+from .obstacles import arm_clearance, GRAD_EXACT, GRAD_SHORTCUT
+from .result import Violations
+
+PAPER_X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
+PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
+MAX_INTERVALS = 200000
+MODES = ('fast', 'paper')
+
+
+class ProblemError(ValueError):
+    """Invalid problem or options; the message says what and why."""
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Move the robot from x0 to x_goal (rest or not) in minimum time around circles.
+
+    obstacles: rows (cx, cy, R') [m] in the base frame; margin dR [m] inflates each to
+    R = R' + dR (section 4.2).  N intervals of tau = t_f / N, t_f0 the initial final time.
+    """
+
+    x0: Tuple[float, ...] = PAPER_X0
+    x_goal: Tuple[float, ...] = PAPER_GOAL
+    obstacles: Tuple[Tuple[float, float, float], ...] = ((1.0, 1.0, 0.2),)
+    margin: float = 0.01
+    robot: RobotParams = field(default_factory=RobotParams)
+    n_intervals: int = 1000
+    integrator: str = 'euler'
+    t_f0: float = 2.5
+
+    def circles(self):
+        """Obstacles as a (K, 3) array with inflated radii R = R' + dR."""
+        c = np.array(self.obstacles, dtype=float).reshape(-1, 3)
+        c[:, 2] += self.margin
+        return c
+
+    def validate(self):
+        """Raise ProblemError with every problem found (nothing is solved before this passes)."""
+        errors = list(self.robot.check())
+        x0 = _vector('x0', self.x0, 4, errors)
+        xg = _vector('x_goal', self.x_goal, 4, errors)
+        if not isinstance(self.n_intervals, (int, np.integer)) or isinstance(
+                self.n_intervals, bool) or not 2 <= self.n_intervals <= MAX_INTERVALS:
+            errors.append(f'N must be an integer in [2, {MAX_INTERVALS}], '
+                          f'got {self.n_intervals!r}')
+        try:
+            integrator_id(self.integrator)
+        except ValueError as exc:
+            errors.append(str(exc))
+        if not _finite_number(self.t_f0) or self.t_f0 <= 0.0:
+            errors.append(f't_f0 must be a finite positive time [s], got {self.t_f0!r}')
+        if not _finite_number(self.margin) or self.margin < 0.0:
+            errors.append(f'margin must be finite and >= 0 [m], got {self.margin!r}')
+        circles = None
+        try:
+            circles = np.array(self.obstacles, dtype=float).reshape(-1, 3)
+        except (TypeError, ValueError):
+            errors.append('obstacles must be rows (x, y, radius) of numbers')
+        if circles is not None:
+            for k, (cx, cy, radius) in enumerate(circles):
+                if not all(map(math.isfinite, (cx, cy, radius))):
+                    errors.append(f'obstacle {k} has a non-finite value ({cx}, {cy}, {radius})')
+                elif radius <= 0.0:
+                    errors.append(f'obstacle {k} radius must be > 0, got {radius}')
+                elif _finite_number(self.margin) and math.hypot(cx, cy) <= radius + self.margin:
+                    errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
+                                  f'{radius + self.margin} contains the robot base')
+        if not errors:
+            a = self.robot.a
+            for name, x in (('start', x0), ('goal', xg)):
+                if a + x[2] <= 0.0:
+                    errors.append(f'{name} arm length a + q2 = {a + x[2]:.6g} m must be > 0')
+            if not errors and len(circles):
+                for name, x in (('start', x0), ('goal', xg)):
+                    gaps = arm_clearance(x[None, :], a, self.circles())[0]
+                    for k in np.flatnonzero(gaps < 0.0):
+                        errors.append(f'{name} state puts the arm inside obstacle {k} '
+                                      f'(inflated by the margin): clearance {gaps[k]:.6g} m')
+        if errors:
+            raise ProblemError('; '.join(errors))
+
+
+@dataclass(frozen=True)
+class PaperOptions:
+    """Constants of the section-3 heuristic (defaults: the paper's section 4 values)."""
+
+    k_b: float = 600.0        # K_B, eq. (7)
+    k_v: float = 0.01         # K_V; J2 uses K_V-hat = tau0 K_V (section 4, constant tau0)
+    k_p: float = 1000.0       # K_p, eq. (42)
+    eta: float = 1000.0       # learning rate, eq. (32)
+    d_tau: float = 1e-5       # [s] decrement of tau, eq. (34)
+    j_eps: float = 0.01       # J_eps, eq. (34)
+    obstacle_gradient: str = 'shortcut'   # 'shortcut' (eq. 46) or 'exact' (eqs. 44-45)
+
+    def grad_mode(self):
+        """Kernel id of the obstacle-gradient variant."""
+        return GRAD_SHORTCUT if self.obstacle_gradient == 'shortcut' else GRAD_EXACT
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How to solve: mode, iteration and time limits, progress period."""
+
+    mode: str = 'fast'
+    max_iterations: int = 30000
+    timeout: Optional[float] = None      # [s] wall clock; None = no limit
+    progress_period: float = 0.1         # [s] between progress callbacks
+    paper: PaperOptions = field(default_factory=PaperOptions)
+
+    def validate(self):
+        """Raise ProblemError for bad option values."""
+        errors = []
+        if self.mode not in MODES:
+            errors.append(f'mode must be one of {MODES}, got {self.mode!r}')
+        if not isinstance(self.max_iterations, (int, np.integer)) or isinstance(
+                self.max_iterations, bool) or self.max_iterations < 1:
+            errors.append(f'max_iterations must be an integer >= 1, got {self.max_iterations!r}')
+        if self.timeout is not None and (not _finite_number(self.timeout) or self.timeout <= 0):
+            errors.append(f'timeout must be a positive number of seconds, got {self.timeout!r}')
+        if not _finite_number(self.progress_period) or self.progress_period <= 0:
+            errors.append(f'progress_period must be > 0, got {self.progress_period!r}')
+        po = self.paper
+        for name in ('k_b', 'k_v', 'k_p', 'eta', 'd_tau', 'j_eps'):
+            value = getattr(po, name)
+            if not _finite_number(value) or value <= 0.0:
+                errors.append(f'paper.{name} must be a finite positive number, got {value!r}')
+        if po.obstacle_gradient not in ('shortcut', 'exact'):
+            errors.append("paper.obstacle_gradient must be 'shortcut' or 'exact', "
+                          f'got {po.obstacle_gradient!r}')
+        if errors:
+            raise ProblemError('; '.join(errors))
+
+
+def measure_violations(problem, controls, final_time):
+    """Re-integrate controls over final_time and measure bounds, terminal error, clearance."""
+    controls = np.ascontiguousarray(controls, dtype=float)
+    n = controls.shape[0]
+    states = np.empty((n + 1, 4))
+    rollout(np.asarray(problem.x0, float), controls, final_time / n, problem.robot.packed(),
+            integrator_id(problem.integrator), states)
+    excess = np.max(np.abs(controls) - problem.robot.u_max[None, :])
+    circles = problem.circles()
+    clearance = (float(np.min(arm_clearance(states, problem.robot.a, circles)))
+                 if len(circles) else math.inf)
+    return states, Violations(
+        max_control_excess=max(float(excess), 0.0),
+        terminal_error=float(np.linalg.norm(states[-1] - np.asarray(problem.x_goal, float))),
+        min_clearance=clearance)
+
+
+def _finite_number(value):
+    return (isinstance(value, (int, float, np.floating, np.integer))
+            and not isinstance(value, bool) and math.isfinite(value))
+
+
+def _vector(name, value, size, errors):
+    try:
+        arr = np.array(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        errors.append(f'{name} must be {size} numbers')
+        return np.full(size, np.nan)
+    if arr.shape != (size,):
+        errors.append(f'{name} must have {size} entries [q1, dq1, q2, dq2], got {arr.shape[0]}')
+        return np.full(size, np.nan)
+    if not np.all(np.isfinite(arr)):
+        errors.append(f'{name} contains NaN or inf: {arr.tolist()}')
+    return arr

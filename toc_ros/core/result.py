@@ -1,0 +1,131 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Result types of the solvers: a status enum (like toppra/ruckig return codes) and dataclasses."""
+
+from dataclasses import dataclass, field
+import enum
+import math
+from typing import Optional
+
+import numpy as np
+
+# Feasibility tolerances of a SOLVED result (issue #3): controls within bounds exactly,
+# terminal state error (Euclidean norm) and clearance deficit at most 1e-6.
+TERMINAL_TOL = 1e-6
+CLEARANCE_TOL = 1e-6
+
+
+class Status(enum.Enum):
+    """Outcome of a solve; exit codes of toc-solve follow exit_code()."""
+
+    SOLVED = 'SOLVED'                          # feasible within the tolerances above
+    SOLVED_INACCURATE = 'SOLVED_INACCURATE'    # converged by its own rule, residual violations
+    MAX_ITERATIONS = 'MAX_ITERATIONS'
+    STALLED = 'STALLED'
+    CANCELED = 'CANCELED'
+    TIMEOUT = 'TIMEOUT'
+    INVALID_INPUT = 'INVALID_INPUT'
+
+    def exit_code(self):
+        """Process exit code: 0 solved, 1 inaccurate, 2 no convergence, 3 stopped, 4 bad input."""
+        return {Status.SOLVED: 0, Status.SOLVED_INACCURATE: 1, Status.MAX_ITERATIONS: 2,
+                Status.STALLED: 2, Status.CANCELED: 3, Status.TIMEOUT: 3,
+                Status.INVALID_INPUT: 4}[self]
+
+
+@dataclass
+class Violations:
+    """Constraint violations measured on a returned trajectory."""
+
+    max_control_excess: float = math.inf   # max(|u| - u_max, 0) over nodes and joints
+    terminal_error: float = math.inf       # |x(N) - x_goal| (Euclidean)
+    min_clearance: float = math.inf        # min distance arm-to-inflated-circle [m] (<0: hit)
+
+    def feasible(self):
+        """True when within the SOLVED tolerances."""
+        return (self.max_control_excess <= 0.0 and self.terminal_error <= TERMINAL_TOL
+                and self.min_clearance >= -CLEARANCE_TOL)
+
+    def as_dict(self):
+        """Plain-float dict (JSON)."""
+        return {'max_control_excess': float(self.max_control_excess),
+                'terminal_error': float(self.terminal_error),
+                'min_clearance': float(self.min_clearance)}
+
+
+@dataclass
+class Progress:
+    """What a solver reports while it runs (progress callback argument)."""
+
+    iteration: int
+    t_f: float
+    cost: float
+    best_feasible_t_f: float      # nan until a candidate meets the mode's acceptance rule
+    elapsed_s: float
+    phase: str = ''
+    violations: Optional[Violations] = None
+
+
+@dataclass
+class SolveResult:
+    """Outcome of one solve; arrays in SI units and radians."""
+
+    status: Status
+    message: str
+    mode: str = ''
+    integrator: str = ''
+    n_intervals: int = 0
+    final_time: float = math.nan
+    time_grid: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    states: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    controls: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    iterations: int = 0
+    wall_time_s: float = 0.0
+    history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # iter, t_f, J
+    violations: Violations = field(default_factory=Violations)
+
+    @property
+    def success(self):
+        """True for Status.SOLVED."""
+        return self.status is Status.SOLVED
+
+    @property
+    def has_trajectory(self):
+        """True when states/controls hold a trajectory (best so far for stopped solves)."""
+        return self.controls.shape[0] > 0
+
+    def to_dict(self):
+        """JSON-ready dict (the toc-solve --json contract)."""
+        return {
+            'status': self.status.value,
+            'message': self.message,
+            'mode': self.mode,
+            'final_time': _num(self.final_time),
+            'integrator': self.integrator,
+            'N': int(self.n_intervals),
+            'iterations': int(self.iterations),
+            'wall_time_s': float(self.wall_time_s),
+            'time_grid': self.time_grid.tolist(),
+            'states': self.states.tolist(),
+            'controls': self.controls.tolist(),
+            'violations': {k: _num(v) for k, v in self.violations.as_dict().items()},
+            'history': self.history.tolist(),
+        }
+
+
+def _num(value):
+    """JSON has no inf/nan: map them to None."""
+    value = float(value)
+    return value if math.isfinite(value) else None

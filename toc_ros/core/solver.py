@@ -1,0 +1,259 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Solver driver: validation, paper/fast mode, progress, cancel, timeout, result assembly.
+
+solve() runs in the caller's thread in chunks, calls progress at least every
+options.progress_period seconds and checks cancel (a threading.Event or any object with
+is_set()) and the wall-clock timeout between chunks (well under 100 ms apart), returning the
+best solution found so far with status CANCELED or TIMEOUT.
+"""
+
+import math
+import time
+
+import numpy as np
+
+from .fast_solver import FastRun, Stop
+from .integrators import integrator_id
+from .paper_solver import PaperRun
+from .problem import measure_violations, Problem, ProblemError, SolverOptions
+from .result import Progress, SolveResult, Status
+
+# Fast mode: ALM stopping tolerances (tighter than the SOLVED tolerances of result.py, so the
+# re-integrated trajectory passes them with margin), and the coarse level of the mesh ladder.
+ALM_TOL = 1e-9
+COARSE_INTERVALS = 100
+
+
+class _Clock:
+    """Deadline, cancel flag and progress throttling shared by both modes."""
+
+    def __init__(self, options, progress, cancel):
+        self.start = time.monotonic()
+        self.deadline = None if options.timeout is None else self.start + options.timeout
+        self.progress = progress
+        self.cancel = cancel
+        self.period = options.progress_period
+        self.last_report = -math.inf
+
+    def elapsed(self):
+        return time.monotonic() - self.start
+
+    def stop_reason(self):
+        if self.cancel is not None and self.cancel.is_set():
+            return Status.CANCELED
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            return Status.TIMEOUT
+        return None
+
+    def report(self, make_progress, force=False):
+        now = time.monotonic()
+        if self.progress is not None and (force or now - self.last_report >= self.period):
+            self.last_report = now
+            self.progress(make_progress())
+
+
+def solve(problem, options=None, progress=None, cancel=None):
+    """Solve a minimum-time problem; never raises for bad input (status INVALID_INPUT)."""
+    options = options or SolverOptions()
+    clock = _Clock(options, progress, cancel)
+    try:
+        if not isinstance(problem, Problem):
+            raise ProblemError('problem must be a toc_ros.core.Problem')
+        problem.validate()
+        options.validate()
+    except ProblemError as exc:
+        return SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode=options.mode,
+                           integrator=str(getattr(problem, 'integrator', '')))
+    method = integrator_id(problem.integrator)
+    if options.mode == 'paper':
+        result = _solve_paper(problem, options, method, clock)
+    else:
+        result = _solve_fast(problem, options, method, clock)
+    result.mode = options.mode
+    result.integrator = problem.integrator
+    result.n_intervals = problem.n_intervals
+    result.wall_time_s = clock.elapsed()
+    if result.has_trajectory:
+        result.time_grid = np.linspace(0.0, result.final_time, problem.n_intervals + 1)
+    clock.report(lambda: Progress(result.iterations, result.final_time, math.nan,
+                                  result.final_time if result.success else math.nan,
+                                  result.wall_time_s, 'done', result.violations), force=True)
+    return result
+
+
+def _finish(problem, controls, final_time, iterations, history, status, message):
+    states, violations = measure_violations(problem, controls, final_time)
+    return SolveResult(status=status, message=message, final_time=float(final_time),
+                       states=states, controls=np.array(controls, dtype=float),
+                       iterations=iterations, history=history, violations=violations)
+
+
+def _solve_paper(problem, options, method, clock):
+    run = PaperRun(problem, options, method)
+    chunk = 1
+    stopped = None
+    while run.done < options.max_iterations:
+        stopped = clock.stop_reason()
+        if stopped is not None:
+            break
+        n_iter = min(chunk, options.max_iterations - run.done)
+        t0 = time.monotonic()
+        run.advance(n_iter)
+        per_iter = (time.monotonic() - t0) / n_iter
+        # Chunks of ~25 ms keep progress, cancel and timeout responsive.
+        chunk = max(1, min(5000, int(0.025 / max(per_iter, 1e-7))))
+        clock.report(lambda: Progress(run.done, run.t_f, run.last_j, run.best_t_f,
+                                      clock.elapsed(), 'paper'))
+    accepted = run.best_box[2] > 0
+    controls = run.best_controls if accepted else run.controls
+    final_time = run.best_t_f if accepted else run.t_f
+    history = run.history()
+    if stopped is not None:
+        return _finish(problem, controls, final_time, run.done, history, stopped,
+                       f'{stopped.value.lower()} after {run.done} iterations')
+    if not accepted:
+        return _finish(problem, controls, final_time, run.done, history,
+                       Status.MAX_ITERATIONS,
+                       f'J_T never fell below J_eps = {options.paper.j_eps} in '
+                       f'{run.done} iterations (t_f0 = {problem.t_f0} s may be below t_min)')
+    result = _finish(problem, controls, final_time, run.done, history, Status.SOLVED,
+                     '')
+    v = result.violations
+    if v.feasible():
+        result.message = f't_min = {final_time:.6f} s, feasible within tolerances'
+    else:
+        result.status = Status.SOLVED_INACCURATE
+        result.message = (f'paper heuristic t_min = {final_time:.6f} s with residual '
+                          f'violations: control excess {v.max_control_excess:.3g}, terminal '
+                          f'error {v.terminal_error:.3g}, clearance {v.min_clearance:.3g} m')
+    return result
+
+
+class _FastDriver:
+    """Augmented-Lagrangian outer loop over a coarse-to-fine ladder of horizons."""
+
+    def __init__(self, problem, options, method, clock):
+        self.problem = problem
+        self.options = options
+        self.method = method
+        self.clock = clock
+        self.iterations = 0
+        self.history = []
+        self.best_t_f = math.nan
+        self.run = None
+        self.last_value = math.nan
+
+    def _callback(self, _xk):
+        self.iterations += 1
+        run = self.run
+        reason = self.clock.stop_reason()
+        if reason is not None:
+            raise Stop(reason)
+        if self.iterations >= self.options.max_iterations:
+            raise Stop(Status.MAX_ITERATIONS)
+        self.clock.report(lambda: Progress(self.iterations, float(run.z[-1]),
+                                           self.last_value, self.best_t_f,
+                                           self.clock.elapsed(), f'fast N={run.n}'))
+
+    def _alm(self, run, final):
+        self.run = run
+        prev = math.inf
+        run.value_gradient(run.z)
+        for _ in range(60):
+            run.solve_subproblem(2000, self._callback)
+            term, deficit = run.violation()
+            viol = max(term, deficit)
+            self.last_value = float(run.z[-1])
+            self.history.append((self.iterations, float(run.z[-1]), viol))
+            if viol < ALM_TOL:
+                if final:
+                    self.best_t_f = float(run.z[-1])
+                return True
+            run.update_multipliers()
+            if viol > 0.25 * prev:
+                run.rho = min(run.rho * 10.0, 1e12)
+            prev = viol
+        return False
+
+    def solve(self):
+        problem = self.problem
+        n = problem.n_intervals
+        fine = FastRun(problem, self.method)
+        try:
+            if n > 2 * COARSE_INTERVALS:
+                coarse_problem = _with_intervals(problem, COARSE_INTERVALS)
+                coarse = FastRun(coarse_problem, self.method)
+                self._alm(coarse, final=False)
+                _prolong(coarse, fine)
+            converged = self._alm(fine, final=True)
+        except Stop as stop:
+            reason = stop.args[0]
+            return self._result(fine if self.run is fine else None, reason,
+                                f'{reason.value.lower()} after {self.iterations} iterations')
+        if not converged:
+            return self._result(fine, Status.STALLED,
+                                'augmented Lagrangian did not reach the tolerances')
+        return self._result(fine, Status.SOLVED, '')
+
+    def _result(self, run, status, message):
+        history = np.array(self.history, dtype=float).reshape(-1, 3)
+        if run is None:       # stopped on the coarse level: no fine trajectory yet
+            return SolveResult(status=status, message=message, iterations=self.iterations,
+                               history=history)
+        result = _finish(self.problem, run.controls(), float(run.z[-1]), self.iterations,
+                         history, status, message)
+        if status is Status.SOLVED:
+            if result.violations.feasible():
+                result.message = f't_min = {result.final_time:.6f} s'
+            else:
+                result.status = Status.STALLED
+                result.message = ('converged, but the re-integrated trajectory misses the '
+                                  'tolerances')
+        return result
+
+
+def _solve_fast(problem, options, method, clock):
+    return _FastDriver(problem, options, method, clock).solve()
+
+
+def _with_intervals(problem, n):
+    from dataclasses import replace
+    return replace(problem, n_intervals=n)
+
+
+def _prolong(coarse, fine):
+    """Warm start the fine level from the coarse one (piecewise-constant in time)."""
+    idx = (np.arange(fine.n) * coarse.n) // fine.n
+    v = coarse.z[:-1].reshape(coarse.n, 2)
+    fine.z[:-1] = v[idx].ravel()
+    fine.z[-1] = coarse.z[-1]
+    fine.lam[:] = coarse.lam
+    k = coarse.circles.shape[0]
+    if k:
+        mu = coarse.mu.reshape(coarse.n, k)
+        fine.mu[:] = (mu[idx] * coarse.n / fine.n).ravel()
+    fine.rho = 100.0
+
+
+def warm_up():
+    """Compile (or load from cache) every numba kernel with a tiny problem."""
+    tiny = Problem(n_intervals=20)
+    for integrator in ('euler', 'rk4'):
+        p = _with_intervals(tiny, 20)
+        from dataclasses import replace
+        p = replace(p, integrator=integrator)
+        solve(p, SolverOptions(mode='paper', max_iterations=2))
+        solve(p, SolverOptions(mode='fast', max_iterations=3))
