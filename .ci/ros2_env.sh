@@ -81,7 +81,14 @@ fi
 # --- build ---------------------------------------------------------------------------
 T0=$(date +%s)
 say "building ROS 2 Jazzy env in $DIR with $PY (about 2 min)"
-rm -rf "$DIR"
+# Clear a half-built env from an interrupted run, but never a directory that is something else.
+if [ -d "$DIR" ] && [ -n "$(ls -A "$DIR")" ]; then
+  if [ ! -d "$DIR/venv" ] && [ ! -f "$DIR/sources.txt" ]; then
+    say "$DIR exists and is not a ROS 2 env built by this script: refusing to overwrite"
+    exit 1
+  fi
+  rm -rf "$DIR"
+fi
 PYTHON=$PY bash "$KIT/make_env.sh" "$DIR"
 say "installing toc_ros runtime deps into the env: ${EXTRA_DEPS[*]}"
 "$DIR/venv/bin/python" -m pip install -q --disable-pip-version-check \

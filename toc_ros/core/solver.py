@@ -35,6 +35,7 @@ from .result import Progress, SolveResult, Status
 # re-integrated trajectory passes them with margin), and the coarse level of the mesh ladder.
 ALM_TOL = 1e-9
 COARSE_INTERVALS = 100
+PROLONG_RHO = 100.0
 
 
 class _Clock:
@@ -245,7 +246,7 @@ def _prolong(coarse, fine):
     if k:
         mu = coarse.mu.reshape(coarse.n, k)
         fine.mu[:] = (mu[idx] * coarse.n / fine.n).ravel()
-    fine.rho = 100.0
+    fine.rho = PROLONG_RHO
 
 
 def warm_up():

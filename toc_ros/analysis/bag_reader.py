@@ -1,0 +1,456 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Read rosbag2 recordings (bag directory or bare ``.mcap``) with the ``mcap`` library.
+
+A complete file is read through its summary (lazily, in log-time order). A file without a
+valid footer and summary (recorder killed, copy cut short) is scanned record by record up to
+the point where it breaks, including the complete messages of a cut-off last chunk, with a
+warning; the rest is still read. Channels that are not ROS 2 CDR messages (e.g. JSON) or whose
+type is not installed are listed with the reason and skipped by ``decode``; fatal problems
+(no such path, not an MCAP file) raise RecordingError.
+"""
+
+import functools
+import importlib
+import io
+import os
+import re
+import struct
+from typing import Callable, Dict, Iterable, Iterator, List, NamedTuple, Optional, Tuple
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import get_chunk_data_stream
+import yaml
+
+MAGIC = b'\x89MCAP0\r\n'
+_RECORD_HEAD = struct.Struct('<BQ')
+# start, end, uncompressed size, crc: the fixed head of a chunk record before its compression
+_CHUNK_HEAD = struct.Struct('<QQQI')
+_TYPE_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*/(msg|srv|action)/[A-Za-z][A-Za-z0-9_]*$')
+ROS2_SCHEMA_ENCODINGS = ('ros2msg', 'ros2idl')
+# Errors the mcap library and the decompressors raise on damaged bytes.
+_DAMAGE = (McapError, struct.error, ValueError, EOFError, UnicodeDecodeError, IndexError,
+           KeyError, RuntimeError)
+
+
+class RecordingError(Exception):
+    """The recording cannot be read at all; the message says why."""
+
+
+class TopicInfo(NamedTuple):
+    """One recorded topic: name, type and how its messages are encoded."""
+
+    name: str
+    type_name: str                 # 'pkg/msg/Type' ('' when the channel has no schema)
+    message_encoding: str          # 'cdr' for ROS 2
+    schema_encoding: str           # 'ros2msg' or 'ros2idl' for ROS 2
+    qos_profiles: Tuple[dict, ...]  # offered QoS of the recorded publishers (rosbag2 metadata)
+
+    @property
+    def problem(self) -> Optional[str]:
+        """Why messages of this topic cannot be decoded, or None when they can."""
+        if self.message_encoding != 'cdr':
+            return (f'message encoding {self.message_encoding!r} is not ROS 2 CDR '
+                    "(only 'cdr' channels are read)")
+        if not self.type_name:
+            return 'the channel has no schema, so its message type is unknown'
+        if self.schema_encoding not in ROS2_SCHEMA_ENCODINGS:
+            return (f'schema encoding {self.schema_encoding!r} is not a ROS 2 message '
+                    'definition (ros2msg or ros2idl)')
+        return message_class_problem(self.type_name)
+
+
+class RawMessage(NamedTuple):
+    """One recorded message: the CDR bytes as stored, with its times [ns]."""
+
+    topic: str
+    type_name: str
+    log_time_ns: int
+    publish_time_ns: int
+    data: bytes
+
+
+@functools.lru_cache(maxsize=None)
+def _import_message_class(type_name: str):
+    if not _TYPE_NAME.match(type_name):
+        return None, f'type name {type_name!r} is not of the form pkg/msg/Type'
+    package, namespace, name = type_name.split('/')
+    try:
+        cls = getattr(importlib.import_module(f'{package}.{namespace}'), name)
+    except (ImportError, AttributeError) as error:
+        return None, (f'message type {type_name} is not installed here ({error}); '
+                      'source the workspace that defines it')
+    return cls, None
+
+
+def message_class(type_name: str):
+    """Python class of a ROS 2 message type 'pkg/msg/Type' (LookupError if unavailable)."""
+    cls, problem = _import_message_class(type_name)
+    if cls is None:
+        raise LookupError(problem)
+    return cls
+
+
+def message_class_problem(type_name: str) -> Optional[str]:
+    """Why the class of type_name cannot be imported, or None."""
+    return _import_message_class(type_name)[1]
+
+
+def parse_qos_profiles(text: str) -> Tuple[dict, ...]:
+    """Parse the offered_qos_profiles YAML of a rosbag2 channel into dicts (empty if bad)."""
+    if not text:
+        return ()
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return ()
+    if not isinstance(data, list):
+        return ()
+    return tuple(p for p in data if isinstance(p, dict))
+
+
+def _topic_info(channel: Channel, schema: Optional[Schema]) -> TopicInfo:
+    return TopicInfo(
+        name=channel.topic, type_name=schema.name if schema is not None else '',
+        message_encoding=channel.message_encoding,
+        schema_encoding=schema.encoding if schema is not None else '',
+        qos_profiles=parse_qos_profiles(channel.metadata.get('offered_qos_profiles', '')))
+
+
+# -- locating the files ---------------------------------------------------------------------
+def _natural_key(name: str):
+    return [int(part) if part.isdigit() else part for part in re.split(r'(\d+)', name)]
+
+
+def mcap_files(path: str) -> List[str]:
+    """List the .mcap files of a bag directory (metadata.yaml order) or a bare .mcap file."""
+    path = os.path.abspath(os.path.expanduser(os.fspath(path)))
+    if not os.path.exists(path):
+        raise RecordingError(f'{path}: no such file or directory')
+    if os.path.isfile(path):
+        if os.path.basename(path) != 'metadata.yaml':
+            return [path]
+        path = os.path.dirname(path)
+    metadata_path = os.path.join(path, 'metadata.yaml')
+    if os.path.isfile(metadata_path):
+        files = _files_from_metadata(path, metadata_path)
+        if files:
+            return files
+    files = sorted((f for f in os.listdir(path) if f.endswith('.mcap')), key=_natural_key)
+    if not files:
+        raise RecordingError(f'{path}: no .mcap file in this directory (is it a bag?)')
+    return [os.path.join(path, f) for f in files]
+
+
+def _files_from_metadata(directory: str, metadata_path: str) -> List[str]:
+    try:
+        with open(metadata_path, encoding='utf-8') as stream:
+            info = (yaml.safe_load(stream) or {}).get('rosbag2_bagfile_information', {})
+    except (OSError, yaml.YAMLError, AttributeError):
+        return []  # fall back to the .mcap files present
+    if not isinstance(info, dict):
+        return []
+    storage = info.get('storage_identifier', 'mcap')
+    if storage != 'mcap':
+        raise RecordingError(
+            f'{directory}: storage {storage!r} is not supported (only mcap); convert it with '
+            '`ros2 bag convert`')
+    names = info.get('relative_file_paths') or []
+    files = [os.path.join(directory, str(n)) for n in names]
+    return [f for f in files if os.path.isfile(f)]
+
+
+# -- one file -------------------------------------------------------------------------------
+class _Scan:
+    """Record-by-record read of a whole MCAP file that stops where the file breaks."""
+
+    def __init__(self, data: bytes):
+        self.schemas: Dict[int, Schema] = {}
+        self.channels: Dict[int, Channel] = {}
+        self.messages: List[Message] = []
+        self.metadata: List[Metadata] = []
+        self.problem: Optional[str] = None
+        self.orphans = 0
+        self._read(data)
+
+    def _read(self, data: bytes):
+        size = len(data)
+        pos = len(MAGIC)
+        while True:
+            if size - pos < _RECORD_HEAD.size:
+                self.problem = (f'the file ends after {size} bytes without a footer '
+                                '(the recording was not closed or was cut short)')
+                return
+            opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+            body = pos + _RECORD_HEAD.size
+            if body + length > size:
+                salvaged = self._partial_chunk(data[body:]) if opcode == Opcode.CHUNK else 0
+                self.problem = (f'the file is cut off at byte {size} inside a record that '
+                                f'starts at byte {pos}'
+                                + (f' ({salvaged} message(s) of the last chunk recovered)'
+                                   if salvaged else ''))
+                return
+            if opcode == Opcode.FOOTER:
+                return
+            try:
+                self._record(opcode, data[body:body + length])
+            except _DAMAGE as error:
+                self.problem = f'damaged record at byte {pos}: {error or type(error).__name__}'
+                return
+            pos = body + length
+
+    def _record(self, opcode: int, body: bytes):
+        stream = ReadDataStream(io.BytesIO(body))
+        if opcode == Opcode.SCHEMA:
+            schema = Schema.read(stream)
+            self.schemas[schema.id] = schema
+        elif opcode == Opcode.CHANNEL:
+            channel = Channel.read(stream)
+            self.channels[channel.id] = channel
+        elif opcode == Opcode.MESSAGE:
+            self._message(Message.read(stream, len(body)))
+        elif opcode == Opcode.METADATA:
+            self.metadata.append(Metadata.read(stream))
+        elif opcode == Opcode.CHUNK:
+            inner, inner_size = get_chunk_data_stream(Chunk.read(stream))
+            self._inner_records(inner.read(inner_size), complete=True)
+
+    def _message(self, message: Message):
+        if message.channel_id in self.channels:
+            self.messages.append(message)
+        else:
+            self.orphans += 1
+
+    def _inner_records(self, data: bytes, complete: bool) -> int:
+        """Read the records of a chunk's content; a cut-off last one ends a partial chunk."""
+        pos = 0
+        count = 0
+        while pos < len(data):
+            if len(data) - pos < _RECORD_HEAD.size:
+                break
+            opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+            end = pos + _RECORD_HEAD.size + length
+            if end > len(data):
+                break
+            if opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+                self._record(opcode, data[pos + _RECORD_HEAD.size:end])
+                count += opcode == Opcode.MESSAGE
+            pos = end
+        if complete and pos != len(data):
+            raise McapError('chunk content ends inside a record')
+        return count
+
+    def _partial_chunk(self, body: bytes) -> int:
+        """Recover the complete messages at the start of a chunk the file cuts off."""
+        try:
+            pos = _CHUNK_HEAD.size
+            (name_length,) = struct.unpack_from('<I', body, pos)
+            compression = body[pos + 4:pos + 4 + name_length].decode()
+            pos += 4 + name_length + 8  # records length: the cut-off part is what there is
+            payload = body[pos:]
+            if compression == '':
+                content = payload
+            elif compression == 'zstd':
+                import zstandard
+                content = zstandard.ZstdDecompressor().decompressobj().decompress(payload)
+            elif compression == 'lz4':
+                import lz4.frame
+                content = lz4.frame.LZ4FrameDecompressor().decompress(payload)
+            else:
+                return 0
+            return self._inner_records(content, complete=False)
+        except Exception:  # noqa: B902 - any failure here only means nothing is salvaged
+            return 0
+
+
+class _McapFile:
+    """One .mcap file: topics known up front, messages in log-time order."""
+
+    def __init__(self, path: str, warn: Callable[[str], None]):
+        self.path = path
+        self._warn = warn
+        self._scan: Optional[_Scan] = None
+        self._reader: Optional[SeekingReader] = None
+        self._stream = None
+        try:
+            with open(path, 'rb') as stream:
+                head = stream.read(len(MAGIC))
+                stream.seek(0, io.SEEK_END)
+                size = stream.tell()
+                stream.seek(max(0, size - len(MAGIC)))
+                tail = stream.read(len(MAGIC))
+        except OSError as error:
+            raise RecordingError(f'{path}: cannot read: {error.strerror or error}') from error
+        if head != MAGIC:
+            raise RecordingError(
+                f'{path}: not an MCAP file (it starts with {head[:8]!r}, not the MCAP magic); '
+                'toc_ros reads rosbag2 recordings in MCAP storage only')
+        summary = self._open_summary() if tail == MAGIC and size > 2 * len(MAGIC) else None
+        if summary is None:
+            with open(path, 'rb') as stream:
+                self._scan = _Scan(stream.read())
+            if self._scan.problem:
+                warn(f'{path}: {self._scan.problem}; read {len(self._scan.messages)} '
+                     'messages up to that point')
+            if self._scan.orphans:
+                warn(f'{path}: {self._scan.orphans} messages refer to unknown channels '
+                     'and were skipped')
+            self._scan.messages.sort(key=lambda m: m.log_time)
+            self.schemas, self.channels = self._scan.schemas, self._scan.channels
+        else:
+            self.schemas, self.channels = summary.schemas, summary.channels
+
+    def _open_summary(self):
+        try:
+            self._stream = open(self.path, 'rb')
+            self._reader = SeekingReader(self._stream)
+            summary = self._reader.get_summary()
+        except _DAMAGE:
+            summary = None
+        if summary is None:
+            self.close()
+        return summary
+
+    def topics(self) -> List[TopicInfo]:
+        """Every channel of the file as a TopicInfo."""
+        return [_topic_info(c, self.schemas.get(c.schema_id)) for c in self.channels.values()]
+
+    def messages(self, topics: Optional[Iterable[str]] = None) -> Iterator[RawMessage]:
+        """Messages (optionally of some topics only) in log-time order."""
+        wanted = None if topics is None else set(topics)
+        if self._scan is not None:
+            source = ((self.channels[m.channel_id], m) for m in self._scan.messages)
+        else:
+            source = self._indexed(wanted)
+        for channel, message in source:
+            if wanted is not None and channel.topic not in wanted:
+                continue
+            schema = self.schemas.get(channel.schema_id)
+            yield RawMessage(channel.topic, schema.name if schema is not None else '',
+                             message.log_time, message.publish_time, bytes(message.data))
+
+    def _indexed(self, wanted):
+        try:
+            for _schema, channel, message in self._reader.iter_messages(
+                    topics=None if wanted is None else list(wanted)):
+                yield channel, message
+        except _DAMAGE as error:
+            self._warn(f'{self.path}: damaged chunk, stopped reading this file there: '
+                       f'{error or type(error).__name__}')
+
+    def close(self):
+        """Release the file handle."""
+        if self._stream is not None:
+            self._stream.close()
+        self._stream = None
+        self._reader = None
+
+
+class Recording:
+    """
+    A recording: a rosbag2 bag directory (one or more .mcap files) or a bare .mcap file.
+
+    ``warnings`` collects every recoverable problem (cut-off file, foreign channels, messages
+    that do not decode), also passed to ``warn`` as they occur.
+    """
+
+    def __init__(self, path: str, warn: Optional[Callable[[str], None]] = None):
+        self.path = os.path.abspath(os.fspath(path))
+        self.warnings: List[str] = []
+        self._warn_callback = warn
+        self._files: List[_McapFile] = []
+        try:
+            for file_path in mcap_files(self.path):
+                self._files.append(_McapFile(file_path, self._warn))
+        except RecordingError:
+            self.close()
+            raise
+        self.topics: Dict[str, TopicInfo] = {}
+        for mcap_file in self._files:
+            for info in mcap_file.topics():
+                known = self.topics.setdefault(info.name, info)
+                if known.type_name != info.type_name:
+                    self._warn(f'topic {info.name} has several types ({known.type_name}, '
+                               f'{info.type_name}); only {known.type_name} is read')
+        self._reported: set = set()
+
+    def _warn(self, text: str):
+        self.warnings.append(text)
+        if self._warn_callback is not None:
+            self._warn_callback(text)
+
+    @property
+    def files(self) -> List[str]:
+        """Paths of the .mcap files, in playback order."""
+        return [f.path for f in self._files]
+
+    def readable_topics(self) -> Dict[str, TopicInfo]:
+        """Topics whose messages decode here; warns once about each of the others."""
+        readable = {}
+        for name, info in self.topics.items():
+            problem = info.problem
+            if problem is None:
+                readable[name] = info
+            elif name not in self._reported:
+                self._reported.add(name)
+                self._warn(f'topic {name} [{info.type_name or "?"}] skipped: {problem}')
+        return readable
+
+    def messages(self, topics: Optional[Iterable[str]] = None) -> Iterator[RawMessage]:
+        """Raw messages of all files (optionally some topics only), file by file."""
+        topics = None if topics is None else list(topics)
+        for mcap_file in self._files:
+            for raw in mcap_file.messages(topics):
+                if raw.type_name == self.topics[raw.topic].type_name:
+                    yield raw
+
+    def decode(self, raw: RawMessage):
+        """Deserialise one raw message (LookupError for unknown types, others on bad CDR)."""
+        from rclpy.serialization import deserialize_message
+        return deserialize_message(raw.data, message_class(raw.type_name))
+
+    def decoded(self, topics: Optional[Iterable[str]] = None
+                ) -> Iterator[Tuple[RawMessage, object]]:
+        """(raw, message) pairs of the readable topics; undecodable messages are warned about."""
+        readable = self.readable_topics()
+        wanted = [t for t in (readable if topics is None else topics) if t in readable]
+        failures: Dict[str, int] = {}
+        for raw in self.messages(wanted):
+            try:
+                yield raw, self.decode(raw)
+            except Exception as error:  # noqa: B902 - rclpy raises plain exceptions on bad CDR
+                if raw.topic not in failures:
+                    self._warn(f'a message on {raw.topic} does not decode as {raw.type_name}: '
+                               f'{error}')
+                failures[raw.topic] = failures.get(raw.topic, 0) + 1
+        for topic, count in failures.items():
+            if count > 1:
+                self._warn(f'{count} messages on {topic} did not decode and were skipped')
+
+    def close(self):
+        """Release the file handles."""
+        for mcap_file in self._files:
+            mcap_file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,244 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+toc-solve: solve one minimum-time problem from the command line (no ROS needed).
+
+The scenario comes from a ROS 2 parameter file (default: the paper's, config/toc_ros.yaml);
+command-line options override it.  Exit codes follow Status.exit_code(): 0 solved,
+1 solved inaccurately, 2 no convergence (or bad arguments, from argparse), 3 canceled/timed
+out, 4 invalid problem, 5 the --json file could not be written.
+"""
+
+import argparse
+import json
+import math
+import os
+import signal
+import sys
+import threading
+
+from toc_ros.config import (default_config_path, load_parameters, options_from_parameters,
+                            problem_from_parameters)
+from toc_ros.core import ProblemError, solve, SolveResult, Status
+
+EXIT_WRITE_ERROR = 5
+BAR_WIDTH = 24
+
+
+def build_parser():
+    """Argument parser of toc-solve."""
+    parser = argparse.ArgumentParser(
+        prog='toc-solve',
+        description='Minimum-time trajectory of the 2-DOF cylindrical robot around circular '
+                    'obstacles (BPTT). SI units, radians.',
+        epilog='Exit codes: 0 solved, 1 solved inaccurately (paper mode), 2 not converged or '
+               'bad arguments, 3 canceled (Ctrl-C) or timed out, 4 invalid problem, '
+               '5 --json not writable.')
+    parser.add_argument('--config', metavar='FILE.yaml', default=None,
+                        help='ROS 2 parameter file with the scenario (default: the paper '
+                             "scenario, the package's config/toc_ros.yaml)")
+    parser.add_argument('--mode', choices=('paper', 'fast'),
+                        help='fast: feasible minimum time (default); paper: section-3 heuristic')
+    parser.add_argument('--integrator', choices=('euler', 'rk4'))
+    parser.add_argument('--N', type=int, metavar='N', help='number of intervals')
+    parser.add_argument('--start', type=float, nargs='+', metavar='X',
+                        help='start Q1 Q2 [DQ1 DQ2] [rad, m, rad/s, m/s]; velocities 0 if omitted')
+    parser.add_argument('--goal', type=float, nargs='+', metavar='X',
+                        help='goal Q1 Q2 [DQ1 DQ2]; velocities 0 if omitted')
+    obstacles = parser.add_mutually_exclusive_group()
+    obstacles.add_argument('--obstacle', type=float, nargs=3, action='append',
+                           metavar=('X', 'Y', 'RADIUS'),
+                           help="circle [m]; repeat for several (replaces the config's)")
+    obstacles.add_argument('--no-obstacles', action='store_true', help='solve without obstacles')
+    parser.add_argument('--margin', type=float, metavar='DR',
+                        help='clearance margin added to every radius [m]')
+    parser.add_argument('--max-iterations', type=int, metavar='M')
+    parser.add_argument('--timeout', type=float, metavar='S',
+                        help='wall-clock limit [s]; 0 = none (config default: 60)')
+    parser.add_argument('--variant', choices=('eq37', 'eq36'),
+                        help='sign of the A2/(2 A3) dq1^2 term: eq. (37) as printed or eq. (36)')
+    parser.add_argument('--paper-gradient', choices=('shortcut', 'exact'),
+                        help='paper mode obstacle gradient: eq. (46) shortcut or exact')
+    parser.add_argument('--json', metavar='PATH', help='write the result as JSON to PATH')
+    parser.add_argument('--quiet', action='store_true',
+                        help='no progress line and no summary (errors still go to stderr)')
+    return parser
+
+
+def _joint_state(parser, name, values):
+    """[Q1, Q2] or [Q1, Q2, DQ1, DQ2] -> state [q1, dq1, q2, dq2]."""
+    if values is None:
+        return None
+    if len(values) == 2:
+        values = list(values) + [0.0, 0.0]
+    elif len(values) != 4:
+        parser.error(f'--{name} takes Q1 Q2 [DQ1 DQ2] (2 or 4 numbers), got {len(values)}')
+    q1, q2, dq1, dq2 = values
+    return (q1, dq1, q2, dq2)
+
+
+def _parse(argv):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    args.x0 = _joint_state(parser, 'start', args.start)
+    args.x_goal = _joint_state(parser, 'goal', args.goal)
+    if args.timeout is not None and not (math.isfinite(args.timeout) and args.timeout >= 0.0):
+        parser.error(f'--timeout must be >= 0 seconds, got {args.timeout}')
+    if args.json:
+        folder = os.path.dirname(os.path.abspath(args.json))
+        if not os.path.isdir(folder):
+            parser.error(f'--json: directory {folder} does not exist')
+    return args
+
+
+def build_problem(args):
+    """
+    Build the Problem and SolverOptions from the parameter file plus the command-line overrides.
+
+    Raises ProblemError when the file or a value in it is unusable.
+    """
+    params = load_parameters(args.config or default_config_path())
+    overrides = {'solver.mode': args.mode, 'solver.integrator': args.integrator,
+                 'solver.N': args.N, 'solver.max_iterations': args.max_iterations,
+                 'solver.timeout': args.timeout, 'obstacles.margin': args.margin,
+                 'robot.model_variant': args.variant,
+                 'solver.paper.obstacle_gradient': args.paper_gradient}
+    params.update({k: v for k, v in overrides.items() if v is not None})
+    obstacles = None
+    if args.no_obstacles:
+        obstacles = ()
+    elif args.obstacle:
+        obstacles = tuple(tuple(row) for row in args.obstacle)
+    try:
+        problem = problem_from_parameters(params, x0=args.x0, x_goal=args.x_goal,
+                                          obstacles=obstacles)
+        options = options_from_parameters(params)
+    except (TypeError, ValueError, KeyError) as exc:
+        # ProblemError is a ValueError; float('abc') and the like from a bad file land here too.
+        raise ProblemError(str(exc) if isinstance(exc, ProblemError)
+                           else f'bad value in the parameter file: {exc}')
+    return problem, options
+
+
+class ProgressLine:
+    """A carriage-return-updated status line on stderr (used only on a terminal)."""
+
+    def __init__(self, stream, max_iterations, mode):
+        self.stream = stream
+        self.max_iterations = max_iterations
+        self.mode = mode
+        self.width = 0
+
+    def __call__(self, progress):
+        """Progress callback of toc_ros.core.solve."""
+        if progress.phase == 'done':
+            return
+        if self.mode == 'paper':
+            frac = min(1.0, progress.iteration / max(1, self.max_iterations))
+            filled = int(round(frac * BAR_WIDTH))
+            head = f'[{"#" * filled}{"-" * (BAR_WIDTH - filled)}] {100 * frac:3.0f}%'
+        else:
+            head = f'{progress.phase or "fast"}'
+        line = (f'{head}  it {progress.iteration}  t_f {progress.t_f:.6f} s  '
+                f'cost {progress.cost:.3g}  {progress.elapsed_s:.1f} s')
+        self.stream.write('\r' + line.ljust(self.width))
+        self.stream.flush()
+        self.width = len(line)
+
+    def clear(self):
+        """Erase the line again."""
+        if self.width:
+            self.stream.write('\r' + ' ' * self.width + '\r')
+            self.stream.flush()
+            self.width = 0
+
+
+def summary(result, problem):
+    """Short human-readable summary of a result."""
+    v = result.violations
+    lines = [f'status      {result.status.value}',
+             f'message     {result.message}',
+             f'mode        {result.mode}, {problem.integrator}, N = {problem.n_intervals}, '
+             f'{len(problem.obstacles)} obstacle(s), margin {problem.margin} m',
+             f't_min       {result.final_time:.6f} s',
+             f'iterations  {result.iterations}',
+             f'wall time   {result.wall_time_s:.3f} s']
+    if result.has_trajectory:
+        lines.append(f'violations  control excess {v.max_control_excess:.3g}, terminal error '
+                     f'{v.terminal_error:.3g}, min clearance {v.min_clearance:.3g} m')
+    return '\n'.join(lines)
+
+
+def write_json(path, result):
+    """Write result.to_dict() to path (strict JSON: no NaN/inf)."""
+    tmp = f'{path}.tmp'
+    with open(tmp, 'w') as stream:
+        json.dump(result.to_dict(), stream, allow_nan=False)
+        stream.write('\n')
+    os.replace(tmp, path)
+
+
+def _solve_interruptible(problem, options, progress):
+    """Run solve() in this thread; the first Ctrl-C cancels it, returning the best so far."""
+    cancel = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        return solve(problem, options, progress=progress, cancel=cancel)
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is None:      # installed outside Python: restore the default instead
+        previous = signal.default_int_handler
+
+    def on_sigint(_signum, _frame):
+        cancel.set()
+        # A second Ctrl-C falls back to the previous behaviour (KeyboardInterrupt).
+        signal.signal(signal.SIGINT, previous)
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        return solve(problem, options, progress=progress, cancel=cancel)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def main(argv=None):
+    """Entry point of toc-solve; returns the process exit code."""
+    args = _parse(argv)
+    try:
+        problem, options = build_problem(args)
+    except ProblemError as exc:
+        result = SolveResult(status=Status.INVALID_INPUT, message=str(exc),
+                             mode=args.mode or '', integrator=args.integrator or '')
+        problem = None
+    else:
+        show_progress = not args.quiet and sys.stderr.isatty()
+        line = ProgressLine(sys.stderr, options.max_iterations, options.mode)
+        try:
+            result = _solve_interruptible(problem, options, line if show_progress else None)
+        finally:
+            line.clear()
+    if result.status is Status.INVALID_INPUT:
+        print(f'toc-solve: invalid problem: {result.message}', file=sys.stderr)
+    elif not args.quiet:
+        print(summary(result, problem))
+    if args.json:
+        try:
+            write_json(args.json, result)
+        except (OSError, ValueError) as exc:
+            print(f'toc-solve: cannot write {args.json}: {exc}', file=sys.stderr)
+            return EXIT_WRITE_ERROR
+    return result.status.exit_code()
+
+
+if __name__ == '__main__':
+    sys.exit(main())
