@@ -92,4 +92,6 @@ def generate_launch_description():
         condition=IfCondition(AndSubstitution(record, EqualsSubstitution(output, ''))),
         **common)
 
-    return LaunchDescription(arguments + [solver, plant, recorder_to_output, recorder_default])
+    # Recorder first: it then records from the start, and a bad `record`/`use_sim_time` value
+    # fails launch before any process was started (none is left running).
+    return LaunchDescription(arguments + [recorder_to_output, recorder_default, solver, plant])

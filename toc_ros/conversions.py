@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The one place where ROS messages and the core's numpy types are converted into each other.
+"""
+The one place where ROS messages and the core's numpy types are converted into each other.
 
 Input conversions validate and raise ConversionError (a ValueError) with a message meant for
 the user; output conversions trust the core's results.  SI units, radians, REP-103 frames:
@@ -28,11 +29,10 @@ from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from std_msgs.msg import ColorRGBA
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
-from visualization_msgs.msg import Marker, MarkerArray
-
 from toc_ros.core import Status
 from toc_ros.core.model import dynamics
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from visualization_msgs.msg import Marker, MarkerArray
 
 # Goals closer than this to the base axis have no defined rotation q1 = atan2(y, x).
 MIN_AXIS_DISTANCE = 1e-6
@@ -89,7 +89,8 @@ def accelerations(states, controls, packed_params):
 
 
 def trajectory_msg(result, joint_names, robot, stamp):
-    """JointTrajectory of a solved result: all N+1 nodes at t_i = i tau.
+    """
+    Build the JointTrajectory of a solved result: all N+1 nodes at t_i = i tau.
 
     positions (q1, q2), velocities (dq1, dq2), accelerations from eq. (37), effort = u_i (the
     optimal controls, zero-order hold from t_i; the last point repeats u_{N-1}).
@@ -151,7 +152,8 @@ def _marker(frame_id, stamp, ns, marker_id, marker_type, rgba):
 
 
 def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_state=None):
-    """MarkerArray for RViz: DELETEALL, then obstacles, inflated circles, hand path, arm.
+    """
+    Build the MarkerArray for RViz: DELETEALL, then obstacles, inflated circles, hand path, arm.
 
     obstacles: rows (x, y, radius R'); the 'inflated' circles have radius R' + margin (what the
     planner keeps the arm out of).  a [m]: hand offset of the robot.  path_states / arm_state:
@@ -205,7 +207,7 @@ def _fmt(value):
 
 
 def diagnostic_msg(name, level, message, values):
-    """DiagnosticStatus with values (a dict, insertion order kept) as string key/values."""
+    """Build a DiagnosticStatus with values (a dict, order kept) as string key/values."""
     return DiagnosticStatus(level=level, name=name, message=message,
                             values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
 
@@ -233,7 +235,7 @@ def progress_msg(name, progress, message='solving'):
 
 
 def result_msg(name, result, message=None, extra=None):
-    """Final DiagnosticStatus of a solve: level by status (see LEVELS), status name, numbers."""
+    """Build the final DiagnosticStatus of a solve: level by status (LEVELS), name, numbers."""
     v = result.violations
     values = {
         'status': result.status.value,
@@ -281,7 +283,8 @@ def _frame(frame_id):
 
 
 def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf)):
-    """Joint goal (q1, 0, q2, 0) of a PoseStamped hand target by inverse kinematics.
+    """
+    Joint goal (q1, 0, q2, 0) of a PoseStamped hand target by inverse kinematics.
 
     q1 = atan2(y, x), q2 = sqrt(x^2 + y^2) - a, at rest.  The pose must be in base_frame;
     orientation and z are ignored (the planar model fixes the hand's orientation).
@@ -307,7 +310,8 @@ def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf
 
 
 def joint_state_arrays(msg, joint_names, require_velocity=False):
-    """(positions, velocities) of joint_names, picked by name from a JointState.
+    """
+    (positions, velocities) of joint_names, picked by name from a JointState.
 
     Velocities default to zero when the message has none (unless require_velocity).
     """
@@ -338,7 +342,8 @@ def joint_state_to_state(msg, joint_names):
 
 
 def obstacle_rows_from_msg(msg):
-    """Obstacle rows (x, y, radius) of a Float64MultiArray (validated, may be empty).
+    """
+    Obstacle rows (x, y, radius) of a Float64MultiArray (validated, may be empty).
 
     The layout may be empty (data holds whole rows) or two dimensions (rows, 3); data_offset
     is honoured.
@@ -381,7 +386,8 @@ def check_obstacles(rows, margin=0.0):
 
 
 def trajectory_arrays(msg, joint_names):
-    """TrajectoryArrays of a JointTrajectory in the order of joint_names (validated).
+    """
+    Convert a JointTrajectory to TrajectoryArrays in the order of joint_names (validated).
 
     Requires positions for every point; velocities, accelerations and effort either for every
     point or for none; times strictly increasing from >= 0.  An empty trajectory gives arrays

@@ -29,9 +29,8 @@ import signal
 import sys
 import threading
 
-from toc_ros.config import (default_config_path, load_parameters, options_from_parameters,
-                            problem_from_parameters)
-from toc_ros.core import ProblemError, solve, SolveResult, Status
+# toc_ros.config and toc_ros.core (numba, scipy) are imported after the arguments are parsed,
+# so that --help and argument errors answer at once.
 
 EXIT_WRITE_ERROR = 5
 BAR_WIDTH = 24
@@ -109,6 +108,9 @@ def build_problem(args):
 
     Raises ProblemError when the file or a value in it is unusable.
     """
+    from toc_ros.config import (default_config_path, load_parameters, options_from_parameters,
+                                problem_from_parameters)
+    from toc_ros.core import ProblemError
     params = load_parameters(args.config or default_config_path())
     overrides = {'solver.mode': args.mode, 'solver.integrator': args.integrator,
                  'solver.N': args.N, 'solver.max_iterations': args.max_iterations,
@@ -181,17 +183,29 @@ def summary(result, problem):
     return '\n'.join(lines)
 
 
+def _strict(value):
+    """Replace NaN/inf (not JSON) by None, e.g. in the states of a diverged paper-mode run."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_strict(v) for v in value]
+    return value
+
+
 def write_json(path, result):
-    """Write result.to_dict() to path (strict JSON: no NaN/inf)."""
+    """Write result.to_dict() to path as strict JSON (non-finite numbers become null)."""
     tmp = f'{path}.tmp'
     with open(tmp, 'w') as stream:
-        json.dump(result.to_dict(), stream, allow_nan=False)
+        json.dump(_strict(result.to_dict()), stream, allow_nan=False)
         stream.write('\n')
     os.replace(tmp, path)
 
 
 def _solve_interruptible(problem, options, progress):
     """Run solve() in this thread; the first Ctrl-C cancels it, returning the best so far."""
+    from toc_ros.core import solve
     cancel = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         return solve(problem, options, progress=progress, cancel=cancel)
@@ -214,6 +228,7 @@ def _solve_interruptible(problem, options, progress):
 def main(argv=None):
     """Entry point of toc-solve; returns the process exit code."""
     args = _parse(argv)
+    from toc_ros.core import ProblemError, SolveResult, Status
     try:
         problem, options = build_problem(args)
     except ProblemError as exc:

@@ -289,6 +289,7 @@ class _McapFile:
         self._scan: Optional[_Scan] = None
         self._reader: Optional[SeekingReader] = None
         self._stream = None
+        self.damaged = False
         try:
             with open(path, 'rb') as stream:
                 head = stream.read(len(MAGIC))
@@ -306,6 +307,7 @@ class _McapFile:
         if summary is None:
             with open(path, 'rb') as stream:
                 self._scan = _Scan(stream.read())
+            self.damaged = bool(self._scan.problem or self._scan.orphans)
             if self._scan.problem:
                 warn(f'{path}: {self._scan.problem}; read {len(self._scan.messages)} '
                      'messages up to that point')
@@ -352,6 +354,7 @@ class _McapFile:
                     topics=None if wanted is None else list(wanted)):
                 yield channel, message
         except _DAMAGE as error:
+            self.damaged = True
             self._warn(f'{self.path}: damaged chunk, stopped reading this file there: '
                        f'{error or type(error).__name__}')
 
@@ -390,11 +393,17 @@ class Recording:
                     self._warn(f'topic {info.name} has several types ({known.type_name}, '
                                f'{info.type_name}); only {known.type_name} is read')
         self._reported: set = set()
+        self._decode_failures = 0
 
     def _warn(self, text: str):
         self.warnings.append(text)
         if self._warn_callback is not None:
             self._warn_callback(text)
+
+    @property
+    def damaged(self) -> bool:
+        """Tell whether some data was lost: a file cut short or damaged, undecodable bytes."""
+        return self._decode_failures > 0 or any(f.damaged for f in self._files)
 
     @property
     def files(self) -> List[str]:
@@ -440,6 +449,7 @@ class Recording:
                     self._warn(f'a message on {raw.topic} does not decode as {raw.type_name}: '
                                f'{error}')
                 failures[raw.topic] = failures.get(raw.topic, 0) + 1
+                self._decode_failures += 1
         for topic, count in failures.items():
             if count > 1:
                 self._warn(f'{count} messages on {topic} did not decode and were skipped')

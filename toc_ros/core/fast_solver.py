@@ -160,3 +160,192 @@ class FastRun:
         """First-order PHR multiplier update."""
         self.lam += self.rho * self.cons[:4]
         self.mu = np.maximum(0.0, self.mu - self.rho * self.cons[4:])
+
+
+@njit(cache=True)
+def obstacle_constraints(states, a, circles, cons, d_q1, d_q2):
+    """c = (d^2 - R^2) / (2 R) ~ clearance [m] at nodes 0..N (N+1 x K) and dc/dq1, dc/dq2."""
+    for i in range(states.shape[0]):
+        for k in range(circles.shape[0]):
+            radius = circles[k, 2]
+            d2, d2_q1, d2_q2 = segment_distance_sq(states[i, 0], states[i, 2], a,
+                                                   circles[k, 0], circles[k, 1])
+            cons[i, k] = (d2 - radius * radius) / (2.0 * radius)
+            d_q1[i, k] = d2_q1 / (2.0 * radius)
+            d_q2[i, k] = d2_q2 / (2.0 * radius)
+
+
+@njit(cache=True)
+def sensitivity_rows(jac_x, jac_u, jac_tau, u_max, nodes, seeds, rows):
+    """Row m of rows (M x 2N+1) = d(seed_m . x(nodes[m])) / d(v, t_f), v = u / u_max.
+
+    One backward sweep of the BPTT recursion per row, started at its own node (eqs. 21-22);
+    the last column is the derivative wrt t_f = N tau.
+    """
+    n = jac_u.shape[0]
+    for m in range(nodes.shape[0]):
+        node = nodes[m]
+        l0, l1, l2, l3 = seeds[m, 0], seeds[m, 1], seeds[m, 2], seeds[m, 3]
+        for j in range(2 * n + 1):
+            rows[m, j] = 0.0
+        d_tau = 0.0
+        for j in range(node - 1, -1, -1):
+            d_tau += l0 * jac_tau[j, 0] + l1 * jac_tau[j, 1] + l2 * jac_tau[j, 2] \
+                + l3 * jac_tau[j, 3]
+            for k in range(2):
+                rows[m, 2 * j + k] = u_max[k] * (jac_u[j, 0, k] * l0 + jac_u[j, 1, k] * l1
+                                                 + jac_u[j, 2, k] * l2 + jac_u[j, 3, k] * l3)
+            n0 = jac_x[j, 0, 0] * l0 + jac_x[j, 1, 0] * l1 + jac_x[j, 2, 0] * l2 \
+                + jac_x[j, 3, 0] * l3
+            n1 = jac_x[j, 0, 1] * l0 + jac_x[j, 1, 1] * l1 + jac_x[j, 2, 1] * l2 \
+                + jac_x[j, 3, 1] * l3
+            n2 = jac_x[j, 0, 2] * l0 + jac_x[j, 1, 2] * l1 + jac_x[j, 2, 2] * l2 \
+                + jac_x[j, 3, 2] * l3
+            n3 = jac_x[j, 0, 3] * l0 + jac_x[j, 1, 3] * l1 + jac_x[j, 2, 3] * l2 \
+                + jac_x[j, 3, 3] * l3
+            l0, l1, l2, l3 = n0, n1, n2, n3
+        rows[m, 2 * n] = d_tau / n
+
+
+class FeasibilityProjector:
+    """Gauss-Newton projection of scaled controls onto {x(N) = x_goal, clearance >= 0} at fixed t_f.
+
+    Minimum-norm steps in the controls that are not at a bound (a bound, once hit, stays); the
+    rows are the terminal residuals and the obstacle constraints that are violated or touching.
+    Used to carry a coarse-grid optimum to the fine grid and to bracket t_f from above.
+    """
+
+    def __init__(self, run):
+        self.run = run
+        n = run.n
+        k = run.circles.shape[0]
+        self.cons = np.zeros((n + 1, k))
+        self.d_q1 = np.zeros((n + 1, k))
+        self.d_q2 = np.zeros((n + 1, k))
+
+    def residuals(self, v, t_f):
+        """Rollout; returns (terminal residual (4), obstacle constraints (N+1 x K))."""
+        run = self.run
+        ws = run.ws
+        controls = v.reshape(run.n, 2) * run.u_max[None, :]
+        rollout_linearized(run.x0, controls, t_f / run.n, run.p, run.method, ws.states,
+                           ws.jac_x, ws.jac_u, ws.jac_tau)
+        if self.cons.shape[1]:
+            obstacle_constraints(ws.states, run.p[3], run.circles, self.cons, self.d_q1,
+                                 self.d_q2)
+        return ws.states[run.n] - run.x_goal, self.cons
+
+    def _merit(self, h, cons):
+        viol = np.minimum(cons, 0.0)
+        return float(h @ h + np.sum(viol * viol))
+
+    def _worst(self, h, cons):
+        return max(float(np.max(np.abs(h))), float(max(0.0, -cons.min())) if cons.size else 0.0)
+
+    def project(self, v, t_f, tol=1e-11, max_iter=30, check=None):
+        """Return (ok, v) with v feasible to tol at t_f, or ok False (Levenberg-Marquardt)."""
+        run = self.run
+        ws = run.ws
+        v = v.copy()
+        damping = 1e-6
+        h, cons = self.residuals(v, t_f)
+        merit = self._merit(h, cons)
+        for _ in range(max_iter):
+            if check is not None:
+                check()
+            if self._worst(h, cons) <= tol:
+                return True, v
+            violated = np.argwhere(cons[1:] < 0.0) if cons.size else np.zeros((0, 2), int)
+            m = 4 + violated.shape[0]
+            nodes = np.empty(m, dtype=np.int64)
+            seeds = np.zeros((m, 4))
+            target = np.empty(m)
+            nodes[:4] = run.n
+            seeds[:4, :4] = np.eye(4)
+            target[:4] = -h
+            for row, (i, k) in enumerate(violated, start=4):
+                node = i + 1
+                nodes[row] = node
+                seeds[row, 0] = self.d_q1[node, k]
+                seeds[row, 2] = self.d_q2[node, k]
+                target[row] = -cons[node, k]
+            rows = np.empty((m, 2 * run.n + 1))
+            sensitivity_rows(ws.jac_x, ws.jac_u, ws.jac_tau, run.u_max, nodes, seeds, rows)
+            free = np.abs(v) < 1.0 - 1e-12
+            jf = rows[:, :-1][:, free]
+            gram = jf @ jf.T
+            scale = max(float(np.trace(gram)) / m, 1e-300)
+            accepted = False
+            for _ in range(10):
+                try:
+                    step = jf.T @ np.linalg.solve(gram + damping * scale * np.eye(m), target)
+                except np.linalg.LinAlgError:
+                    damping *= 10.0
+                    continue
+                trial = v.copy()
+                trial[free] = np.clip(v[free] + step, -1.0, 1.0)
+                th, tc = self.residuals(trial, t_f)
+                t_merit = self._merit(th, tc)
+                if t_merit < merit:
+                    v, h, cons, merit = trial, th, tc, t_merit
+                    damping = max(damping * 0.1, 1e-12)
+                    accepted = True
+                    break
+                damping *= 10.0
+            if not accepted:
+                break
+        h, cons = self.residuals(v, t_f)
+        return self._worst(h, cons) <= tol, v
+
+
+class CoarseSQP:
+    """Free-t_f problem on a coarse grid by SQP (scipy SLSQP) with BPTT constraint Jacobians.
+
+    Variables z = [v (2N), t_f]; objective t_f; equality x(N) = x_goal; inequality clearance
+    constraints at nodes 1..N.  Small enough (N ~ 100) for SLSQP's dense quasi-Newton QP,
+    which converges to a KKT point far more reliably than first-order penalty iterations.
+    """
+
+    def __init__(self, run, t_f_bounds=(1e-3, 1e3)):
+        self.run = run
+        self.proj = FeasibilityProjector(run)
+        n = run.n
+        k = run.circles.shape[0]
+        self.n_obs = n * k
+        self.nodes = np.concatenate([np.full(4, n), np.repeat(np.arange(1, n + 1), k)])
+        self.seeds = np.zeros((4 + self.n_obs, 4))
+        self.seeds[:4, :4] = np.eye(4)
+        self.rows = np.zeros((4 + self.n_obs, 2 * n + 1))
+        self.bounds = [(-1.0, 1.0)] * (2 * n) + [t_f_bounds]
+        self._key = None
+
+    def _evaluate(self, z):
+        if self._key is not None and np.array_equal(z, self._key):
+            return
+        run = self.run
+        h, cons = self.proj.residuals(z[:-1], z[-1])
+        self.h = h.copy()
+        self.c = cons[1:].ravel().copy()
+        if self.n_obs:
+            self.seeds[4:, 0] = self.proj.d_q1[1:].ravel()
+            self.seeds[4:, 2] = self.proj.d_q2[1:].ravel()
+        ws = run.ws
+        sensitivity_rows(ws.jac_x, ws.jac_u, ws.jac_tau, run.u_max, self.nodes, self.seeds,
+                         self.rows)
+        self._key = z.copy()
+
+    def solve(self, z0, max_iter, callback=None):
+        """Run SLSQP from z0; returns the scipy result."""
+        n = self.run.n
+        grad_f = np.zeros(2 * n + 1)
+        grad_f[-1] = 1.0
+        cons = [{'type': 'eq',
+                 'fun': lambda z: (self._evaluate(z), self.h)[1],
+                 'jac': lambda z: (self._evaluate(z), self.rows[:4])[1]}]
+        if self.n_obs:
+            cons.append({'type': 'ineq',
+                         'fun': lambda z: (self._evaluate(z), self.c)[1],
+                         'jac': lambda z: (self._evaluate(z), self.rows[4:])[1]})
+        return minimize(lambda z: z[-1], z0, jac=lambda z: grad_f, method='SLSQP',
+                        bounds=self.bounds, constraints=cons, callback=callback,
+                        options={'maxiter': max_iter, 'ftol': 1e-12})

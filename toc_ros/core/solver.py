@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from .fast_solver import FastRun, Stop
+from .fast_solver import FastRun, FeasibilityProjector, Stop
 from .integrators import integrator_id
 from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
@@ -34,8 +34,15 @@ from .result import Progress, SolveResult, Status
 # Fast mode: ALM stopping tolerances (tighter than the SOLVED tolerances of result.py, so the
 # re-integrated trajectory passes them with margin), and the coarse level of the mesh ladder.
 ALM_TOL = 1e-9
-COARSE_INTERVALS = 100
+# Grids of the coarse-to-fine ladder (those below N / 2 are used): the coarse solve finds the
+# structure of the solution cheaply, each finer grid only moves it by the discretisation error.
+LADDER = (100, 300)
 PROLONG_RHO = 100.0
+# Fine-grid refinement: relative steps above the coarse t_f tried until feasible, the assumed
+# lower end of the bracket, and the bisection steps (0.1 % / 2^8 ~ 4e-6 relative).
+BRACKET_STEPS = (0.0, 2e-4, 1e-3, 5e-3, 2e-2)
+BRACKET_BELOW = 1e-3
+BISECTION_STEPS = 8
 
 
 class _Clock:
@@ -169,9 +176,22 @@ class _FastDriver:
                                            self.last_value, self.best_t_f,
                                            self.clock.elapsed(), f'fast N={run.n}'))
 
-    def _alm(self, run, final):
+    def _alm(self, run, final, feasibility_first=False):
+        """ALM outer loop on run; returns True when the constraints meet ALM_TOL.
+
+        feasibility_first: first solve the penalty problem at the fixed t_f0 (a feasible
+        starting trajectory) and start with a stiffer penalty; the default starts from rest
+        with a soft one.  The two reach different local optima on some problems.
+        """
         self.run = run
         prev = math.inf
+        if feasibility_first:
+            free_bounds = run.bounds[-1]
+            run.bounds[-1] = (run.z[-1], run.z[-1])
+            run.rho = 1e3
+            run.value_gradient(run.z)
+            run.solve_subproblem(2000, self._callback)
+            run.bounds[-1] = free_bounds
         run.value_gradient(run.z)
         for _ in range(60):
             run.solve_subproblem(2000, self._callback)
@@ -189,17 +209,88 @@ class _FastDriver:
             prev = viol
         return False
 
+    def _best_start(self, problem):
+        """ALM from both starting strategies on problem; the feasible run with least t_f."""
+        best = None
+        for feasibility_first in (False, True):
+            run = FastRun(problem, self.method)
+            if self._alm(run, final=False, feasibility_first=feasibility_first):
+                if best is None or run.z[-1] < best.z[-1]:
+                    best = run
+        return best
+
+    def _check(self):
+        reason = self.clock.stop_reason()
+        if reason is not None:
+            raise Stop(reason)
+        run = self.run
+        self.clock.report(lambda: Progress(self.iterations, float(run.z[-1]), self.last_value,
+                                           self.best_t_f, self.clock.elapsed(),
+                                           f'refine N={run.n}'))
+
+    def _refine(self, fine):
+        """Carry the coarse optimum to the fine grid: feasibility projection + bisection on t_f.
+
+        The coarse and fine discrete optima differ by the discretisation error (O(1/N)), so
+        the fine minimum time is bracketed near the coarse one: step up until the projection
+        finds a feasible trajectory, then bisect down between the last failure and it.
+        """
+        self.run = fine
+        proj = FeasibilityProjector(fine)
+        v0 = fine.z[:-1].copy()
+        t0 = float(fine.z[-1])
+        low = t0 * (1.0 - BRACKET_BELOW)
+        best = None
+        for eps in BRACKET_STEPS:
+            ok, v = proj.project(v0, t0 * (1.0 + eps), check=self._check)
+            self.iterations += 1
+            if ok:
+                best, high = v, t0 * (1.0 + eps)
+                break
+            low = t0 * (1.0 + eps)
+        if best is None:
+            return False
+        self.best_t_f = high
+        for _ in range(BISECTION_STEPS):
+            mid = 0.5 * (low + high)
+            ok, v = proj.project(best, mid, check=self._check)
+            self.iterations += 1
+            if ok:
+                best, high = v, mid
+                self.best_t_f = high
+            else:
+                low = mid
+            self.history.append((self.iterations, mid, 0.0 if ok else math.nan))
+        fine.z[:-1] = best
+        fine.z[-1] = high
+        return True
+
     def solve(self):
         problem = self.problem
         n = problem.n_intervals
         fine = FastRun(problem, self.method)
+        self.run = fine
         try:
-            if n > 2 * COARSE_INTERVALS:
-                coarse_problem = _with_intervals(problem, COARSE_INTERVALS)
-                coarse = FastRun(coarse_problem, self.method)
-                self._alm(coarse, final=False)
-                _prolong(coarse, fine)
-            converged = self._alm(fine, final=True)
+            ladder = [m for m in LADDER if 2 * m < n] + [n]
+            start = self._best_start(_with_intervals(problem, ladder[0]))
+            if start is None:
+                converged = False
+            elif len(ladder) == 1:
+                fine = start
+                converged = True
+                self.best_t_f = float(fine.z[-1])
+            else:
+                prev = start
+                converged = True
+                for m in ladder[1:]:
+                    run = fine if m == n else FastRun(_with_intervals(problem, m), self.method)
+                    _prolong(prev, run)
+                    if not self._refine(run):
+                        # The bracket failed: plain ALM on this grid from the warm start.
+                        if not self._alm(run, final=m == n):
+                            converged = False
+                            break
+                    prev = run
         except Stop as stop:
             reason = stop.args[0]
             return self._result(fine if self.run is fine else None, reason,

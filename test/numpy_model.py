@@ -1,0 +1,166 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Plain-numpy re-implementation of the robot, integrators and geometry for the tests.
+
+Written from the paper (eq. 37, section 4) without importing toc_ros, so that the tests check
+the core against something that does not share its code.  Slow (Python loops): use small N
+or a single re-integration per solve.
+"""
+
+import math
+
+import numpy as np
+
+PAPER = {'hand_mass': 50.0, 'link_mass': 97.0, 'inertia': 193.0, 'a': 1.1}
+U_MAX = np.array([600.0, 500.0])
+X0 = np.array([math.pi / 12.0, 0.0, 1.0, 0.0])
+XG = np.array([5.0 * math.pi / 12.0, 0.0, 1.0, 0.0])
+PAPER_CIRCLES = np.array([[1.0, 1.0, 0.21]])      # R' = 0.2 m inflated by dR = 0.01 m
+# Euler N = 1000 optimum of the paper scenario from the independent IPOPT transcription.
+T_STAR_PAPER = 2.067276
+
+
+def f(x, u, variant='eq37', robot=None):
+    """Eq. (37): dx/dt for x = [q1, dq1, q2, dq2], u = [u1, u2]."""
+    r = dict(PAPER, **(robot or {}))
+    big_m, a = r['hand_mass'], r['a']
+    c1 = r['inertia'] + big_m * a * a
+    c2 = 2.0 * big_m * a
+    c3 = r['link_mass'] + big_m
+    _, dq1, q2, dq2 = x
+    sign = -1.0 if variant == 'eq37' else 1.0
+    den = c1 + c2 * q2 + c3 * q2 * q2
+    return np.array([
+        dq1,
+        (-2.0 * c3 * dq1 * q2 * dq2 - c2 * dq1 * dq2) / den + u[0] / den,
+        dq2,
+        q2 * dq1 * dq1 + sign * c2 / (2.0 * c3) * dq1 * dq1 + u[1] / c3,
+    ])
+
+
+def step(x, u, tau, integrator='euler', variant='eq37', robot=None):
+    """One explicit Euler or classic RK4 step with u held constant."""
+    x = np.asarray(x, dtype=float)
+    if integrator == 'euler':
+        return x + tau * f(x, u, variant, robot)
+    k1 = f(x, u, variant, robot)
+    k2 = f(x + tau / 2.0 * k1, u, variant, robot)
+    k3 = f(x + tau / 2.0 * k2, u, variant, robot)
+    k4 = f(x + tau * k3, u, variant, robot)
+    return x + tau / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+def simulate(x0, controls, t_f, integrator='euler', variant='eq37', robot=None):
+    """Re-integrate piecewise-constant controls (N x 2) over t_f: states (N+1 x 4)."""
+    controls = np.asarray(controls, dtype=float)
+    tau = t_f / controls.shape[0]
+    xs = [np.asarray(x0, dtype=float)]
+    for u in controls:
+        xs.append(step(xs[-1], u, tau, integrator, variant, robot))
+    return np.array(xs)
+
+
+def clearance(states, circles, a=PAPER['a']):
+    """
+    Distance from the arm segment [0, (a + q2) e(q1)] to each circle's edge: (N+1, K).
+
+    Closed form: the closest point of the segment to the centre c is s* e with
+    s* = clip(c . e, 0, L).  Negative means the arm cuts the circle.
+    """
+    states = np.atleast_2d(states)
+    circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
+    out = np.full((states.shape[0], circles.shape[0]), np.inf)
+    for i, x in enumerate(states):
+        e = np.array([math.cos(x[0]), math.sin(x[0])])
+        length = a + x[2]
+        for k, (cx, cy, radius) in enumerate(circles):
+            s = min(max(e @ (cx, cy), 0.0), length)
+            out[i, k] = math.hypot(s * e[0] - cx, s * e[1] - cy) - radius
+    return out
+
+
+def sampled_clearance(states, circles, a=PAPER['a'], samples=4001):
+    """Like clearance() but by brute force over points along the arm (an upper bound)."""
+    states = np.atleast_2d(states)
+    circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
+    s = np.linspace(0.0, 1.0, samples)[None, :] * (a + states[:, 2])[:, None]
+    px = s * np.cos(states[:, 0])[:, None]
+    py = s * np.sin(states[:, 0])[:, None]
+    return np.stack([np.min(np.hypot(px - cx, py - cy), axis=1) - radius
+                     for cx, cy, radius in circles], axis=1)
+
+
+def violations(x0, x_goal, controls, t_f, circles, u_max=U_MAX, integrator='euler',
+               variant='eq37', robot=None):
+    """Re-integrate and measure: dict of states, control excess, terminal error, clearance."""
+    states = simulate(x0, controls, t_f, integrator, variant, robot)
+    a = dict(PAPER, **(robot or {}))['a']
+    gaps = clearance(states, circles, a)
+    excess = np.max(np.abs(np.asarray(controls)) - np.asarray(u_max)[None, :])
+    return {'states': states,
+            'max_control_excess': max(0.0, float(excess)),
+            'terminal_error': float(np.linalg.norm(states[-1] - np.asarray(x_goal))),
+            'min_clearance': float(np.min(gaps)) if gaps.size else math.inf}
+
+
+def ray_first_hit(q1, cx, cy, radius):
+    """
+    Distance along the ray s e(q1), s >= 0, to its first intersection with a circle.
+
+    Solves |s e - c|^2 = R^2 with numpy's polynomial roots; None when the ray misses.
+    """
+    e = np.array([math.cos(q1), math.sin(q1)])
+    roots = np.roots([1.0, -2.0 * (e @ (cx, cy)), cx * cx + cy * cy - radius * radius])
+    real = roots[np.abs(roots.imag) < 1e-12].real
+    ahead = real[real > 0.0]
+    return float(np.min(ahead)) if ahead.size else None
+
+
+def assert_feasible(problem, result, tol=1e-6):
+    """
+    Check a SolveResult of toc_ros against an independent re-integration (SOLVED tolerances).
+
+    problem is a toc_ros Problem (only its plain fields are read).  Returns the measured dict.
+    """
+    robot = {'hand_mass': problem.robot.hand_mass, 'link_mass': problem.robot.link_mass,
+             'inertia': problem.robot.inertia, 'a': problem.robot.a}
+    u_max = np.array([problem.robot.u1_max, problem.robot.u2_max])
+    circles = np.reshape(np.array(problem.obstacles, dtype=float), (-1, 3))
+    circles[:, 2] += problem.margin
+    n = problem.n_intervals
+    controls = np.asarray(result.controls)
+    assert controls.shape == (n, 2) and np.asarray(result.states).shape == (n + 1, 4)
+    measured = violations(problem.x0, problem.x_goal, controls, result.final_time, circles,
+                          u_max, problem.integrator, problem.robot.model_variant, robot)
+    # Bounds hold exactly, not within a tolerance.
+    assert np.all(np.abs(controls) <= u_max[None, :]), measured['max_control_excess']
+    assert measured['terminal_error'] <= tol, measured['terminal_error']
+    assert measured['min_clearance'] >= -tol, measured['min_clearance']
+    # The returned states are the trajectory of the returned controls.
+    np.testing.assert_allclose(result.states, measured['states'], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(result.time_grid, np.linspace(0.0, result.final_time, n + 1),
+                               rtol=0, atol=1e-12)
+    v = result.violations
+    assert v.max_control_excess == measured['max_control_excess'] == 0.0
+    assert abs(v.terminal_error - measured['terminal_error']) < 1e-9
+    assert (v.min_clearance == measured['min_clearance'] == math.inf
+            or abs(v.min_clearance - measured['min_clearance']) < 1e-9)
+    if circles.shape[0]:
+        # The closed form agrees with brute force (which can only over-estimate).
+        closed = clearance(measured['states'], circles, robot['a'])
+        sampled = sampled_clearance(measured['states'], circles, robot['a'])
+        assert np.all(sampled >= closed - 1e-12) and np.max(sampled - closed) < 1e-3
+    return measured

@@ -1,0 +1,193 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Fast mode: feasible minimum-time solutions, checked independently; cancel/timeout/progress.
+
+Every returned trajectory is re-integrated here in plain numpy (numpy_model) and its clearance
+re-measured; t_min is compared with the independent IPOPT transcription
+(benchmarks/reference_ipopt.py) when casadi is importable, else with the recorded optimum of
+the paper scenario only.
+"""
+
+from dataclasses import replace
+import importlib.util
+import math
+from pathlib import Path
+import threading
+import time
+
+import numpy as np
+import numpy_model as nm
+import pytest
+
+from toc_ros.core import Problem, solve, SolverOptions, Status, warm_up
+
+HAVE_CASADI = importlib.util.find_spec('casadi') is not None
+GAP = 1e-3              # 0.1 % of the reference optimum
+STOP_LATENCY = 0.1      # [s] cancel/timeout honoured within 100 ms
+
+PAPER = Problem()       # the paper's scenario, Euler, N = 1000
+SCENARIOS = {
+    'paper_n200': replace(PAPER, n_intervals=200),
+    # The paper's circle plus an active one near the start and an idle one in quadrant II.
+    'several_circles': replace(PAPER, n_intervals=200, obstacles=(
+        (1.0, 1.0, 0.2), (1.4, 0.6, 0.1), (-0.8, 0.9, 0.2))),
+    'second_quadrant': replace(PAPER, n_intervals=200, obstacles=((-0.6, 1.2, 0.25),),
+                               x0=(1.0, 0.0, 1.0, 0.0), x_goal=(2.6, 0.0, 1.0, 0.0)),
+    'start_velocity': replace(PAPER, n_intervals=200, x0=(0.3, 0.5, 0.8, -0.2),
+                              x_goal=(1.4, 0.0, 1.2, 0.0)),
+    'rk4': replace(PAPER, n_intervals=200, integrator='rk4'),
+    'no_obstacles': replace(PAPER, n_intervals=200, obstacles=()),
+}
+
+
+def _reference():
+    path = Path(__file__).resolve().parents[1] / 'benchmarks' / 'reference_ipopt.py'
+    spec = importlib.util.spec_from_file_location('reference_ipopt', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _reference_t_f(problem):
+    res = _reference().solve_reference(
+        problem.x0, problem.x_goal, problem.obstacles, problem.margin, N=problem.n_intervals,
+        integrator=problem.integrator, model_variant=problem.robot.model_variant,
+        u_max=(problem.robot.u1_max, problem.robot.u2_max))
+    assert res['success'], res['attempts']
+    return res['t_f']
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _compiled():
+    warm_up()       # numba kernels compiled/loaded once, outside every measurement
+
+
+@pytest.fixture(scope='module')
+def paper_result():
+    return solve(PAPER, SolverOptions(mode='fast'))
+
+
+def test_paper_scenario_is_solved_feasible_and_optimal(paper_result):
+    result = paper_result
+    assert result.status is Status.SOLVED, result.message
+    assert result.mode == 'fast' and result.integrator == 'euler' and result.n_intervals == 1000
+    nm.assert_feasible(PAPER, result)
+    assert abs(result.final_time - nm.T_STAR_PAPER) <= GAP * nm.T_STAR_PAPER, result.final_time
+    assert result.iterations > 0 and result.history.shape[1] == 3
+
+
+@pytest.mark.parametrize('name', sorted(SCENARIOS))
+def test_other_scenarios_are_solved_feasible_and_near_ipopt(name):
+    problem = SCENARIOS[name]
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    measured = nm.assert_feasible(problem, result)
+    if problem.obstacles:
+        assert measured['min_clearance'] < 1e-3, 'expected the obstacle to be active'
+    if HAVE_CASADI:
+        t_ref = _reference_t_f(problem)
+        assert abs(result.final_time - t_ref) <= GAP * t_ref, (result.final_time, t_ref)
+
+
+def test_same_inputs_give_bit_identical_results():
+    # N = 250 takes the coarse-to-fine path of the fast mode.
+    problem = replace(PAPER, n_intervals=250)
+    first = solve(problem, SolverOptions(mode='fast'))
+    second = solve(problem, SolverOptions(mode='fast'))
+    assert first.status is second.status and first.has_trajectory
+    assert first.final_time == second.final_time
+    assert first.iterations == second.iterations
+    assert np.array_equal(first.states, second.states)
+    assert np.array_equal(first.controls, second.controls)
+    assert np.array_equal(first.history, second.history)
+
+
+def _solve_with_cancel(problem, options, delay):
+    """Set a threading.Event from a timer thread; return (result, seconds from set to return)."""
+    cancel = threading.Event()
+    stamp = {}
+
+    def fire():
+        stamp['set'] = time.monotonic()
+        cancel.set()
+
+    timer = threading.Timer(delay, fire)
+    timer.start()
+    try:
+        result = solve(problem, options, cancel=cancel)
+        returned = time.monotonic()
+    finally:
+        timer.cancel()
+    assert 'set' in stamp, 'the solve finished before the cancel fired: make it longer'
+    return result, returned - stamp['set']
+
+
+def _check_best_so_far(problem, result):
+    n = problem.n_intervals
+    if not result.has_trajectory:      # fast mode stopped before reaching the fine level
+        assert result.states.shape[0] == 0 and math.isnan(result.final_time)
+        return
+    assert result.states.shape == (n + 1, 4) and result.controls.shape == (n, 2)
+    assert math.isfinite(result.final_time) and result.final_time > 0.0
+    circles = problem.circles()
+    measured = nm.violations(problem.x0, problem.x_goal, result.controls, result.final_time,
+                             circles)
+    np.testing.assert_allclose(result.states, measured['states'], rtol=0, atol=1e-9)
+    assert result.violations.terminal_error == pytest.approx(measured['terminal_error'],
+                                                             abs=1e-9)
+
+
+@pytest.mark.parametrize('mode', ['fast', 'paper'])
+def test_cancel_is_honoured_within_100_ms(mode):
+    # Paper mode with a million iterations and the fast mode at N = 1000 both run for seconds.
+    options = SolverOptions(mode=mode, max_iterations=10 ** 6 if mode == 'paper' else 30000)
+    result, latency = _solve_with_cancel(PAPER, options, delay=0.4)
+    assert result.status is Status.CANCELED, result.message
+    assert latency <= STOP_LATENCY, latency
+    if mode == 'paper':
+        assert result.has_trajectory
+    _check_best_so_far(PAPER, result)
+
+
+@pytest.mark.parametrize('mode', ['fast', 'paper'])
+def test_timeout_is_honoured_within_100_ms(mode):
+    timeout = 0.4
+    options = SolverOptions(mode=mode, timeout=timeout,
+                            max_iterations=10 ** 6 if mode == 'paper' else 30000)
+    start = time.monotonic()
+    result = solve(PAPER, options)
+    elapsed = time.monotonic() - start
+    assert result.status is Status.TIMEOUT, result.message
+    assert timeout <= elapsed <= timeout + STOP_LATENCY, elapsed
+    _check_best_so_far(PAPER, result)
+
+
+@pytest.mark.parametrize('mode', ['fast', 'paper'])
+def test_progress_is_reported_at_least_every_100_ms(mode):
+    calls = []
+    options = SolverOptions(mode=mode, timeout=1.5)
+    start = time.monotonic()
+    result = solve(PAPER, options, progress=lambda p: calls.append((time.monotonic(), p)))
+    stamps = np.array([start] + [t for t, _ in calls])
+    gaps = np.diff(stamps)
+    assert len(calls) >= 10
+    # Slack for the first call and a garbage collection; the typical gap must meet 100 ms.
+    assert np.max(gaps) <= 0.15, gaps
+    assert np.median(gaps) <= 0.1, gaps
+    its = [p.iteration for _, p in calls]
+    assert its == sorted(its) and its[-1] == result.iterations
+    assert calls[-1][1].phase == 'done'
+    assert all(math.isfinite(p.t_f) and p.t_f > 0.0 for _, p in calls[:-1])

@@ -1,0 +1,290 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""solver_node as a process (paper scenario, N = 100 for speed) driven over DDS."""
+
+import math
+import re
+import time
+from types import SimpleNamespace
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from nav_msgs.srv import GetPlan
+from node_harness import (
+    A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0,
+    pose_of, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, U_MAX, values)
+import numpy as np
+import pytest
+from rcl_interfaces.srv import DescribeParameters, GetParameters
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import MarkerArray
+
+N = TEST_PARAMS['solver.N']
+# A plan that runs until canceled: paper mode without iteration or time limit in practice.
+LONG_SOLVE = {'solver.mode': 'paper', 'solver.max_iterations': 1_000_000_000,
+              'solver.timeout': 0.0}
+NORMAL_SOLVE = {'solver.mode': 'fast', 'solver.max_iterations': 30000,
+                'solver.timeout': TEST_PARAMS['solver.timeout']}
+
+
+@pytest.fixture(scope='module')
+def solver(tmp_path_factory):
+    client = RosClient()
+    node = NodeProcess('solver_node', client.namespace, tmp_path_factory.mktemp('solver'),
+                       TEST_PARAMS)
+    try:
+        node.wait_for_log('ready:')
+        client.collect(DiagnosticStatus, 'solver_node/progress', 100)
+        client.collect(JointTrajectory, 'trajectory', LATCHED)
+        client.collect(Path, 'planned_path')
+        client.collect(MarkerArray, 'markers', LATCHED)
+        ctx = SimpleNamespace(
+            client=client, node=node,
+            goal_pose=client.node.create_publisher(PoseStamped, client.name('goal_pose'), 10),
+            goal_joints=client.node.create_publisher(JointState, client.name('goal_joints'),
+                                                     10),
+            joint_states=client.node.create_publisher(JointState,
+                                                      client.name('joint_states'), 10),
+            obstacles=client.node.create_publisher(Float64MultiArray,
+                                                   client.name('obstacles'), 10),
+            plan=client.node.create_client(GetPlan, client.name('solver_node/plan')),
+            cancel=client.node.create_client(Trigger, client.name('solver_node/cancel')))
+        for publisher in (ctx.goal_pose, ctx.goal_joints, ctx.joint_states, ctx.obstacles):
+            client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
+                            what=f'subscriber of {publisher.topic_name}')
+        yield ctx
+        assert node.stop() == 0, node.log()
+    finally:
+        node.stop()
+        client.close()
+
+
+def joint_state(x, names=JOINTS):
+    return JointState(name=list(names), position=[x[0], x[2]], velocity=[x[1], x[3]])
+
+
+def set_start(ctx, x):
+    """Publish a measured state; the node plans from the latest one."""
+    ctx.joint_states.publish(joint_state(x))
+    time.sleep(0.3)   # separate topics: let it arrive before the goal
+
+
+def finals(ctx, since):
+    return [m for m in ctx.client.messages('solver_node/progress', since) if is_final(m)]
+
+
+def wait_final(ctx, since, count=1, timeout=SOLVE_TIMEOUT):
+    return ctx.client.wait_for(lambda: len(finals(ctx, since)) >= count and finals(ctx, since),
+                               timeout, 'final progress')
+
+
+def check_trajectory(msg, start, goal, n=N):
+    """Validate a trajectory independently of the package: times, limits, ends, dynamics."""
+    assert msg.joint_names == JOINTS and len(msg.points) == n + 1
+    t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                  for p in msg.points])
+    q = np.array([p.positions for p in msg.points])
+    dq = np.array([p.velocities for p in msg.points])
+    ddq = np.array([p.accelerations for p in msg.points])
+    u = np.array([p.effort for p in msg.points])
+    assert t[0] == 0.0 and np.all(np.diff(t) > 0.0)
+    tau = t[-1] / n
+    np.testing.assert_allclose(np.diff(t), tau, atol=2e-9)   # uniform grid (ns rounding)
+    assert np.all(np.abs(u) <= np.array(U_MAX) + 1e-9)
+    np.testing.assert_allclose([q[0, 0], dq[0, 0], q[0, 1], dq[0, 1]], start, atol=1e-12)
+    assert np.linalg.norm([q[-1, 0] - goal[0], dq[-1, 0] - goal[1], q[-1, 1] - goal[2],
+                           dq[-1, 1] - goal[3]]) <= 1e-6
+    # The efforts reproduce the positions under eq. (37) with the solver's Euler steps.
+    x = np.array(start, dtype=float)
+    worst = 0.0
+    for i in range(n):
+        f = np.array(eq37(x, u[i]))
+        assert np.allclose([ddq[i, 0], ddq[i, 1]], f[[1, 3]], rtol=1e-9, atol=1e-6)
+        x = x + tau * f
+        worst = max(worst, np.max(np.abs(x - [q[i + 1, 0], dq[i + 1, 0], q[i + 1, 1],
+                                              dq[i + 1, 1]])))
+    assert worst < 1e-6, f'effort does not reproduce the states: {worst}'
+    np.testing.assert_allclose(u[-1], u[-2])
+    return t[-1]
+
+
+def test_goal_pose_plans_from_the_measured_state(solver):
+    start = (PAPER_X0[0] + 0.02, 0.05, 1.0, 0.01)     # moving: replanning on the fly
+    set_start(solver, start)
+    count = len(solver.client.messages('trajectory'))
+    since = time.monotonic()
+    solver.goal_pose.publish(pose_of(PAPER_GOAL))
+    final = wait_final(solver, since)[0]
+    result = values(final)
+    assert (final.level, result['status']) == (DiagnosticStatus.OK, 'SOLVED'), final.message
+    assert result['goal_source'] == 'goal_pose' and result['start_source'] == 'joint_states'
+    trajectory = solver.client.wait_for(
+        lambda: solver.client.messages('trajectory')[count:], 10.0, 'trajectory')[-1]
+    t_f = check_trajectory(trajectory, start, PAPER_GOAL)
+    assert float(result['t_f']) == pytest.approx(t_f, abs=1e-8)
+    assert float(result['terminal_error']) <= 1e-6 and float(result['min_clearance']) >= -1e-6
+    # Progress while solving: >= 5 Hz by the node's clock, from the first to the final one.
+    progress = [m for m in solver.client.messages('solver_node/progress', since)
+                if not is_final(m)] + [final]
+    elapsed = [float(values(m)['elapsed_s']) for m in progress]
+    assert len(progress) >= 2 and elapsed == sorted(elapsed)
+    assert max(np.diff(elapsed)) <= 0.2, f'progress gaps {np.diff(elapsed)}'
+    path = solver.client.wait_for(lambda: solver.client.messages('planned_path', since),
+                                  10.0, 'planned_path')[-1]
+    assert path.header.frame_id == 'base_link' and len(path.poses) == N + 1
+    end = path.poses[-1].pose.position
+    goal_pose = pose_of(PAPER_GOAL).pose.position
+    assert (end.x, end.y) == pytest.approx((goal_pose.x, goal_pose.y), abs=1e-5)
+
+
+def test_plan_service_blocks_until_solved(solver):
+    start = PAPER_X0
+    set_start(solver, start)
+    count = len(solver.client.messages('trajectory'))
+    request = GetPlan.Request(goal=pose_of(NEAR_GOAL))
+    response = solver.client.call(solver.plan, request, SOLVE_TIMEOUT)
+    assert len(response.plan.poses) == N + 1 and response.plan.header.frame_id == 'base_link'
+    first, last = response.plan.poses[0].pose.position, response.plan.poses[-1].pose.position
+    assert math.hypot(first.x, first.y) == pytest.approx(A + start[2])
+    assert math.atan2(last.y, last.x) == pytest.approx(NEAR_GOAL[0], abs=1e-6)
+    # The trajectory of the same plan was published before the response.
+    trajectories = solver.client.wait_for(
+        lambda: solver.client.messages('trajectory')[count:], 10.0, 'trajectory')
+    check_trajectory(trajectories[-1], start, NEAR_GOAL)
+    # A refused goal answers at once with an empty path; the reason goes to ~/progress.
+    wrong_frame = pose_of(PAPER_GOAL)
+    wrong_frame.header.frame_id = 'map'
+    since = time.monotonic()
+    bad = solver.client.call(solver.plan, GetPlan.Request(goal=wrong_frame), 10.0)
+    assert len(bad.plan.poses) == 0
+    refusal = wait_final(solver, since, timeout=10.0)[0]
+    assert level_name(refusal) == 'ERROR' and "frame 'map'" in refusal.message
+
+
+def wait_running(ctx, since, phase):
+    return ctx.client.wait_for(
+        lambda: [m for m in ctx.client.messages('solver_node/progress', since)
+                 if values(m).get('phase', '').startswith(phase)],
+        30.0, f'a running {phase} solve')
+
+
+def test_cancel_stops_a_long_solve_within_100_ms(solver, record_property):
+    idle = solver.client.call(solver.cancel, Trigger.Request())
+    assert not idle.success and 'no solve' in idle.message
+    assert all(r.successful for r in solver.client.set_parameters('solver_node', LONG_SOLVE))
+    try:
+        set_start(solver, PAPER_X0)
+        count = len(solver.client.messages('trajectory'))
+        since = time.monotonic()
+        solver.goal_pose.publish(pose_of(PAPER_GOAL))
+        wait_running(solver, since, 'paper')
+        time.sleep(0.3)
+        assert not finals(solver, since), 'the long solve ended by itself'
+        asked = time.monotonic()
+        response = solver.client.call(solver.cancel, Trigger.Request())
+        answered = time.monotonic() - asked
+        assert response.success, response.message
+        node_side = float(re.search(r'stopped in ([0-9.]+) s', response.message).group(1))
+        final = wait_final(solver, since, timeout=5.0)[0]
+        final_at = max(t for t, m in solver.client.stamped('solver_node/progress', since)
+                       if m is final) - asked
+        record_property('cancel_node_ms', round(1e3 * node_side, 1))
+        record_property('cancel_round_trip_ms', round(1e3 * answered, 1))
+        record_property('cancel_final_progress_ms', round(1e3 * final_at, 1))
+        print(f'cancel: stopped in {1e3 * node_side:.1f} ms (node), answered after '
+              f'{1e3 * answered:.1f} ms, final progress after {1e3 * final_at:.1f} ms')
+        assert node_side < 0.1
+        assert answered < 0.5 and final_at < 0.5   # transport on a shared machine included
+        assert level_name(final) == 'WARN' and values(final)['status'] == 'CANCELED'
+        assert 'canceled by ~/cancel' in final.message
+        time.sleep(0.2)
+        assert len(solver.client.messages('trajectory')) == count   # nothing published
+    finally:
+        solver.client.set_parameters('solver_node', NORMAL_SOLVE)
+
+
+def test_new_goal_preempts_the_running_solve(solver):
+    assert all(r.successful for r in solver.client.set_parameters('solver_node', LONG_SOLVE))
+    try:
+        set_start(solver, PAPER_X0)
+        since = time.monotonic()
+        solver.goal_pose.publish(pose_of((1.0, 0.0, 1.2, 0.0)))
+        wait_running(solver, since, 'paper')
+        # Parameters stay settable while solving; they apply to the next solve.
+        assert all(r.successful for r in
+                   solver.client.set_parameters('solver_node', NORMAL_SOLVE))
+        count = len(solver.client.messages('trajectory'))
+        solver.goal_joints.publish(joint_state(NEAR_GOAL))
+        first, second = wait_final(solver, since, count=2)[:2]
+        assert values(first)['status'] == 'CANCELED' and level_name(first) == 'WARN'
+        assert 'preempted by a newer goal' in first.message
+        assert values(second)['status'] == 'SOLVED', second.message
+        assert values(second)['goal_source'] == 'goal_joints'
+        trajectory = solver.client.wait_for(
+            lambda: solver.client.messages('trajectory')[count:], 10.0, 'trajectory')[-1]
+        check_trajectory(trajectory, PAPER_X0, NEAR_GOAL)
+    finally:
+        solver.client.set_parameters('solver_node', NORMAL_SOLVE)
+
+
+def test_markers_are_latched_for_late_subscribers(solver):
+    late = []
+    solver.client.node.create_subscription(MarkerArray, solver.client.name('markers'),
+                                           late.append, LATCHED)
+    markers = solver.client.wait_for(lambda: late, 10.0, 'latched markers')[-1].markers
+    namespaces = {m.ns for m in markers}
+    assert {'obstacles', 'inflated_obstacles', 'planned_path', 'arm'} <= namespaces
+    cylinder = next(m for m in markers if m.ns == 'obstacles')
+    assert (cylinder.pose.position.x, cylinder.pose.position.y) == (1.0, 1.0)
+    assert cylinder.scale.x == pytest.approx(0.4)
+
+
+def test_obstacles_topic_replaces_the_obstacle_parameters(solver):
+    client = solver.client
+    get = client.node.create_client(GetParameters, client.name('solver_node/get_parameters'))
+    names = ['obstacles.x', 'obstacles.y', 'obstacles.radius']
+
+    def current():
+        reply = client.call(get, GetParameters.Request(names=names))
+        return [list(v.double_array_value) for v in reply.values]
+    try:
+        solver.obstacles.publish(Float64MultiArray(data=[1.0, 1.0, 0.2, -1.5, 0.5, 0.3]))
+        client.wait_for(lambda: current() == [[1.0, -1.5], [1.0, 0.5], [0.2, 0.3]], 10.0,
+                        'obstacle parameters')
+        markers = client.wait_for(
+            lambda: [m for m in client.messages('markers')
+                     if sum(k.ns == 'obstacles' for k in m.markers) == 2], 10.0,
+            'markers of two obstacles')
+        assert markers
+    finally:
+        solver.obstacles.publish(Float64MultiArray(data=[1.0, 1.0, 0.2]))
+        client.wait_for(lambda: current() == [[1.0], [1.0], [0.2]], 10.0, 'restored')
+
+
+def test_parameters_have_descriptions_and_ranges(solver):
+    client = solver.client
+    describe = client.node.create_client(DescribeParameters,
+                                         client.name('solver_node/describe_parameters'))
+    names = ['robot.hand_mass', 'solver.N', 'solver.mode', 'obstacles.margin', 'joint_names']
+    reply = client.call(describe, DescribeParameters.Request(names=names))
+    by_name = {d.name: d for d in reply.descriptors}
+    assert all(by_name[n].description for n in names)
+    assert by_name['robot.hand_mass'].floating_point_range[0].to_value > 0
+    assert by_name['solver.N'].integer_range[0].from_value == 2
+    assert 'fast' in by_name['solver.mode'].additional_constraints

@@ -1,0 +1,610 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The numbers of a recorded run: per plan and per execution, from the raw messages.
+
+A plan is one trajectory message; its execution is the joint_states from its receipt until
+the next trajectory or the end of the recording. Times are log (receive) times, in seconds
+from the first message read. Everything a plan is checked against is what was in force when
+it arrived: the latest obstacles message before it (else the solver's obstacle markers, else
+the parameter file), the latest goal since the previous plan. Missing topics leave the
+numbers that need them at None and are listed in ``missing``.
+"""
+
+from dataclasses import dataclass, field
+import math
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from toc_ros.config import obstacle_rows, robot_from_parameters
+from toc_ros.conversions import (ConversionError, diagnostic_values, joint_state_arrays,
+                                 obstacle_rows_from_msg, pose_to_joint_goal, trajectory_arrays)
+from toc_ros.core import arm_clearance, hand_position
+
+# Role -> (last name token, type). Names are matched below any namespace.
+ROLES = {
+    'trajectory': ('trajectory', 'trajectory_msgs/msg/JointTrajectory'),
+    'joint_states': ('joint_states', 'sensor_msgs/msg/JointState'),
+    'progress': ('progress', 'diagnostic_msgs/msg/DiagnosticStatus'),
+    'goal_pose': ('goal_pose', 'geometry_msgs/msg/PoseStamped'),
+    'goal_joints': ('goal_joints', 'sensor_msgs/msg/JointState'),
+    'obstacles': ('obstacles', 'std_msgs/msg/Float64MultiArray'),
+    'markers': ('markers', 'visualization_msgs/msg/MarkerArray'),
+    'tracking': ('tracking', 'diagnostic_msgs/msg/DiagnosticStatus'),
+}
+# What is lost without a role (for the 'missing' list).
+NEEDED_FOR = {
+    'trajectory': 'plans, planned curves, violations',
+    'joint_states': 'executions: measured states, applied effort, tracking error',
+    'progress': 'solver status, iterations, solve time, convergence plot',
+    'obstacles': 'obstacles sent at run time (else markers or the parameter file are used)',
+    'goal_pose': 'goals (terminal error of a plan)',
+}
+RUNNING = 'SOLVING'
+# A plan and the final progress of its solve are published within this time [s].
+PROGRESS_MATCH_S = 2.0
+# Markers up to this long after a plan still show the obstacles it was planned around [s].
+MARKER_DELAY_S = 1.0
+MARKER_SPHERE, MARKER_CYLINDER, MARKER_LINE_STRIP = 2, 3, 4
+
+
+def _float(value) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _num(value):
+    """JSON number or None for nan/inf/missing."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def find_topics(topics: Dict[str, object], warn=None) -> Dict[str, Optional[str]]:
+    """Topic of each role: last name token and type match; the shortest name wins."""
+    found = {}
+    for role, (token, type_name) in ROLES.items():
+        names = sorted((n for n, info in topics.items()
+                        if n.rstrip('/').split('/')[-1] == token
+                        and info.type_name == type_name), key=lambda n: (n.count('/'), n))
+        found[role] = names[0] if names else None
+        if len(names) > 1 and warn is not None:
+            warn(f'several {token} topics ({", ".join(names)}); analysing {names[0]}')
+    return found
+
+
+@dataclass
+class Solve:
+    """One solve as progress shows it: running values and the final status message."""
+
+    points: List[dict] = field(default_factory=list)   # iteration, t_f, cost, elapsed_s
+    final_time: Optional[float] = None                  # [s] of the final progress message
+    status: str = 'unfinished'
+    message: str = ''
+    values: Dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class Plan:
+    """One trajectory message and what was in force when it arrived."""
+
+    index: int
+    time: float                    # receipt [s]
+    joint_names: List[str]
+    times: np.ndarray              # (M,) from the trajectory start [s]
+    states: np.ndarray             # (M, 4) q1, dq1, q2, dq2
+    efforts: Optional[np.ndarray]  # (M, 2) planned controls u
+    obstacles: np.ndarray          # (K, 3) x, y, radius R'
+    obstacles_source: str
+    margin: float
+    goal: Optional[np.ndarray] = None
+    goal_source: str = ''
+    solve: Optional[Solve] = None
+
+
+@dataclass
+class Execution:
+    """The measured run of one plan, with the plan's reference at the measured times."""
+
+    plan: int
+    times: np.ndarray                   # (K,) [s]
+    states: np.ndarray                  # (K, 4) measured
+    efforts: Optional[np.ndarray]       # (K, 2) applied
+    reference: np.ndarray               # (K, 4) planned state at the same times
+    interrupted: bool                   # the next plan came before this one ended
+
+
+@dataclass
+class Run:
+    """Everything read from a recording, decoded, by role."""
+
+    topics: Dict[str, Optional[str]]
+    messages: Dict[str, list]           # role -> [(time [s], message)]
+    start_ns: int
+    params: dict
+    warnings: List[str] = field(default_factory=list)
+
+
+def load_run(recording, params, warn=None) -> Run:
+    """Decode the messages of every role from a bag_reader.Recording."""
+    readable = recording.readable_topics()
+    topics = find_topics(readable, warn)
+    by_topic = {t: r for r, t in topics.items() if t is not None}
+    raw = {role: [] for role in ROLES}
+    for message, decoded in recording.decoded(list(by_topic)):
+        raw[by_topic[message.topic]].append((message.log_time_ns, decoded))
+    firsts = [items[0][0] for items in raw.values() if items]
+    start_ns = min(firsts) if firsts else 0
+    messages = {role: [((t - start_ns) * 1e-9, m) for t, m in sorted(items, key=lambda x: x[0])]
+                for role, items in raw.items()}
+    return Run(topics, messages, start_ns, dict(params))
+
+
+# -- solves, plans, executions --------------------------------------------------------------
+def solves_from_progress(progress) -> List[Solve]:
+    """
+    Group progress messages into solves, in the order they end.
+
+    A solve is the running messages of one node name ended by its result (a final status
+    with an iteration count). A final status without one (a refused goal, a dropped request)
+    is a solve of its own that does not end the one running.
+    """
+    solves = []
+    running: Dict[str, Solve] = {}
+    for time, msg in progress:
+        values = diagnostic_values(msg)
+        status = values.get('status', '')
+        if status == RUNNING or not status:
+            running.setdefault(msg.name, Solve()).points.append({
+                'time': time, 'iteration': _float(values.get('iteration')),
+                't_f': _float(values.get('t_f')), 'cost': _float(values.get('cost')),
+                'elapsed_s': _float(values.get('elapsed_s'))})
+            continue
+        if 'iteration' in values:
+            solve = running.pop(msg.name, None) or Solve()
+        else:
+            solve = Solve()
+        solve.final_time, solve.status = time, status
+        solve.message, solve.values = msg.message, values
+        solves.append(solve)
+    for solve in running.values():  # the recording ends during a solve
+        solve.message = (f'the recording ends during this solve (last progress at '
+                         f'{solve.points[-1]["time"]:.3f} s, iteration '
+                         f'{solve.points[-1]["iteration"]:.0f})')
+        solves.append(solve)
+    return solves
+
+
+def _vector(text, size=4):
+    """A '[a, b, c, d]' string as an array of size finite numbers, or None."""
+    try:
+        values = np.array([float(v) for v in str(text).strip('[]() ').split(',')])
+    except ValueError:
+        return None
+    return values if values.shape == (size,) and np.all(np.isfinite(values)) else None
+
+
+def _latest(items, before, after=-math.inf):
+    """Latest (time, message) with after < time <= before, or None."""
+    chosen = None
+    for time, msg in items:
+        if time > before:
+            break
+        if time > after:
+            chosen = (time, msg)
+    return chosen
+
+
+def obstacles_from_markers(marker_array):
+    """
+    Read (rows x, y, R', margin or None) from obstacle markers; None when there are none.
+
+    Bodies: spheres/cylinders in a namespace mentioning 'obstacle'; inflated circles: a
+    namespace mentioning 'inflat' (a ring of points or a sphere/cylinder).
+    """
+    bodies, rings = [], []
+    for marker in marker_array.markers:
+        ns = marker.ns.lower()
+        if 'obstacle' not in ns and 'inflat' not in ns:
+            continue
+        if marker.type in (MARKER_SPHERE, MARKER_CYLINDER):
+            row = (marker.pose.position.x, marker.pose.position.y, 0.5 * marker.scale.x)
+        elif marker.type == MARKER_LINE_STRIP and len(marker.points) >= 3:
+            pts = np.array([(p.x, p.y) for p in marker.points])
+            if np.allclose(pts[0], pts[-1]):
+                pts = pts[:-1]
+            centre = pts.mean(axis=0)
+            row = (centre[0], centre[1], float(np.mean(np.hypot(*(pts - centre).T))))
+        else:
+            continue
+        (rings if 'inflat' in ns else bodies).append(row)
+    if not bodies:
+        return None
+    margins = []
+    for x, y, r in bodies:
+        near = [ring for ring in rings if math.hypot(ring[0] - x, ring[1] - y) < 1e-3]
+        if near:
+            margins.append(near[0][2] - r)
+    margin = float(np.median(margins)) if margins else None
+    return np.array(bodies, dtype=float).reshape(-1, 3), margin
+
+
+def _obstacles_for(run, time, previous_time, warn):
+    """Obstacles (rows, source) and margin in force for a plan received at time."""
+    params = run.params
+    margin, margin_source = float(params['obstacles.margin']), 'parameters'
+    rows, source = None, None
+    latest = _latest(run.messages['obstacles'], time)
+    if latest is not None:
+        try:
+            rows = np.array(obstacle_rows_from_msg(latest[1]), dtype=float).reshape(-1, 3)
+            source = f'{run.topics["obstacles"]} at {latest[0]:.3f} s'
+        except ConversionError as error:
+            warn(f'obstacles message at {latest[0]:.3f} s unusable: {error}')
+    markers = [(t, m) for t, m in run.messages['markers']
+               if previous_time < t <= time + MARKER_DELAY_S]
+    parsed = None
+    for t, msg in reversed(markers):
+        parsed = obstacles_from_markers(msg)
+        if parsed is not None:
+            break
+    if parsed is not None:
+        if rows is None:
+            rows, source = parsed[0], f'{run.topics["markers"]} at {t:.3f} s'
+        if parsed[1] is not None:
+            margin, margin_source = parsed[1], 'markers'
+    if rows is None:
+        rows = np.array(obstacle_rows(params), dtype=float).reshape(-1, 3)
+        source = 'parameter file'
+    return rows, source, margin, margin_source
+
+
+def _goal_for(run, time, previous_time, a, joint_names):
+    """Joint goal (q1, dq1, q2, dq2) sent since the previous plan, and its source."""
+    candidates = []
+    pose = _latest(run.messages['goal_pose'], time, previous_time)
+    if pose is not None:
+        try:
+            goal = pose_to_joint_goal(pose[1], pose[1].header.frame_id, a)
+            candidates.append((pose[0], goal, f'{run.topics["goal_pose"]} at {pose[0]:.3f} s'))
+        except ConversionError:
+            pass
+    joints = _latest(run.messages['goal_joints'], time, previous_time)
+    if joints is not None:
+        try:
+            pos, vel = joint_state_arrays(joints[1], joint_names)
+            candidates.append((joints[0], np.array([pos[0], vel[0], pos[1], vel[1]]),
+                               f'{run.topics["goal_joints"]} at {joints[0]:.3f} s'))
+        except ConversionError:
+            pass
+    if not candidates:
+        return None, ''
+    _, goal, source = max(candidates, key=lambda c: c[0])
+    return goal, source
+
+
+def build_plans(run, solves, warn) -> List[Plan]:
+    """One Plan per usable trajectory message, matched with its solve's final progress."""
+    plans = []
+    a = float(run.params['robot.a'])
+    free = [s for s in solves if s.final_time is not None]
+    previous = -math.inf
+    for time, msg in run.messages['trajectory']:
+        names = list(msg.joint_names)
+        if len(names) != 2 or len(msg.points) < 2:
+            warn(f'trajectory at {time:.3f} s skipped: it needs 2 joints and >= 2 points '
+                 f'(has {len(names)} joints, {len(msg.points)} points)')
+            continue
+        try:
+            arrays = trajectory_arrays(msg, names)
+        except ConversionError as error:
+            warn(f'trajectory at {time:.3f} s skipped: {error}')
+            continue
+        states = np.column_stack([arrays.positions[:, 0], arrays.velocities[:, 0],
+                                  arrays.positions[:, 1], arrays.velocities[:, 1]])
+        rows, source, margin, _ = _obstacles_for(run, time, previous, warn)
+        goal, goal_source = _goal_for(run, time, previous, a, names)
+        plan = Plan(index=len(plans), time=time, joint_names=names, times=arrays.times,
+                    states=states, efforts=arrays.efforts, obstacles=rows,
+                    obstacles_source=source, margin=margin, goal=goal, goal_source=goal_source)
+        near = [s for s in free if abs(s.final_time - time) <= PROGRESS_MATCH_S
+                and s.status != 'INVALID_INPUT']
+        if near:
+            plan.solve = min(near, key=lambda s: abs(s.final_time - time))
+            free.remove(plan.solve)
+            reported = _vector(plan.solve.values.get('goal'))
+            if reported is not None:  # the goal the solver used (covers ~/plan requests)
+                plan.goal, plan.goal_source = reported, 'solver progress'
+        plans.append(plan)
+        previous = time
+    return plans
+
+
+def reference_at(plan: Plan, elapsed: np.ndarray) -> np.ndarray:
+    """Planned state at times elapsed [s] after receipt (linear; held after the end)."""
+    return np.column_stack([np.interp(elapsed, plan.times, plan.states[:, j])
+                            for j in range(4)])
+
+
+def measured_series(run, joint_names):
+    """(times, states (K, 4), efforts (K, 2) or None) of every usable joint_states message."""
+    times, states, efforts = [], [], []
+    for time, msg in run.messages['joint_states']:
+        try:
+            pos, vel = joint_state_arrays(msg, joint_names)
+        except ConversionError:
+            continue
+        names = list(msg.name)
+        times.append(time)
+        states.append((pos[0], vel[0], pos[1], vel[1]))
+        efforts.append([msg.effort[names.index(n)] for n in joint_names]
+                       if len(msg.effort) == len(names) else [math.nan, math.nan])
+    if not times:
+        return None
+    efforts = np.array(efforts, dtype=float)
+    return (np.array(times), np.array(states, dtype=float),
+            None if np.all(np.isnan(efforts)) else efforts)
+
+
+def build_executions(run, plans, warn) -> List[Execution]:
+    """Collect the joint_states of each plan's window, by the plan's joint names."""
+    executions = []
+    samples = run.messages['joint_states']
+    skipped = 0
+    for k, plan in enumerate(plans):
+        end = plans[k + 1].time if k + 1 < len(plans) else math.inf
+        times, states, efforts = [], [], []
+        for time, msg in samples:
+            if time < plan.time or time >= end:
+                continue
+            try:
+                pos, vel = joint_state_arrays(msg, plan.joint_names)
+            except ConversionError:
+                skipped += 1
+                continue
+            names = list(msg.name)
+            effort = ([msg.effort[names.index(n)] for n in plan.joint_names]
+                      if len(msg.effort) == len(names) else [math.nan, math.nan])
+            times.append(time)
+            states.append((pos[0], vel[0], pos[1], vel[1]))
+            efforts.append(effort)
+        if not times:
+            continue
+        times = np.array(times)
+        efforts = np.array(efforts, dtype=float)
+        executions.append(Execution(
+            plan=k, times=times, states=np.array(states, dtype=float),
+            efforts=None if np.all(np.isnan(efforts)) else efforts,
+            reference=reference_at(plan, times - plan.time),
+            interrupted=end < plan.time + plan.times[-1]))
+    if skipped:
+        warn(f'{skipped} joint_states messages lack the planned joints and were skipped')
+    return executions
+
+
+# -- numbers --------------------------------------------------------------------------------
+def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> dict:
+    """Summary entry of a plan: solver's report and the violations recomputed here."""
+    solve = plan.solve or Solve(status='unknown')
+    values = solve.values
+    excess = None
+    if plan.efforts is not None:
+        excess = max(float(np.max(np.abs(plan.efforts) - u_max[None, :])), 0.0)
+    circles = plan.obstacles.copy()
+    circles[:, 2] += plan.margin
+    clearance = (float(np.min(arm_clearance(plan.states, a, circles)))
+                 if len(circles) else None)
+    terminal = (float(np.linalg.norm(plan.states[-1] - plan.goal))
+                if plan.goal is not None else None)
+    start_error = (float(np.linalg.norm(plan.states[0] - start_state))
+                   if start_state is not None else None)
+    return {
+        'index': plan.index,
+        'received_s': plan.time,
+        'status': solve.status,
+        'message': solve.message,
+        't_min': float(plan.times[-1]),
+        'solve_wall_time_s': _num(_float(values.get('elapsed_s'))),
+        'iterations': (int(_float(values['iteration']))
+                       if math.isfinite(_float(values.get('iteration'))) else None),
+        'points': int(plan.times.size),
+        'joint_names': plan.joint_names,
+        'goal': None if plan.goal is None else plan.goal.tolist(),
+        'goal_source': plan.goal_source or None,
+        'obstacles': plan.obstacles.tolist(),
+        'obstacles_source': plan.obstacles_source,
+        'margin': plan.margin,
+        'violations': {'max_control_excess': _num(excess), 'terminal_error': _num(terminal),
+                       'min_clearance': _num(clearance), 'start_error': _num(start_error)},
+        'reported_violations': {k: _num(_float(values.get(k))) for k in
+                                ('max_control_excess', 'terminal_error', 'min_clearance')},
+    }
+
+
+def tracking_errors(execution: Execution, a: float) -> dict:
+    """Per-sample errors: q1 [rad], q2 [m] and hand position [m] (measured - planned)."""
+    meas, ref = execution.states, execution.reference
+    hand_m = np.column_stack(hand_position(meas[:, 0], meas[:, 2], a))
+    hand_r = np.column_stack(hand_position(ref[:, 0], ref[:, 2], a))
+    return {'q1': meas[:, 0] - ref[:, 0], 'q2': meas[:, 2] - ref[:, 2],
+            'hand': np.hypot(*(hand_m - hand_r).T)}
+
+
+def execution_numbers(execution: Execution, plan: Plan, a: float, u_max: np.ndarray) -> dict:
+    """Summary entry of an execution: final error, RMS tracking error, max effort."""
+    errors = tracking_errors(execution, a)
+    final = execution.states[-1]
+    target = plan.states[-1]
+    hand_final = np.hypot(*(np.array(hand_position(final[0], final[2], a))
+                            - np.array(hand_position(target[0], target[2], a))))
+    max_effort = (None if execution.efforts is None
+                  else np.nanmax(np.abs(execution.efforts), axis=0))
+    return {
+        'plan': execution.plan,
+        'start_s': float(execution.times[0]),
+        'end_s': float(execution.times[-1]),
+        'samples': int(execution.times.size),
+        'interrupted': bool(execution.interrupted),
+        'final_error': float(np.linalg.norm(final - target)),
+        'final_state': final.tolist(),
+        'final_hand_error': float(hand_final),
+        'rms_error': {k: float(np.sqrt(np.mean(v ** 2))) for k, v in errors.items()},
+        'max_hand_error': float(np.max(errors['hand'])),
+        'max_effort': None if max_effort is None else max_effort.tolist(),
+        'effort_within_bounds': (None if max_effort is None
+                                 else bool(np.all(max_effort <= u_max * (1 + 1e-9)))),
+    }
+
+
+@dataclass
+class Report:
+    """A run's numbers (summary, JSON-ready) and the arrays the plots draw."""
+
+    run: Run
+    solves: List[Solve]
+    plans: List[Plan]
+    executions: List[Execution]
+    summary: dict
+    measured: Optional[tuple] = None    # (times, states, efforts) of all joint_states
+
+
+def missing_roles(run) -> List[str]:
+    """Sentences for the roles a recording lacks."""
+    missing = []
+    for role, what in NEEDED_FOR.items():
+        if run.topics.get(role) is not None and run.messages[role]:
+            continue
+        if role == 'goal_pose' and run.messages['goal_joints']:
+            continue
+        token, type_name = ROLES[role]
+        state = 'no messages on' if run.topics.get(role) else 'no topic'
+        missing.append(f'{state} {run.topics.get(role) or token} ({type_name}): '
+                       f'without it: {what}')
+    return missing
+
+
+def analyse(run: Run, recording_info: dict, warn) -> Report:
+    """Plans, executions and the summary of a loaded run."""
+    robot = robot_from_parameters(run.params)
+    a, u_max = robot.a, robot.u_max
+    solves = solves_from_progress(run.messages['progress'])
+    plans = build_plans(run, solves, warn)
+    executions = build_executions(run, plans, warn)
+    plan_entries = []
+    for plan in plans:
+        before = _latest(run.messages['joint_states'], plan.time)
+        start = None
+        if before is not None:
+            try:
+                pos, vel = joint_state_arrays(before[1], plan.joint_names)
+                start = np.array([pos[0], vel[0], pos[1], vel[1]])
+            except ConversionError:
+                pass
+        plan_entries.append(plan_numbers(plan, u_max, a, start))
+    duration = max((items[-1][0] for items in run.messages.values() if items), default=0.0)
+    summary = {
+        **recording_info,
+        'start_time_ns': run.start_ns,
+        'duration_s': duration,
+        'topics': run.topics,
+        'robot': {'a': a, 'u_max': u_max.tolist()},
+        'plans': plan_entries,
+        'executions': [execution_numbers(e, plans[e.plan], a, u_max) for e in executions],
+        'solves': [{'status': s.status, 'message': s.message,
+                    'time_s': _num(s.final_time), 'progress_messages': len(s.points),
+                    'iterations': _num(_float(s.values.get('iteration'))),
+                    'elapsed_s': _num(_float(s.values.get('elapsed_s')))} for s in solves],
+        'missing': missing_roles(run),
+    }
+    names = plans[0].joint_names if plans else list(run.params['joint_names'])
+    return Report(run, solves, plans, executions, summary, measured_series(run, names))
+
+
+# -- Markdown -------------------------------------------------------------------------------
+def _fmt(value, digits=4, unit=''):
+    if value is None:
+        return 'n/a'
+    if isinstance(value, float):
+        return f'{value:.{digits}g}{unit}'
+    return f'{value}{unit}'
+
+
+def markdown(summary: dict) -> str:
+    """Render the summary as Markdown (tables, plots linked by file name)."""
+    lines = [f'# Run report: {summary["recording"]}', '',
+             f'{len(summary["plans"])} plan(s), {len(summary["executions"])} execution(s), '
+             f'{len(summary["solves"])} solve(s) over {summary["duration_s"]:.2f} s. '
+             'Times are receive times from the first message; violations are recomputed '
+             'from the trajectory (min clearance of the whole arm to the inflated circles, '
+             'negative = collision).', '']
+    if summary['plans']:
+        lines += ['## Plans', '',
+                  '| # | received [s] | status | t_min [s] | solve time [s] | iterations '
+                  '| control excess | terminal error | min clearance [m] | start error |',
+                  '|---|---|---|---|---|---|---|---|---|---|']
+        for p in summary['plans']:
+            v = p['violations']
+            lines.append(
+                f'| {p["index"]} | {p["received_s"]:.3f} | {p["status"]} | {p["t_min"]:.4f} '
+                f'| {_fmt(p["solve_wall_time_s"], 3)} | {_fmt(p["iterations"])} '
+                f'| {_fmt(v["max_control_excess"], 3)} | {_fmt(v["terminal_error"], 3)} '
+                f'| {_fmt(v["min_clearance"], 3)} | {_fmt(v["start_error"], 3)} |')
+        lines.append('')
+        for p in summary['plans']:
+            lines.append(f'- plan {p["index"]}: obstacles {p["obstacles"]} (margin '
+                         f'{p["margin"]:.3g} m) from {p["obstacles_source"]}; goal '
+                         f'{_fmt(p["goal_source"])}')
+        lines.append('')
+    if summary['executions']:
+        lines += ['## Executions', '',
+                  '| plan | from [s] | to [s] | final error | final hand error [m] '
+                  '| RMS q1 [rad] | RMS q2 [m] | RMS hand [m] | max effort u1 [N m], u2 [N] |',
+                  '|---|---|---|---|---|---|---|---|---|']
+        for e in summary['executions']:
+            rms = e['rms_error']
+            effort = ('n/a' if e['max_effort'] is None
+                      else ', '.join(f'{u:.4g}' for u in e['max_effort']))
+            lines.append(
+                f'| {e["plan"]}{" (interrupted)" if e["interrupted"] else ""} '
+                f'| {e["start_s"]:.3f} | {e["end_s"]:.3f} | {e["final_error"]:.3g} '
+                f'| {e["final_hand_error"]:.3g} | {rms["q1"]:.3g} | {rms["q2"]:.3g} '
+                f'| {rms["hand"]:.3g} | {effort} |')
+        lines.append('')
+    other = [s for s in summary['solves'] if s['status'] not in ('SOLVED', 'unknown')]
+    if other:
+        lines += ['## Other solver outcomes', '']
+        lines += [f'- {_fmt(s["time_s"], 5)} s: {s["status"]}: {s["message"]}'
+                  if s['time_s'] is not None else f'- {s["status"]}: {s["message"]}'
+                  for s in other]
+        lines.append('')
+    plots = summary.get('plots', {})
+    if plots:
+        lines += ['## Plots', '']
+        for name, entry in plots.items():
+            if entry.get('file'):
+                lines.append(f'![{name}]({entry["file"]})')
+            else:
+                lines.append(f'- {name}: not drawn: {entry.get("reason")}')
+        lines.append('')
+    if summary['missing'] or summary['warnings']:
+        lines += ['## Missing data and warnings', '']
+        lines += [f'- missing: {m}' for m in summary['missing']]
+        lines += [f'- warning: {w}' for w in summary['warnings']]
+        lines.append('')
+    return '\n'.join(lines)
