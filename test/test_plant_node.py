@@ -24,6 +24,7 @@ from node_harness import (
     TEST_PARAMS, values)
 import numpy as np
 import pytest
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -234,3 +235,22 @@ def test_reset_and_bad_trajectories(plant):
                                                          'integration_rate': 10.0})
     assert not results[0].successful and 'kp entries must be >= 0' in results[0].reason
     assert not results[1].successful and 'integration_rate' in results[1].reason
+
+
+def test_publish_clock_and_rate_change(plant):
+    clocks = []
+    plant.client.node.create_subscription(Clock, '/clock', clocks.append, 10)
+    results = plant.client.set_parameters('plant_node', {'publish_clock': True, 'rate': 50.0})
+    assert all(r.successful for r in results), results
+    try:
+        since = time.monotonic()
+        plant.client.wait_for(lambda: len(clocks) >= 10, 10.0, '/clock')
+        time.sleep(0.3)
+        msgs = plant.client.messages('joint_states', since + 0.1)
+        stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in msgs]
+        sim = [c.clock.sec + 1e-9 * c.clock.nanosec for c in clocks]
+        assert np.all(np.diff(sim) > 0) and np.all(np.diff(stamps) > 0)
+        assert set(stamps) <= set(sim)                        # stamped with simulated time
+        assert np.median(np.diff(stamps)) == pytest.approx(0.02, rel=0.2)      # 50 Hz
+    finally:
+        plant.client.set_parameters('plant_node', {'publish_clock': False, 'rate': 100.0})

@@ -149,6 +149,13 @@ def test_qos_from_recorded_offers():
     # Humble stored rmw enum values instead of names
     humble = qos_from_offers([{'history': 1, 'depth': 1, 'reliability': 1, 'durability': 1}])
     assert humble.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    # what rosbag2 records from discovery: no depth; a latched topic replays its last message
+    jazzy = qos_from_offers([{'history': 'unknown', 'depth': 0, 'reliability': 'reliable',
+                              'durability': 'transient_local'}])
+    assert jazzy.durability == DurabilityPolicy.TRANSIENT_LOCAL and jazzy.depth == 1
+    volatile = qos_from_offers([{'history': 'unknown', 'depth': 0, 'reliability': 'reliable',
+                                 'durability': 'volatile'}])
+    assert volatile.depth == 10
     default = qos_from_offers([])
     assert default.reliability == ReliabilityPolicy.RELIABLE and default.depth == 10
 

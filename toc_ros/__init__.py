@@ -14,4 +14,13 @@
 
 """toc_ros: minimum-time trajectories by backpropagation-through-time, on ROS 2."""
 
+import os
+import sys
+
 __version__ = '0.1.0'
+
+# In a plain venv with the ROS 2 wheels (no setup.bash sourced) the message packages live in
+# sys.prefix/share: let the ament index find them there, for this process and its children.
+if not os.environ.get('AMENT_PREFIX_PATH') and os.path.isdir(
+        os.path.join(sys.prefix, 'share', 'ament_index')):
+    os.environ['AMENT_PREFIX_PATH'] = sys.prefix

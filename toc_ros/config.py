@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The scenario file (config/toc_ros.yaml, a ROS 2 parameter file) <-> core Problem/options.
+"""
+The scenario file (config/toc_ros.yaml, a ROS 2 parameter file) <-> core Problem/options.
 
 One mapping from flat parameter names ('robot.a', 'solver.N', ...) to the core types, used by
 toc-solve and by the nodes (whose ROS parameters carry the same names).
@@ -108,7 +109,7 @@ def obstacle_rows(params):
 
 
 def robot_from_parameters(params):
-    """RobotParams from flat parameters."""
+    """Build the RobotParams from flat parameters."""
     u_max = list(params['robot.u_max'])
     if len(u_max) != 2:
         raise ProblemError(f'robot.u_max must have 2 entries, got {len(u_max)}')
@@ -133,7 +134,7 @@ def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
 
 
 def options_from_parameters(params):
-    """SolverOptions from flat parameters (timeout <= 0 means no limit)."""
+    """Build the SolverOptions from flat parameters (timeout <= 0 means no limit)."""
     timeout = float(params['solver.timeout'])
     return SolverOptions(
         mode=str(params['solver.mode']),

@@ -192,7 +192,7 @@ def solves_from_progress(progress) -> List[Solve]:
 
 
 def _vector(text, size=4):
-    """A '[a, b, c, d]' string as an array of size finite numbers, or None."""
+    """Parse a '[a, b, c, d]' string into an array of size finite numbers, or None."""
     try:
         values = np.array([float(v) for v in str(text).strip('[]() ').split(',')])
     except ValueError:
@@ -343,7 +343,7 @@ def reference_at(plan: Plan, elapsed: np.ndarray) -> np.ndarray:
 
 
 def measured_series(run, joint_names):
-    """(times, states (K, 4), efforts (K, 2) or None) of every usable joint_states message."""
+    """Collect (times, states (K, 4), efforts (K, 2) or None) of all usable joint_states."""
     times, states, efforts = [], [], []
     for time, msg in run.messages['joint_states']:
         try:

@@ -14,11 +14,17 @@
 
 """ROS-free numeric core of toc_ros: model, BPTT gradient, solvers, result types."""
 
-from .model import hand_position, RobotParams
-from .obstacles import arm_clearance
-from .problem import measure_violations, PaperOptions, Problem, ProblemError, SolverOptions
-from .result import Progress, SolveResult, Status, Violations
-from .solver import solve, warm_up
+from ._numba_cache import use_source_keyed_cache
+
+use_source_keyed_cache()
+
+# The imports below compile or load the numba kernels; the cache directory must be set first.
+
+from .model import hand_position, RobotParams  # noqa: E402
+from .obstacles import arm_clearance  # noqa: E402
+from .problem import measure_violations, PaperOptions, Problem, ProblemError, SolverOptions  # noqa: E402, E501
+from .result import Progress, SolveResult, Status, Violations  # noqa: E402
+from .solver import solve, warm_up  # noqa: E402
 
 __all__ = [
     'arm_clearance', 'hand_position', 'measure_violations', 'PaperOptions', 'Problem',

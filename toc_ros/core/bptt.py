@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The backpropagation-through-time gradient, eqs. (16)-(32), in one place.
+"""
+The backpropagation-through-time gradient, eqs. (16)-(32), in one place.
 
 The paper propagates two quantities backwards: P(j) for the running cost (eqs. 24-25) and
 D(j) = d x(N)/d x(j+1) for the terminal penalty (eq. 27), and combines them in eq. (31):
@@ -36,7 +37,8 @@ from .penalties import paper_penalties
 
 @njit(cache=True)
 def adjoint_sweep(jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u):
-    """Backward recursion (eqs. 24-27, 30-31): total dJ/du (N x 2) and dJ/dtau.
+    """
+    Backward recursion (eqs. 24-27, 30-31): total dJ/du (N x 2) and dJ/dtau.
 
     grad_x (N+1 x 4) and grad_u (N x 2) hold the explicit partials of the cost; out_grad_u
     receives the total derivatives.  Returns (dJ/dtau, dJ/dx(0) as a 4-tuple).
@@ -79,7 +81,8 @@ class Workspace:
 def paper_cost_gradient(x0, x_goal, controls, tau, p, method, u_max, circles, k_b, k_v_hat,
                         k_p, grad_mode, states, jac_x, jac_u, jac_tau, grad_x, grad_u,
                         out_grad_u):
-    """J_T = J1 + J2 + J3 (eq. 33) and its BPTT gradient dJ_T/du (eq. 29) for fixed tau.
+    """
+    J_T = J1 + J2 + J3 (eq. 33) and its BPTT gradient dJ_T/du (eq. 29) for fixed tau.
 
     With grad_mode GRAD_EXACT this is the true gradient; GRAD_SHORTCUT substitutes eq. (46).
     Returns (J1, J2, J3, dJ/dtau); the gradient is left in out_grad_u.
@@ -93,7 +96,7 @@ def paper_cost_gradient(x0, x_goal, controls, tau, p, method, u_max, circles, k_
 
 def paper_cost(x0, x_goal, controls, tau, p, method, u_max, circles, k_b, k_v_hat, k_p,
                grad_mode=GRAD_EXACT):
-    """Convenience wrapper: (J_T, dJ_T/du) allocated fresh (for tests and one-off calls)."""
+    """Return (J_T, dJ_T/du) with fresh buffers (for tests and one-off calls)."""
     ws = Workspace(controls.shape[0])
     j1, j2, j3, _ = paper_cost_gradient(
         np.asarray(x0, float), np.asarray(x_goal, float), np.ascontiguousarray(controls, float),

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Fast mode: a feasible minimum-time solution built on the same BPTT gradient.
+"""
+Fast mode: a feasible minimum-time solution built on the same BPTT gradient.
 
 The discrete problem is the paper's (eqs. 1-5 with F-hat = 1, i.e. J0 = N tau = t_f) with the
 constraints kept as constraints instead of fixed penalties:
@@ -32,9 +33,6 @@ have settled.  The obstacle constraint uses the squared segment distance (C1), s
 unbounded where the ray is tangent to the circle.
 """
 
-import math
-import time
-
 from numba import njit
 import numpy as np
 from scipy.optimize import minimize
@@ -47,7 +45,8 @@ from .obstacles import segment_distance_sq
 @njit(cache=True)
 def alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, states,
                        jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u, grad_z, cons):
-    """Augmented Lagrangian L(v, t_f) and dL/dz for z = [v (2N, row-major), t_f].
+    """
+    Augmented Lagrangian L(v, t_f) and dL/dz for z = [v (2N, row-major), t_f].
 
     cons receives the terminal residuals (4) then the obstacle constraints (N x K, row-major).
     """
@@ -141,7 +140,7 @@ class FastRun:
         return term, deficit
 
     def controls(self, z=None):
-        """Controls u (N x 2) of z (default: the current iterate)."""
+        """Return the controls u (N x 2) of z (default: the current iterate)."""
         z = self.z if z is None else z
         return z[:2 * self.n].reshape(self.n, 2) * self.u_max[None, :]
 
@@ -164,7 +163,7 @@ class FastRun:
 
 @njit(cache=True)
 def obstacle_constraints(states, a, circles, cons, d_q1, d_q2):
-    """c = (d^2 - R^2) / (2 R) ~ clearance [m] at nodes 0..N (N+1 x K) and dc/dq1, dc/dq2."""
+    """Fill cons = (d^2 - R^2) / (2 R) ~ clearance [m] at nodes 0..N (N+1 x K), dc/dq1, dc/dq2."""
     for i in range(states.shape[0]):
         for k in range(circles.shape[0]):
             radius = circles[k, 2]
@@ -177,7 +176,8 @@ def obstacle_constraints(states, a, circles, cons, d_q1, d_q2):
 
 @njit(cache=True)
 def sensitivity_rows(jac_x, jac_u, jac_tau, u_max, nodes, seeds, rows):
-    """Row m of rows (M x 2N+1) = d(seed_m . x(nodes[m])) / d(v, t_f), v = u / u_max.
+    """
+    Row m of rows (M x 2N+1) = d(seed_m . x(nodes[m])) / d(v, t_f), v = u / u_max.
 
     One backward sweep of the BPTT recursion per row, started at its own node (eqs. 21-22);
     the last column is the derivative wrt t_f = N tau.
@@ -208,7 +208,8 @@ def sensitivity_rows(jac_x, jac_u, jac_tau, u_max, nodes, seeds, rows):
 
 
 class FeasibilityProjector:
-    """Gauss-Newton projection of scaled controls onto {x(N) = x_goal, clearance >= 0} at fixed t_f.
+    """
+    Gauss-Newton projection onto {x(N) = x_goal, clearance >= 0} at a fixed t_f.
 
     Minimum-norm steps in the controls that are not at a bound (a bound, once hit, stays); the
     rows are the terminal residuals and the obstacle constraints that are violated or touching.
@@ -296,56 +297,3 @@ class FeasibilityProjector:
                 break
         h, cons = self.residuals(v, t_f)
         return self._worst(h, cons) <= tol, v
-
-
-class CoarseSQP:
-    """Free-t_f problem on a coarse grid by SQP (scipy SLSQP) with BPTT constraint Jacobians.
-
-    Variables z = [v (2N), t_f]; objective t_f; equality x(N) = x_goal; inequality clearance
-    constraints at nodes 1..N.  Small enough (N ~ 100) for SLSQP's dense quasi-Newton QP,
-    which converges to a KKT point far more reliably than first-order penalty iterations.
-    """
-
-    def __init__(self, run, t_f_bounds=(1e-3, 1e3)):
-        self.run = run
-        self.proj = FeasibilityProjector(run)
-        n = run.n
-        k = run.circles.shape[0]
-        self.n_obs = n * k
-        self.nodes = np.concatenate([np.full(4, n), np.repeat(np.arange(1, n + 1), k)])
-        self.seeds = np.zeros((4 + self.n_obs, 4))
-        self.seeds[:4, :4] = np.eye(4)
-        self.rows = np.zeros((4 + self.n_obs, 2 * n + 1))
-        self.bounds = [(-1.0, 1.0)] * (2 * n) + [t_f_bounds]
-        self._key = None
-
-    def _evaluate(self, z):
-        if self._key is not None and np.array_equal(z, self._key):
-            return
-        run = self.run
-        h, cons = self.proj.residuals(z[:-1], z[-1])
-        self.h = h.copy()
-        self.c = cons[1:].ravel().copy()
-        if self.n_obs:
-            self.seeds[4:, 0] = self.proj.d_q1[1:].ravel()
-            self.seeds[4:, 2] = self.proj.d_q2[1:].ravel()
-        ws = run.ws
-        sensitivity_rows(ws.jac_x, ws.jac_u, ws.jac_tau, run.u_max, self.nodes, self.seeds,
-                         self.rows)
-        self._key = z.copy()
-
-    def solve(self, z0, max_iter, callback=None):
-        """Run SLSQP from z0; returns the scipy result."""
-        n = self.run.n
-        grad_f = np.zeros(2 * n + 1)
-        grad_f[-1] = 1.0
-        cons = [{'type': 'eq',
-                 'fun': lambda z: (self._evaluate(z), self.h)[1],
-                 'jac': lambda z: (self._evaluate(z), self.rows[:4])[1]}]
-        if self.n_obs:
-            cons.append({'type': 'ineq',
-                         'fun': lambda z: (self._evaluate(z), self.c)[1],
-                         'jac': lambda z: (self._evaluate(z), self.rows[4:])[1]})
-        return minimize(lambda z: z[-1], z0, jac=lambda z: grad_f, method='SLSQP',
-                        bounds=self.bounds, constraints=cons, callback=callback,
-                        options={'maxiter': max_iter, 'ftol': 1e-12})

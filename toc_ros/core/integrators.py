@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Discretisation of eq. (37): x(i+1) = f(x(i), u(i)) of eq. (2), piecewise-constant controls.
+"""
+Discretisation of eq. (37): x(i+1) = f(x(i), u(i)) of eq. (2), piecewise-constant controls.
 
 Two one-step maps on the interval tau = t_f / N: explicit Euler (the paper's) and classic RK4
 with u held over the step.  rollout_linearized also returns the Jacobians X(j) = dx(j+1)/dx(j)

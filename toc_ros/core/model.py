@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The 2-DOF cylindrical robot of the paper, eq. (37), with analytic Jacobians.
+"""
+The 2-DOF cylindrical robot of the paper, eq. (37), with analytic Jacobians.
 
 State x = [q1, dq1, q2, dq2] (rotation [rad], its rate, extension [m], its rate), control
 u = [u1, u2] (torque [N m], force [N]).  The hand is at distance a + q2 from the base, along
@@ -84,7 +85,8 @@ class RobotParams:
 
 @njit(cache=True, inline='always')
 def rhs(x1, x2, x3, x4, u1, u2, p):
-    """Right-hand side of eq. (37) on scalars: (dx1, dx2, dx3, dx4).
+    """
+    Right-hand side of eq. (37) on scalars: (dx1, dx2, dx3, dx4).
 
     Scalar arguments and tuple results keep the hot loops free of array views.
     """
@@ -98,7 +100,8 @@ def rhs(x1, x2, x3, x4, u1, u2, p):
 
 @njit(cache=True, inline='always')
 def rhs_partials(x1, x2, x3, x4, u1, u2, p):
-    """Non-zero entries of df/dx and df/du of eq. (37) that depend on the state.
+    """
+    Non-zero entries of df/dx and df/du of eq. (37) that depend on the state.
 
     Returns (f1_x2, f1_x3, f1_x4, f3_x2, f3_x3, f1_u1, f3_u2) with f indexed from 0;
     the constant ones are f0_x2 = f2_x4 = 1 (0-based: df0/dx1 = df2/dx3 = 1).

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Circular obstacles and the arm: the paper's penalty (eqs. 38-46) and exact clearance.
+"""
+Circular obstacles and the arm: the paper's penalty (eqs. 38-46) and exact clearance.
 
 The arm is the segment from the base (origin) to the hand, [0, (a + q2) e(q1)] with
 e = (cos q1, sin q1).  Obstacles are rows (cx, cy, R) of an array, R = R' + dR already
@@ -38,7 +39,8 @@ GRAD_SHORTCUT = 1   # eq. (46): dJ3/dq1 = 0, dJ3/dq2 = K_p H
 
 @njit(cache=True)
 def ray_penetration(q1, q2, a, cx, cy, radius):
-    """Return (r_min - a - q2, d r_min / d q1, active) of eqs. (39)-(43) for one circle.
+    """
+    Return (r_min - a - q2, d r_min / d q1, active) of eqs. (39)-(43) for one circle.
 
     active is H-(r_min - q2 - a) H+(D) of eq. (43); the other two are 0 when inactive.
     """
@@ -57,7 +59,8 @@ def ray_penetration(q1, q2, a, cx, cy, radius):
 
 @njit(cache=True)
 def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
-    """J3 of eq. (42) summed over circles and nodes 0..N; adds dJ3/dx to grad_x (N+1 x 4).
+    """
+    J3 of eq. (42) summed over circles and nodes 0..N; adds dJ3/dx to grad_x (N+1 x 4).
 
     grad_mode GRAD_EXACT uses eq. (44) with the exact d r_min/d q1 (eq. 45); GRAD_SHORTCUT
     the paper's eq. (46), which is not the gradient of J3 (only a descent heuristic).
@@ -70,8 +73,8 @@ def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
     half_width = np.empty(n_circles)
     for k in range(n_circles):
         bearing[k] = math.atan2(circles[k, 1], circles[k, 0])
-        half_width[k] = math.asin(min(1.0, circles[k, 2] / math.hypot(circles[k, 0],
-                                                                       circles[k, 1])))
+        distance = math.hypot(circles[k, 0], circles[k, 1])
+        half_width[k] = math.asin(min(1.0, circles[k, 2] / distance))
     for i in range(states.shape[0]):
         q1, q2 = states[i, 0], states[i, 2]
         for k in range(n_circles):
@@ -94,7 +97,8 @@ def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
 
 @njit(cache=True)
 def segment_distance_sq(q1, q2, a, cx, cy):
-    """Squared distance from the arm segment to (cx, cy) and its derivatives wrt q1, q2.
+    """
+    Squared distance from the arm segment to (cx, cy) and its derivatives wrt q1, q2.
 
     The closest point is at s = clamp(c . e, 0, L), L = a + q2; the result is C1 in (q1, q2).
     """
@@ -112,7 +116,8 @@ def segment_distance_sq(q1, q2, a, cx, cy):
 
 
 def arm_clearance(states, a, circles):
-    """Distance from the arm segment to each circle's edge at every node: (N+1, K) [m].
+    """
+    Distance from the arm segment to each circle's edge at every node: (N+1, K) [m].
 
     Plain numpy (independent of the kernels): negative means the arm cuts the inflated circle.
     """

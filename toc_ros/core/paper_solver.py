@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Paper mode: the section-3 minimum-time heuristic exactly as the paper states it.
+"""
+Paper mode: the section-3 minimum-time heuristic exactly as the paper states it.
 
 Gradient descent with constant learning rate eta on u (eq. 32) with the BPTT gradient of
 J_T = J1 + J2 + J3 (eq. 33; J2 uses the constant K_V-hat = tau0 K_V), and after every
@@ -34,7 +35,8 @@ def paper_iterations(n_iter, x0, x_goal, controls, tau_box, p, method, u_max, ci
                      k_v_hat, k_p, grad_mode, eta, d_tau, j_eps, best_controls, best_box,
                      hist_tf, hist_j, hist_start, states, jac_x, jac_u, jac_tau, grad_x,
                      grad_u, out_grad_u):
-    """Run n_iter iterations of eqs. (28)-(34) in place; returns the last J_T.
+    """
+    Run n_iter iterations of eqs. (28)-(34) in place; returns the last J_T.
 
     tau_box[0] holds tau; best_box = [tau, J_T, count] of the last accepted iteration, whose
     controls are copied to best_controls.  hist_* receive t_f and J_T per iteration.
@@ -103,15 +105,15 @@ class PaperRun:
 
     @property
     def t_f(self):
-        """Current final time N tau [s]."""
+        """Return the current final time N tau [s]."""
         return self.problem.n_intervals * self.tau_box[0]
 
     @property
     def best_t_f(self):
-        """t_f of the last accepted iteration (nan before the first)."""
+        """Return t_f of the last accepted iteration (nan before the first)."""
         return self.problem.n_intervals * self.best_box[0]
 
     def history(self):
-        """(iteration, t_f, J_T) rows."""
+        """Return the (iteration, t_f, J_T) rows."""
         it = np.arange(self.done, dtype=float)
         return np.column_stack([it, self.hist_tf[:self.done], self.hist_j[:self.done]])

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Penalty terms of the paper's cost, eq. (6): J1 (eq. 7), J2 (eqs. 8-9), J3 (eq. 42).
+"""
+Penalty terms of the paper's cost, eq. (6): J1 (eq. 7), J2 (eqs. 8-9), J3 (eq. 42).
 
 Each function returns its value and adds its partial derivatives to caller-owned gradient
 buffers (grad_x: N+1 x 4 over the states, grad_u: N x 2 over the controls), which the BPTT

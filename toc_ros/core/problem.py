@@ -37,7 +37,8 @@ class ProblemError(ValueError):
 
 @dataclass(frozen=True)
 class Problem:
-    """Move the robot from x0 to x_goal (rest or not) in minimum time around circles.
+    """
+    Move the robot from x0 to x_goal (rest or not) in minimum time around circles.
 
     obstacles: rows (cx, cy, R') [m] in the base frame; margin dR [m] inflates each to
     R = R' + dR (section 4.2).  N intervals of tau = t_f / N, t_f0 the initial final time.

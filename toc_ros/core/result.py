@@ -54,7 +54,7 @@ class Violations:
     min_clearance: float = math.inf        # min distance arm-to-inflated-circle [m] (<0: hit)
 
     def feasible(self):
-        """True when within the SOLVED tolerances."""
+        """Return True when within the SOLVED tolerances."""
         return (self.max_control_excess <= 0.0 and self.terminal_error <= TERMINAL_TOL
                 and self.min_clearance >= -CLEARANCE_TOL)
 
@@ -98,12 +98,12 @@ class SolveResult:
 
     @property
     def success(self):
-        """True for Status.SOLVED."""
+        """Return True for Status.SOLVED."""
         return self.status is Status.SOLVED
 
     @property
     def has_trajectory(self):
-        """True when states/controls hold a trajectory (best so far for stopped solves)."""
+        """Return True when states/controls hold a trajectory (best so far if stopped)."""
         return self.controls.shape[0] > 0
 
     def to_dict(self):

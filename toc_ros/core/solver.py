@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Solver driver: validation, paper/fast mode, progress, cancel, timeout, result assembly.
+"""
+Solver driver: validation, paper/fast mode, progress, cancel, timeout, result assembly.
 
 solve() runs in the caller's thread in chunks, calls progress at least every
 options.progress_period seconds and checks cancel (a threading.Event or any object with
@@ -177,7 +178,8 @@ class _FastDriver:
                                            self.clock.elapsed(), f'fast N={run.n}'))
 
     def _alm(self, run, final, feasibility_first=False):
-        """ALM outer loop on run; returns True when the constraints meet ALM_TOL.
+        """
+        ALM outer loop on run; returns True when the constraints meet ALM_TOL.
 
         feasibility_first: first solve the penalty problem at the fixed t_f0 (a feasible
         starting trajectory) and start with a stiffer penalty; the default starts from rest
@@ -229,7 +231,8 @@ class _FastDriver:
                                            f'refine N={run.n}'))
 
     def _refine(self, fine):
-        """Carry the coarse optimum to the fine grid: feasibility projection + bisection on t_f.
+        """
+        Carry the coarse optimum to the fine grid: feasibility projection + bisection on t_f.
 
         The coarse and fine discrete optima differ by the discretisation error (O(1/N)), so
         the fine minimum time is bracketed near the coarse one: step up until the projection

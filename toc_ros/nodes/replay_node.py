@@ -75,7 +75,9 @@ def qos_from_offers(profiles: Iterable[dict]) -> QoSProfile:
     Choose the publisher QoS of a topic from what its recorded publishers offered.
 
     Transient-local only if every recorded publisher was (latched topics stay latched),
-    best-effort only if every one was, depth the largest offered (default 10).
+    best-effort only if every one was, depth the largest offered. Discovery does not tell a
+    publisher's depth (rosbag2 stores 0), so an unknown depth is 1 for latched topics (late
+    subscribers get the last message, not a backlog) and 10 otherwise.
     """
     profiles = list(profiles)
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEFAULT_DEPTH)
@@ -90,6 +92,8 @@ def qos_from_offers(profiles: Iterable[dict]) -> QoSProfile:
     if all(_policy(p, 'durability', _DURABILITY_CODES) == 'transient_local'
            for p in profiles):
         qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+        if not depths or max(depths) <= 0:
+            qos.depth = 1
     return qos
 
 
