@@ -46,7 +46,7 @@ FD_TOL = 1e-6
 
 
 def _controls(seed):
-    """A rotate-and-brake motion through both circles, with noise and four bound violations."""
+    """Return a rotate-and-brake motion through both circles, noisy, with 4 bound violations."""
     rng = np.random.default_rng(seed)
     u = np.zeros((N, 2))
     u[:N // 2, 0], u[N // 2:, 0] = 350.0, -350.0

@@ -47,7 +47,7 @@ DEFAULTS = {
     'solver.integrator': 'euler',
     'solver.N': 1000,
     'solver.t_f0': 2.5,
-    'solver.max_iterations': 30000,
+    'solver.max_iterations': 0,          # 0: the mode's default (paper: M = 30000)
     'solver.timeout': 60.0,
     'solver.paper.K_B': 600.0,
     'solver.paper.K_V': 0.01,
@@ -134,11 +134,11 @@ def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
 
 
 def options_from_parameters(params):
-    """Build the SolverOptions from flat parameters (timeout <= 0 means no limit)."""
+    """Build the SolverOptions (timeout <= 0: no limit; max_iterations 0: mode default)."""
     timeout = float(params['solver.timeout'])
     return SolverOptions(
         mode=str(params['solver.mode']),
-        max_iterations=int(params['solver.max_iterations']),
+        max_iterations=int(params['solver.max_iterations']) or None,
         timeout=timeout if timeout > 0 else None,
         paper=PaperOptions(k_b=float(params['solver.paper.K_B']),
                            k_v=float(params['solver.paper.K_V']),

@@ -23,6 +23,7 @@ the parameter file), the latest goal since the previous plan. Missing topics lea
 numbers that need them at None and are listed in ``missing``.
 """
 
+import bisect
 from dataclasses import dataclass, field
 import math
 from typing import Dict, List, Optional
@@ -43,7 +44,6 @@ ROLES = {
     'goal_joints': ('goal_joints', 'sensor_msgs/msg/JointState'),
     'obstacles': ('obstacles', 'std_msgs/msg/Float64MultiArray'),
     'markers': ('markers', 'visualization_msgs/msg/MarkerArray'),
-    'tracking': ('tracking', 'diagnostic_msgs/msg/DiagnosticStatus'),
 }
 # What is lost without a role (for the 'missing' list).
 NEEDED_FOR = {
@@ -51,7 +51,7 @@ NEEDED_FOR = {
     'joint_states': 'executions: measured states, applied effort, tracking error',
     'progress': 'solver status, iterations, solve time, convergence plot',
     'obstacles': 'obstacles sent at run time (else markers or the parameter file are used)',
-    'goal_pose': 'goals (terminal error of a plan)',
+    'goal_pose': 'the goal of a plan the solver did not report (its terminal error)',
 }
 RUNNING = 'SOLVING'
 # A plan and the final progress of its solve are published within this time [s].
@@ -113,6 +113,7 @@ class Plan:
     obstacles: np.ndarray          # (K, 3) x, y, radius R'
     obstacles_source: str
     margin: float
+    margin_source: str
     goal: Optional[np.ndarray] = None
     goal_source: str = ''
     solve: Optional[Solve] = None
@@ -138,7 +139,6 @@ class Run:
     messages: Dict[str, list]           # role -> [(time [s], message)]
     start_ns: int
     params: dict
-    warnings: List[str] = field(default_factory=list)
 
 
 def load_run(recording, params, warn=None) -> Run:
@@ -318,11 +318,12 @@ def build_plans(run, solves, warn) -> List[Plan]:
             continue
         states = np.column_stack([arrays.positions[:, 0], arrays.velocities[:, 0],
                                   arrays.positions[:, 1], arrays.velocities[:, 1]])
-        rows, source, margin, _ = _obstacles_for(run, time, previous, warn)
+        rows, source, margin, margin_source = _obstacles_for(run, time, previous, warn)
         goal, goal_source = _goal_for(run, time, previous, a, names)
         plan = Plan(index=len(plans), time=time, joint_names=names, times=arrays.times,
                     states=states, efforts=arrays.efforts, obstacles=rows,
-                    obstacles_source=source, margin=margin, goal=goal, goal_source=goal_source)
+                    obstacles_source=source, margin=margin, margin_source=margin_source,
+                    goal=goal, goal_source=goal_source)
         near = [s for s in free if abs(s.final_time - time) <= PROGRESS_MATCH_S
                 and s.status != 'INVALID_INPUT']
         if near:
@@ -342,54 +343,49 @@ def reference_at(plan: Plan, elapsed: np.ndarray) -> np.ndarray:
                             for j in range(4)])
 
 
-def measured_series(run, joint_names):
-    """Collect (times, states (K, 4), efforts (K, 2) or None) of all usable joint_states."""
+def _joint_samples(items, joint_names):
+    """Split joint_states into times, states (K, 4), efforts (K, 2; nan if absent), skipped."""
     times, states, efforts = [], [], []
-    for time, msg in run.messages['joint_states']:
+    skipped = 0
+    for time, msg in items:
         try:
             pos, vel = joint_state_arrays(msg, joint_names)
         except ConversionError:
+            skipped += 1
             continue
         names = list(msg.name)
         times.append(time)
         states.append((pos[0], vel[0], pos[1], vel[1]))
         efforts.append([msg.effort[names.index(n)] for n in joint_names]
                        if len(msg.effort) == len(names) else [math.nan, math.nan])
-    if not times:
+    return (np.array(times, dtype=float), np.array(states, dtype=float).reshape(-1, 4),
+            np.array(efforts, dtype=float).reshape(-1, 2), skipped)
+
+
+def measured_series(run, joint_names):
+    """Collect (times, states (K, 4), efforts (K, 2) or None) of all usable joint_states."""
+    times, states, efforts, _ = _joint_samples(run.messages['joint_states'], joint_names)
+    if not times.size:
         return None
-    efforts = np.array(efforts, dtype=float)
-    return (np.array(times), np.array(states, dtype=float),
-            None if np.all(np.isnan(efforts)) else efforts)
+    return times, states, None if np.all(np.isnan(efforts)) else efforts
 
 
 def build_executions(run, plans, warn) -> List[Execution]:
     """Collect the joint_states of each plan's window, by the plan's joint names."""
     executions = []
     samples = run.messages['joint_states']
+    sample_times = [t for t, _ in samples]
     skipped = 0
     for k, plan in enumerate(plans):
         end = plans[k + 1].time if k + 1 < len(plans) else math.inf
-        times, states, efforts = [], [], []
-        for time, msg in samples:
-            if time < plan.time or time >= end:
-                continue
-            try:
-                pos, vel = joint_state_arrays(msg, plan.joint_names)
-            except ConversionError:
-                skipped += 1
-                continue
-            names = list(msg.name)
-            effort = ([msg.effort[names.index(n)] for n in plan.joint_names]
-                      if len(msg.effort) == len(names) else [math.nan, math.nan])
-            times.append(time)
-            states.append((pos[0], vel[0], pos[1], vel[1]))
-            efforts.append(effort)
-        if not times:
+        window = samples[bisect.bisect_left(sample_times, plan.time):
+                         bisect.bisect_left(sample_times, end)]
+        times, states, efforts, bad = _joint_samples(window, plan.joint_names)
+        skipped += bad
+        if not times.size:
             continue
-        times = np.array(times)
-        efforts = np.array(efforts, dtype=float)
         executions.append(Execution(
-            plan=k, times=times, states=np.array(states, dtype=float),
+            plan=k, times=times, states=states,
             efforts=None if np.all(np.isnan(efforts)) else efforts,
             reference=reference_at(plan, times - plan.time),
             interrupted=end < plan.time + plan.times[-1]))
@@ -430,6 +426,7 @@ def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> d
         'obstacles': plan.obstacles.tolist(),
         'obstacles_source': plan.obstacles_source,
         'margin': plan.margin,
+        'margin_source': plan.margin_source,
         'violations': {'max_control_excess': _num(excess), 'terminal_error': _num(terminal),
                        'min_clearance': _num(clearance), 'start_error': _num(start_error)},
         'reported_violations': {k: _num(_float(values.get(k))) for k in
@@ -484,13 +481,13 @@ class Report:
     measured: Optional[tuple] = None    # (times, states, efforts) of all joint_states
 
 
-def missing_roles(run) -> List[str]:
-    """Sentences for the roles a recording lacks."""
+def missing_roles(run, goal_needed=True) -> List[str]:
+    """Sentences for the roles a recording lacks (goals only if a plan's goal is unknown)."""
     missing = []
     for role, what in NEEDED_FOR.items():
         if run.topics.get(role) is not None and run.messages[role]:
             continue
-        if role == 'goal_pose' and run.messages['goal_joints']:
+        if role == 'goal_pose' and (run.messages['goal_joints'] or not goal_needed):
             continue
         token, type_name = ROLES[role]
         state = 'no messages on' if run.topics.get(role) else 'no topic'
@@ -530,7 +527,7 @@ def analyse(run: Run, recording_info: dict, warn) -> Report:
                     'time_s': _num(s.final_time), 'progress_messages': len(s.points),
                     'iterations': _num(_float(s.values.get('iteration'))),
                     'elapsed_s': _num(_float(s.values.get('elapsed_s')))} for s in solves],
-        'missing': missing_roles(run),
+        'missing': missing_roles(run, any(p.goal is None for p in plans)),
     }
     names = plans[0].joint_names if plans else list(run.params['joint_names'])
     return Report(run, solves, plans, executions, summary, measured_series(run, names))
@@ -567,9 +564,9 @@ def markdown(summary: dict) -> str:
                 f'| {_fmt(v["min_clearance"], 3)} | {_fmt(v["start_error"], 3)} |')
         lines.append('')
         for p in summary['plans']:
-            lines.append(f'- plan {p["index"]}: obstacles {p["obstacles"]} (margin '
-                         f'{p["margin"]:.3g} m) from {p["obstacles_source"]}; goal '
-                         f'{_fmt(p["goal_source"])}')
+            lines.append(f'- plan {p["index"]}: obstacles {p["obstacles"]} from '
+                         f'{p["obstacles_source"]}, margin {p["margin"]:.3g} m from '
+                         f'{p["margin_source"]}; goal from {_fmt(p["goal_source"])}')
         lines.append('')
     if summary['executions']:
         lines += ['## Executions', '',

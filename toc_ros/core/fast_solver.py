@@ -24,7 +24,7 @@ constraints kept as constraints instead of fixed penalties:
           dist(arm segment at node i, c_k) >= R_k     (eq. 41, whole arm, any quadrant)
 
 solved by an augmented Lagrangian (Powell-Hestenes-Rockafellar) on the terminal and obstacle
-constraints, whose sub-problems are bound-constrained (L-BFGS-B, scipy) in scaled controls
+constraints, whose sub-problems are bound-constrained (projected L-BFGS, lbfgs_box) in scaled controls
 v = u / u_max in [-1, 1] and t_f.  The sub-problem gradient, including d/dt_f, comes from one
 BPTT sweep (bptt.adjoint_sweep).  Bounds hold exactly at every iterate; the outer loop stops
 when the terminal error and the clearance deficit are below tolerance and the multipliers
@@ -35,11 +35,12 @@ unbounded where the ray is tangent to the circle.
 
 from numba import njit
 import numpy as np
-from scipy.optimize import minimize
 
 from .bptt import adjoint_sweep, Workspace
 from .integrators import rollout_linearized
 from .obstacles import segment_distance_sq
+
+LBFGS_MEMORY = 10
 
 
 @njit(cache=True)
@@ -93,6 +94,134 @@ def alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, s
     return value
 
 
+@njit(cache=True)
+def _masked_dot(a, b, free):
+    acc = 0.0
+    for i in range(a.shape[0]):
+        if free[i]:
+            acc += a[i] * b[i]
+    return acc
+
+
+@njit(cache=True)
+def lbfgs_box(z, lower, upper, max_iter, gtol, mem_s, mem_y, mem_info, x0, x_goal, u_max, p,
+              method, circles, lam, rho, mu, states, jac_x, jac_u, jac_tau, grad_x, grad_u,
+              out_grad_u, grad_z, cons):
+    """Minimise the augmented Lagrangian over the box by projected L-BFGS, in place on z.
+
+    The variables at a bound whose gradient points outwards are held; the two-loop recursion
+    (memory mem_s, mem_y; mem_info = [pairs stored, next slot]) acts on the others, and an
+    Armijo backtracking search runs along the projection of that direction onto the box.
+    Memory persists across calls, so the solve can run in chunks.  Returns (iterations,
+    code, value) with code 1 = projected gradient below gtol, 2 = no further decrease,
+    0 = max_iter reached.
+    """
+    n = z.shape[0]
+    depth = mem_s.shape[0]
+    value = alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, states,
+                               jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u, grad_z,
+                               cons)
+    g = grad_z.copy()
+    free = np.empty(n, dtype=np.bool_)
+    d = np.empty(n)
+    trial = np.empty(n)
+    alpha_hist = np.empty(depth)
+    stalls = 0
+    for it in range(max_iter):
+        pg = 0.0
+        for i in range(n):
+            at_low = z[i] <= lower[i] and g[i] > 0.0
+            at_high = z[i] >= upper[i] and g[i] < 0.0
+            free[i] = not (at_low or at_high)
+            if free[i]:
+                pg = max(pg, abs(g[i]))
+        if pg <= gtol:
+            return it, 1, value
+        # Two-loop recursion on the free variables.
+        for i in range(n):
+            d[i] = -g[i] if free[i] else 0.0
+        count = int(mem_info[0])
+        head = int(mem_info[1])
+        for k in range(count):
+            slot = (head - 1 - k) % depth
+            sy = _masked_dot(mem_s[slot], mem_y[slot], free)
+            if sy <= 0.0:
+                alpha_hist[k] = 0.0
+                continue
+            a = _masked_dot(mem_s[slot], d, free) / sy
+            alpha_hist[k] = a
+            for i in range(n):
+                if free[i]:
+                    d[i] -= a * mem_y[slot, i]
+        if count > 0:
+            slot = (head - 1) % depth
+            yy = _masked_dot(mem_y[slot], mem_y[slot], free)
+            sy = _masked_dot(mem_s[slot], mem_y[slot], free)
+            if yy > 0.0 and sy > 0.0:
+                for i in range(n):
+                    d[i] *= sy / yy
+        for k in range(count - 1, -1, -1):
+            slot = (head - 1 - k) % depth
+            sy = _masked_dot(mem_s[slot], mem_y[slot], free)
+            if sy <= 0.0:
+                continue
+            b = _masked_dot(mem_y[slot], d, free) / sy
+            for i in range(n):
+                if free[i]:
+                    d[i] += mem_s[slot, i] * (alpha_hist[k] - b)
+        slope = _masked_dot(g, d, free)
+        if slope >= 0.0:       # not a descent direction: restart from steepest descent
+            mem_info[0] = 0.0
+            for i in range(n):
+                d[i] = -g[i] if free[i] else 0.0
+            slope = _masked_dot(g, d, free)
+        step = 1.0
+        if int(mem_info[0]) == 0:
+            step = min(1.0, 1.0 / max(pg, 1e-300))
+        accepted = False
+        for _ in range(40):
+            decrease = 0.0
+            for i in range(n):
+                t = z[i] + step * d[i]
+                t = min(upper[i], max(lower[i], t))
+                trial[i] = t
+                decrease += g[i] * (t - z[i])
+            new_value = alm_value_gradient(trial, x0, x_goal, u_max, p, method, circles, lam,
+                                           rho, mu, states, jac_x, jac_u, jac_tau, grad_x,
+                                           grad_u, out_grad_u, grad_z, cons)
+            if new_value <= value + 1e-4 * decrease and decrease < 0.0:
+                accepted = True
+                break
+            step *= 0.5
+        if not accepted:
+            # Leave cons/grad consistent with z before giving up.
+            alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, states,
+                               jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u, grad_z,
+                               cons)
+            return it, 2, value
+        slot = int(mem_info[1])
+        sy = 0.0
+        for i in range(n):
+            mem_s[slot, i] = trial[i] - z[i]
+            mem_y[slot, i] = grad_z[i] - g[i]
+            sy += mem_s[slot, i] * mem_y[slot, i]
+        if sy > 1e-16:
+            mem_info[1] = (slot + 1) % depth
+            mem_info[0] = min(mem_info[0] + 1.0, float(depth))
+        for i in range(n):
+            z[i] = trial[i]
+            g[i] = grad_z[i]
+        # Relative decrease at round-off level for several steps: nothing left to gain.
+        if value - new_value <= 1e-15 * max(1.0, abs(value)):
+            stalls += 1
+            if stalls >= 5:
+                return it + 1, 2, new_value
+        else:
+            stalls = 0
+        value = new_value
+    return max_iter, 0, value
+
+
 class Stop(Exception):
     """Raised inside the sub-problem to unwind on cancel/timeout."""
 
@@ -119,12 +248,17 @@ class FastRun:
         self.rho = 10.0
         self.z = np.zeros(2 * n + 1)
         self.z[2 * n] = problem.t_f0
-        self.bounds = [(-1.0, 1.0)] * (2 * n) + [t_f_bounds]
+        self.lower = np.full(2 * n + 1, -1.0)
+        self.upper = np.full(2 * n + 1, 1.0)
+        self.lower[-1], self.upper[-1] = t_f_bounds
+        self.mem_s = np.zeros((LBFGS_MEMORY, 2 * n + 1))
+        self.mem_y = np.zeros((LBFGS_MEMORY, 2 * n + 1))
+        self.mem_info = np.zeros(2)
         self.evaluations = 0
         self.iterations = 0
 
     def value_gradient(self, z):
-        """Sub-problem objective and gradient (scipy callback)."""
+        """Sub-problem objective and gradient at z (also refreshes cons)."""
         ws = self.ws
         self.evaluations += 1
         value = alm_value_gradient(z, self.x0, self.x_goal, self.u_max, self.p, self.method,
@@ -144,16 +278,30 @@ class FastRun:
         z = self.z if z is None else z
         return z[:2 * self.n].reshape(self.n, 2) * self.u_max[None, :]
 
-    def solve_subproblem(self, max_iter, callback):
-        """Minimise L for fixed multipliers from the current z; returns the scipy result."""
-        res = minimize(self.value_gradient, self.z, jac=True, method='L-BFGS-B',
-                       bounds=self.bounds, callback=callback,
-                       options={'maxiter': max_iter, 'maxcor': 20, 'ftol': 1e-15,
-                                'gtol': 1e-10, 'maxls': 40})
-        self.z = res.x
-        self.iterations += res.nit
+    def solve_subproblem(self, max_iter, callback, chunk=100, gtol=1e-10):
+        """Minimise L for fixed multipliers from the current z (projected L-BFGS, in chunks).
+
+        callback(iterations) runs between chunks (progress, cancel); returns the stop code.
+        """
+        ws = self.ws
+        self.mem_info[:] = 0.0
+        done = 0
+        code = 0
+        while done < max_iter:
+            n_iter, code, _ = lbfgs_box(
+                self.z, self.lower, self.upper, min(chunk, max_iter - done), gtol,
+                self.mem_s, self.mem_y, self.mem_info, self.x0, self.x_goal, self.u_max, self.p,
+                self.method, self.circles, self.lam, self.rho, self.mu, ws.states, ws.jac_x,
+                ws.jac_u, ws.jac_tau, ws.grad_x, ws.grad_u, ws.out_grad_u, self.grad_z,
+                self.cons)
+            done += n_iter
+            self.iterations += n_iter
+            if callback is not None:
+                callback(n_iter)
+            if code != 0:
+                break
         self.value_gradient(self.z)          # constraints at the accepted point
-        return res
+        return code
 
     def update_multipliers(self):
         """First-order PHR multiplier update."""

@@ -85,8 +85,8 @@ class PaperRun:
         self.tau_box = np.array([self.tau0])
         self.best_controls = np.zeros((n, 2))
         self.best_box = np.array([np.nan, np.inf, 0.0])
-        self.hist_tf = np.zeros(options.max_iterations)
-        self.hist_j = np.zeros(options.max_iterations)
+        self.hist_tf = np.zeros(options.iteration_limit())
+        self.hist_j = np.zeros(options.iteration_limit())
         self.ws = Workspace(n)
         self.done = 0
         self.last_j = np.inf

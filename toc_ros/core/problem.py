@@ -29,6 +29,9 @@ PAPER_X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
 PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
 MAX_INTERVALS = 200000
 MODES = ('fast', 'paper')
+# Iteration budgets: paper mode runs the paper's M = 30000 gradient iterations; fast mode counts
+# projected L-BFGS iterations of all its sub-problems (each far cheaper than a paper iteration).
+DEFAULT_ITERATIONS = {'paper': 30000, 'fast': 500000}
 
 
 class ProblemError(ValueError):
@@ -127,18 +130,25 @@ class SolverOptions:
     """How to solve: mode, iteration and time limits, progress period."""
 
     mode: str = 'fast'
-    max_iterations: int = 30000
+    max_iterations: Optional[int] = None   # None: the mode's default (DEFAULT_ITERATIONS)
     timeout: Optional[float] = None      # [s] wall clock; None = no limit
     progress_period: float = 0.1         # [s] between progress callbacks
     paper: PaperOptions = field(default_factory=PaperOptions)
+
+    def iteration_limit(self):
+        """Return max_iterations, or the mode's default: the paper's M, or the fast budget."""
+        if self.max_iterations is not None:
+            return int(self.max_iterations)
+        return DEFAULT_ITERATIONS[self.mode]
 
     def validate(self):
         """Raise ProblemError for bad option values."""
         errors = []
         if self.mode not in MODES:
             errors.append(f'mode must be one of {MODES}, got {self.mode!r}')
-        if not isinstance(self.max_iterations, (int, np.integer)) or isinstance(
-                self.max_iterations, bool) or self.max_iterations < 1:
+        if self.max_iterations is not None and (not isinstance(
+                self.max_iterations, (int, np.integer)) or isinstance(
+                self.max_iterations, bool) or self.max_iterations < 1):
             errors.append(f'max_iterations must be an integer >= 1, got {self.max_iterations!r}')
         if self.timeout is not None and (not _finite_number(self.timeout) or self.timeout <= 0):
             errors.append(f'timeout must be a positive number of seconds, got {self.timeout!r}')

@@ -21,6 +21,7 @@ is_set()) and the wall-clock timeout between chunks (well under 100 ms apart), r
 best solution found so far with status CANCELED or TIMEOUT.
 """
 
+from dataclasses import replace
 import math
 import time
 
@@ -114,11 +115,11 @@ def _solve_paper(problem, options, method, clock):
     run = PaperRun(problem, options, method)
     chunk = 1
     stopped = None
-    while run.done < options.max_iterations:
+    while run.done < options.iteration_limit():
         stopped = clock.stop_reason()
         if stopped is not None:
             break
-        n_iter = min(chunk, options.max_iterations - run.done)
+        n_iter = min(chunk, options.iteration_limit() - run.done)
         t0 = time.monotonic()
         run.advance(n_iter)
         per_iter = (time.monotonic() - t0) / n_iter
@@ -165,13 +166,13 @@ class _FastDriver:
         self.run = None
         self.last_value = math.nan
 
-    def _callback(self, _xk):
-        self.iterations += 1
+    def _callback(self, n_iter):
+        self.iterations += n_iter
         run = self.run
         reason = self.clock.stop_reason()
         if reason is not None:
             raise Stop(reason)
-        if self.iterations >= self.options.max_iterations:
+        if self.iterations >= self.options.iteration_limit():
             raise Stop(Status.MAX_ITERATIONS)
         self.clock.report(lambda: Progress(self.iterations, float(run.z[-1]),
                                            self.last_value, self.best_t_f,
@@ -188,15 +189,16 @@ class _FastDriver:
         self.run = run
         prev = math.inf
         if feasibility_first:
-            free_bounds = run.bounds[-1]
-            run.bounds[-1] = (run.z[-1], run.z[-1])
+            free_bounds = run.lower[-1], run.upper[-1]
+            run.lower[-1] = run.upper[-1] = run.z[-1]
             run.rho = 1e3
             run.value_gradient(run.z)
             run.solve_subproblem(2000, self._callback)
-            run.bounds[-1] = free_bounds
+            run.lower[-1], run.upper[-1] = free_bounds
         run.value_gradient(run.z)
         for _ in range(60):
-            run.solve_subproblem(2000, self._callback)
+            # Inexact inner solves while far from feasible (augmented-Lagrangian practice).
+            run.solve_subproblem(2000, self._callback, gtol=max(1e-10, min(1e-3, 0.1 * prev)))
             term, deficit = run.violation()
             viol = max(term, deficit)
             self.last_value = float(run.z[-1])
@@ -325,7 +327,6 @@ def _solve_fast(problem, options, method, clock):
 
 
 def _with_intervals(problem, n):
-    from dataclasses import replace
     return replace(problem, n_intervals=n)
 
 
@@ -344,11 +345,10 @@ def _prolong(coarse, fine):
 
 
 def warm_up():
-    """Compile (or load from cache) every numba kernel with a tiny problem."""
-    tiny = Problem(n_intervals=20)
+    """Compile (or load from cache) every numba kernel, so no user request pays for it."""
     for integrator in ('euler', 'rk4'):
-        p = _with_intervals(tiny, 20)
-        from dataclasses import replace
-        p = replace(p, integrator=integrator)
-        solve(p, SolverOptions(mode='paper', max_iterations=2))
-        solve(p, SolverOptions(mode='fast', max_iterations=3))
+        tiny = replace(Problem(), n_intervals=20, integrator=integrator)
+        solve(tiny, SolverOptions(mode='paper', max_iterations=2))
+        solve(tiny, SolverOptions(mode='fast', max_iterations=3))
+        run = FastRun(tiny, integrator_id(integrator))
+        FeasibilityProjector(run).project(run.z[:-1], tiny.t_f0, max_iter=1)

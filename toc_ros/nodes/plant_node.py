@@ -23,7 +23,9 @@ Control, evaluated every step: u = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq))
 robot.u_max.  A trajectory runs from its receipt; q_ref, dq_ref are its cubic Hermite
 interpolation and u_ff its effort held from each point to the next (the solver's
 piecewise-constant controls).  A new trajectory preempts the old one, an empty one stops it;
-after the last point the PD holds the final position with zero feed-forward.
+after the last point the PD holds the final position with zero feed-forward.  The subscription
+is volatile: a plan latched before the plant started is not executed (it would start from a
+state the robot is not in).
 ``payload_mass_offset`` and ``inertia_scale`` make the plant differ from the solver's model.
 
 ``~/tracking`` (DiagnosticStatus, 10 Hz) reports the tracking error; ``~/reset``

@@ -278,6 +278,8 @@ class ReplayNode(Node):
         self.exit_code = 0
         self.finished = False
         self._thread = threading.Thread(target=self._play, name='replay', daemon=True)
+        # Ctrl-C shuts the context down: stop publishing at once, not into a dead context.
+        self.context.on_shutdown(self.player.stop)
 
     # -- parameters -----------------------------------------------------------------------
     def _validate_parameters(self, parameters: List[Parameter]) -> SetParametersResult:
@@ -363,14 +365,17 @@ class ReplayNode(Node):
             started = time.monotonic()
             count = self.player.run()
             elapsed = time.monotonic() - started
+            if self.player.stopped:
+                return  # shutdown (Ctrl-C): the context may be gone, log nothing more
             for publisher in self._players.values():
                 publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
             self.get_logger().info(
                 f'played {count} messages on {len(self._players)} topics in {elapsed:.3f} s'
                 + (f' ({self.player.loops} passes)' if self.player.loops > 1 else ''))
         except Exception as error:  # noqa: B902 - reported and turned into the exit code
-            self.get_logger().error(f'playback failed: {error}')
-            self.exit_code = 1
+            if not self.player.stopped and self.context.ok():
+                self.get_logger().error(f'playback failed: {error}')
+                self.exit_code = 1
         finally:
             self.finished = True
 

@@ -66,6 +66,7 @@ PUBLISHED = (Status.SOLVED, Status.SOLVED_INACCURATE)
 HEARTBEAT_PERIOD_S = 0.05
 MAX_PROGRESS_GAP_S = 0.15
 MARKER_PERIOD_S = 0.2
+ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # How long ~/cancel waits for the solve to stop (the core stops within ~0.1 s).
 CANCEL_WAIT_S = 2.0
 
@@ -207,6 +208,7 @@ class SolverNode(Node):
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest state from joint_states
         self._arm_dirty = True
+        self._arm_drawn = None              # state drawn by the last markers
         self._path_states = None            # states of the last published plan
         self._progress = None               # (Progress, solve start) of the running solve
         self._progress_sent = 0.0
@@ -216,7 +218,7 @@ class SolverNode(Node):
 
         started = time.monotonic()
         warm_up()  # compile or load the numba kernels before the first goal can arrive
-        self.get_logger().info(f'numba kernels ready in {time.monotonic() - started:.2f} s')
+        self.get_logger().info(f'numba kernels loaded in {time.monotonic() - started:.2f} s')
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
@@ -276,7 +278,9 @@ class SolverNode(Node):
             return
         with self._lock:
             self._measured = state
-            self._arm_dirty = True
+            # Redraw the arm when it moved visibly, not for every message of a resting robot.
+            if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
+                self._arm_dirty = True
 
     def _on_goal_pose(self, msg):
         self._submit(lambda params: conversions.pose_to_joint_goal(
@@ -463,6 +467,7 @@ class SolverNode(Node):
             path_states = self._path_states
             arm = self._measured
             self._arm_dirty = False
+            self._arm_drawn = arm
         if arm is None:
             arm = np.asarray(params['initial_state'], dtype=float)
         try:

@@ -1,0 +1,193 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+toc-demo end to end: run it as a process, then read its recording with independent readers.
+
+Nothing is replayed: the checks use the recorded messages only (rosbags AnyReader with the
+bag's own schemas, and mcap-ros2-support's decoder) and the summary.json the demo writes.
+"""
+
+import json
+import math
+import os
+from pathlib import Path
+import random
+import re
+import subprocess
+import sys
+
+from mcap_ros2.reader import read_ros2_messages
+import pytest
+from rosbags.highlevel import AnyReader
+
+REPO = Path(__file__).resolve().parents[1]
+JOINTS = ['rotation_joint', 'extension_joint']
+# The demo's own --timeout covers a cold numba compile (~1 min); this only guards a hang.
+DEMO_TIMEOUT_S = 170.0
+
+
+def demo_environment():
+    """Environment of a demo run on a private domain, with this source tree importable."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['PYTHONPATH'] = os.pathsep.join(
+        [str(REPO)] + [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
+    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    return env
+
+
+def run_demo(*args, timeout=DEMO_TIMEOUT_S + 30.0):
+    return subprocess.run([sys.executable, '-m', 'toc_ros.demo', *args],
+                          env=demo_environment(), capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.fixture(scope='module')
+def demo(tmp_path_factory):
+    output = tmp_path_factory.mktemp('demo') / 'run'
+    proc = run_demo('--output', str(output), '--timeout', str(DEMO_TIMEOUT_S))
+    assert proc.returncode == 0, f'demo failed:\n{proc.stdout}\n{proc.stderr}'
+    with open(output / 'summary.json') as stream:
+        summary = json.load(stream)
+    return proc, output, summary
+
+
+@pytest.fixture(scope='module')
+def recorded(demo):
+    """Topic -> [(log time ns, message)] decoded by rosbags from the bag's own schemas."""
+    _, output, _ = demo
+    messages = {}
+    with AnyReader([output]) as reader:
+        for connection, log_time, raw in reader.messages():
+            messages.setdefault(connection.topic, []).append(
+                (log_time, reader.deserialize(raw, connection.msgtype)))
+    return messages
+
+
+def printed_tolerance(stdout):
+    """The (rad, m) tolerance the demo printed in its summary."""
+    found = re.findall(r'tolerance \(([-+.e0-9]+) rad, ([-+.e0-9]+) m\)', stdout)
+    assert len(found) == 2, f'no tolerance per plan in the output:\n{stdout}'
+    assert found[0] == found[1]
+    return float(found[0][0]), float(found[0][1])
+
+
+def values(status):
+    return {kv.key: kv.value for kv in status.values}
+
+
+def test_demo_succeeds_and_reports_each_plan(demo):
+    proc, output, summary = demo
+    assert summary['success'] is True
+    assert [p['status'] for p in summary['plans']] == ['SOLVED', 'SOLVED']
+    assert summary['plans'][1]['start_source'] == 'joint_states'
+    for plan in summary['plans']:
+        assert 0.5 < plan['t_min'] < 5.0 and plan['solve_wall_time_s'] > 0.0
+        assert f"t_min {plan['t_min']:.4f} s" in proc.stdout
+    assert summary['recording']['closed_cleanly'] is True
+    assert summary['recording']['path'] == str(output)
+    assert str(output) in proc.stdout
+    assert all(code == 0 for code in summary['exit_codes'].values())
+    assert printed_tolerance(proc.stdout) == tuple(summary['position_tolerance'])
+
+
+def test_recording_holds_what_was_sent(demo, recorded):
+    _, _, summary = demo
+    plans = summary['plans']
+    goals = [m for _, m in recorded['/goal_pose']]
+    assert [(g.pose.position.x, g.pose.position.y) for g in goals] == [
+        tuple(p['goal_pose']) for p in plans]
+    assert {g.header.frame_id for g in goals} == {summary['base_frame']}
+    for goal, plan in zip(goals, plans):   # the pose is the hand at the joint goal
+        reach = summary['robot_a'] + plan['goal_q'][1]
+        assert goal.pose.position.x == pytest.approx(reach * math.cos(plan['goal_q'][0]))
+        assert goal.pose.position.y == pytest.approx(reach * math.sin(plan['goal_q'][0]))
+
+    obstacles = [m.data.reshape(-1, 3).tolist() for _, m in recorded['/obstacles']]
+    assert obstacles == [p['obstacles'] for p in plans]
+    assert obstacles[0] == [[1.0, 1.0, 0.2]]          # the paper's scenario
+
+    trajectories = [m for _, m in recorded['/trajectory']]
+    assert len(trajectories) == 2
+    for trajectory, plan in zip(trajectories, plans):
+        assert list(trajectory.joint_names) == JOINTS
+        end = trajectory.points[-1]
+        assert end.positions.tolist() == pytest.approx(plan['goal_q'], abs=1e-6)
+        assert end.velocities.tolist() == pytest.approx([0.0, 0.0], abs=1e-6)
+        duration = end.time_from_start.sec + 1e-9 * end.time_from_start.nanosec
+        assert duration == pytest.approx(plan['t_min'], rel=1e-6)
+
+    final = [values(m) for _, m in recorded['/solver_node/progress']
+             if values(m)['status'] != 'SOLVING']
+    assert [v['status'] for v in final] == ['SOLVED', 'SOLVED']
+    assert [float(v['t_f']) for v in final] == pytest.approx([p['t_min'] for p in plans])
+    assert sum(values(m)['status'] == 'SOLVING' for _, m in recorded['/solver_node/progress']) >= 2
+    assert len(recorded['/planned_path']) == 2
+
+    drawn = []   # obstacle sets drawn by the solver's markers, in order of change
+    for _, marker_array in recorded['/markers']:
+        circles = [v for m in marker_array.markers if m.ns == 'obstacles'
+                   for v in (m.pose.position.x, m.pose.position.y, m.scale.x / 2.0)]
+        if not drawn or drawn[-1] != circles:
+            drawn.append(circles)
+    for plan in plans:
+        expected = [v for row in plan['obstacles'] for v in row]
+        assert any(c == pytest.approx(expected) for c in drawn), drawn
+
+
+def test_recorded_joint_states_reach_each_goal(demo):
+    """Independent decoder; the plant rests within the printed tolerance before each next goal."""
+    proc, output, summary = demo
+    tolerance = printed_tolerance(proc.stdout)
+    [bag] = output.glob('*.mcap')
+    goals, trajectories, states = [], [], []
+    for item in read_ros2_messages(str(bag), topics=['/goal_pose', '/trajectory',
+                                                     '/joint_states']):
+        topic, msg = item.channel.topic, item.ros_msg
+        if topic == '/goal_pose':
+            goals.append(item.log_time_ns)
+        elif topic == '/trajectory':
+            trajectories.append((item.log_time_ns, msg))
+        else:
+            assert list(msg.name) == JOINTS
+            states.append((item.log_time_ns, list(msg.position), list(msg.velocity)))
+    assert len(goals) == len(trajectories) == 2
+    ends = goals[1:] + [math.inf]
+    for k, ((start, trajectory), end) in enumerate(zip(trajectories, ends)):
+        goal = list(trajectory.points[-1].positions)
+        during = [s for s in states if start <= s[0] < end]
+        assert during, f'no joint_states recorded while plan {k + 1} ran'
+        _, position, velocity = during[-1]
+        errors = [abs(p - g) for p, g in zip(position, goal)]
+        assert errors[0] <= tolerance[0] and errors[1] <= tolerance[1], (k, errors)
+        assert max(abs(v) for v in velocity) < 1e-2, (k, velocity)
+        assert summary['plans'][k]['reached'] is True
+    # Replanning started where the plant was: the second trajectory's first point is the
+    # state recorded just before its goal.
+    first = trajectories[1][1].points[0]
+    _, position, velocity = [s for s in states if s[0] <= goals[1]][-1]
+    assert list(first.positions) == pytest.approx(position, abs=1e-3)
+    assert list(first.velocities) == pytest.approx(velocity, abs=1e-2)
+
+
+def test_bad_arguments_exit_2_before_starting_anything(tmp_path):
+    (tmp_path / 'keep.txt').write_text('not a bag')
+    proc = run_demo('--output', str(tmp_path), timeout=60.0)
+    assert proc.returncode == 2
+    assert 'exists and is not an empty directory' in proc.stderr
+    assert sorted(os.listdir(tmp_path)) == ['keep.txt']
+    proc = run_demo('--timeout', '0', '--no-record', timeout=60.0)
+    assert proc.returncode == 2 and '--timeout must be > 0' in proc.stderr
