@@ -78,7 +78,7 @@ def recorded(demo):
 
 
 def printed_tolerance(stdout):
-    """The (rad, m) tolerance the demo printed in its summary."""
+    """Return the (rad, m) tolerance the demo printed in its summary."""
     found = re.findall(r'tolerance \(([-+.e0-9]+) rad, ([-+.e0-9]+) m\)', stdout)
     assert len(found) == 2, f'no tolerance per plan in the output:\n{stdout}'
     assert found[0] == found[1]

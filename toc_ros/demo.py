@@ -45,10 +45,10 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 import rclpy
+from rcl_interfaces.srv import GetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from rcl_interfaces.srv import GetParameters
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from toc_ros import config
@@ -179,16 +179,15 @@ class _Child:
 
 
 def child_environment(env=None):
-    """Environment of the nodes: the caller's plus PYTHONPATH to this toc_ros and ament paths."""
+    """
+    Environment of the nodes: the caller's with this toc_ros first on PYTHONPATH.
+
+    (Importing toc_ros already set AMENT_PREFIX_PATH for a plain venv, see toc_ros/__init__.)
+    """
     env = dict(os.environ if env is None else env)
     paths = [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p]
     env['PYTHONPATH'] = os.pathsep.join([_PACKAGE_PARENT] + [
         p for p in paths if p != _PACKAGE_PARENT])
-    # A plain venv (pip-installed ROS) keeps the .msg files under <prefix>/share; the
-    # recorder needs them for the bag's schemas.
-    if not env.get('AMENT_PREFIX_PATH') and os.path.isdir(
-            os.path.join(sys.prefix, 'share', 'std_msgs')):
-        env['AMENT_PREFIX_PATH'] = sys.prefix
     env['PYTHONUNBUFFERED'] = '1'
     return env
 
@@ -220,7 +219,7 @@ def obstacles_msg(rows):
 
 
 def goal_pose_msg(q_goal, a, frame_id):
-    """PoseStamped of the hand at joint position (q1, q2): x = (a + q2) cos q1, y = ..."""
+    """Build the hand's PoseStamped at joint position (q1, q2): x = (a + q2) cos q1, y = ..."""
     msg = PoseStamped()
     msg.header.frame_id = frame_id
     reach = a + q_goal[1]
@@ -299,7 +298,7 @@ class _Link:
         return {info.node_name for info in self.node.get_subscriptions_info_by_topic(topic)}
 
     def solver_obstacles(self, timeout=2.0):
-        """The solver's obstacle rows from its parameters; None when it does not answer."""
+        """Return the solver's obstacle rows (its parameters); None when it does not answer."""
         if not self.parameters.service_is_ready():
             return None
         request = GetParameters.Request(names=['obstacles.x', 'obstacles.y', 'obstacles.radius'])
@@ -381,7 +380,7 @@ class Demo:
             self.children['recorder'] = _Child(RECORDER_NODE, argv, env,
                                                os.path.join(log_dir, 'recorder_node.log'))
         for name in ('solver_node', 'plant_node'):
-            self.children[name] = _Child(name, node_command(name, self.params_file, ['-p', 'solver.max_iterations:=10000000'] if name == 'solver_node' else []), env,
+            self.children[name] = _Child(name, node_command(name, self.params_file), env,
                                          os.path.join(log_dir, f'{name}.log'))
         self.link = _Link(self.joint_names)
 
@@ -534,7 +533,7 @@ class Demo:
             settle_time_s=stamp - received - duration,
             max_tracking_error=[_num(tracking.get('max_position_error_q1')),
                                 _num(tracking.get('max_position_error_q2'))],
-            reached=all(abs(e) <= tol for e, tol in zip(errors, POSITION_TOL)))
+            reached=at_rest and all(abs(e) <= tol for e, tol in zip(errors, POSITION_TOL)))
         self.out.stage(
             f"plan {number}: plant {'at rest' if at_rest else 'NOT at rest'} "
             f'{plan["settle_time_s"]:.2f} s after the trajectory end, error '
@@ -596,7 +595,7 @@ def format_summary(summary):
     for k, plan in enumerate(summary['plans'], 1):
         q = plan['goal_q']
         lines.append(f"  plan {k} ({plan['label']}) to q = ({q[0]:.4f} rad, {q[1]:.4f} m), "
-                     f"{len(plan['obstacles'])} obstacle(s): {plan.get('status', 'not run')}")
+                     f"{len(plan['obstacles'])} obstacle(s): {plan.get('status', 'not finished')}")
         if 't_min' in plan:
             lines.append(f"    t_min {plan['t_min']:.4f} s, solve wall time "
                          f"{plan['solve_wall_time_s']:.2f} s ({plan['iterations']} "
@@ -604,7 +603,7 @@ def format_summary(summary):
         if 'final_error' in plan:
             e = plan['final_error']
             lines.append(
-                f"    final tracking error ({e[0]:.2e} rad, {e[1]:.2e} m), distance "
+                f'    final tracking error ({e[0]:.2e} rad, {e[1]:.2e} m), distance '
                 f"{plan['final_distance']:.2e}: "
                 + ('within' if plan['reached'] else 'OUTSIDE')
                 + f' the tolerance ({tol[0]:g} rad, {tol[1]:g} m)'
@@ -706,8 +705,10 @@ def main(argv=None):
         summary['logs'] = logs
         with open(os.path.join(args.output, 'summary.json'), 'w') as stream:
             json.dump(summary, stream, indent=2, allow_nan=True)
+    elif summary['success']:
+        shutil.rmtree(log_dir, ignore_errors=True)
     else:
-        summary['logs'] = log_dir
+        summary['logs'] = log_dir    # kept for the post-mortem
     print(format_summary(summary), flush=True)
     if code == 130:
         return code

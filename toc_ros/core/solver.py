@@ -45,6 +45,9 @@ PROLONG_RHO = 100.0
 BRACKET_STEPS = (0.0, 2e-4, 1e-3, 5e-3, 2e-2)
 BRACKET_BELOW = 1e-3
 BISECTION_STEPS = 8
+COARSE_BRACKET_BELOW = 1e-2
+FINE_ALM_ROUNDS = 4
+COARSE_BISECTION_STEPS = 10
 
 
 class _Clock:
@@ -178,7 +181,7 @@ class _FastDriver:
                                            self.last_value, self.best_t_f,
                                            self.clock.elapsed(), f'fast N={run.n}'))
 
-    def _alm(self, run, final, feasibility_first=False):
+    def _alm(self, run, final, feasibility_first=False, max_outer=60):
         """
         ALM outer loop on run; returns True when the constraints meet ALM_TOL.
 
@@ -196,7 +199,7 @@ class _FastDriver:
             run.solve_subproblem(2000, self._callback)
             run.lower[-1], run.upper[-1] = free_bounds
         run.value_gradient(run.z)
-        for _ in range(60):
+        for _ in range(max_outer):
             # Inexact inner solves while far from feasible (augmented-Lagrangian practice).
             run.solve_subproblem(2000, self._callback, gtol=max(1e-10, min(1e-3, 0.1 * prev)))
             term, deficit = run.violation()
@@ -232,7 +235,7 @@ class _FastDriver:
                                            self.best_t_f, self.clock.elapsed(),
                                            f'refine N={run.n}'))
 
-    def _refine(self, fine):
+    def _refine(self, fine, below=None, steps=None):
         """
         Carry the coarse optimum to the fine grid: feasibility projection + bisection on t_f.
 
@@ -244,7 +247,7 @@ class _FastDriver:
         proj = FeasibilityProjector(fine)
         v0 = fine.z[:-1].copy()
         t0 = float(fine.z[-1])
-        low = t0 * (1.0 - BRACKET_BELOW)
+        low = t0 * (1.0 - (BRACKET_BELOW if below is None else below))
         best = None
         for eps in BRACKET_STEPS:
             ok, v = proj.project(v0, t0 * (1.0 + eps), check=self._check)
@@ -256,7 +259,7 @@ class _FastDriver:
         if best is None:
             return False
         self.best_t_f = high
-        for _ in range(BISECTION_STEPS):
+        for _ in range(BISECTION_STEPS if steps is None else steps):
             mid = 0.5 * (low + high)
             ok, v = proj.project(best, mid, check=self._check)
             self.iterations += 1
@@ -278,6 +281,10 @@ class _FastDriver:
         try:
             ladder = [m for m in LADDER if 2 * m < n] + [n]
             start = self._best_start(_with_intervals(problem, ladder[0]))
+            if start is not None:
+                # The ALM stops once feasible; a cheap bisection on the coarse grid recovers
+                # what its inexact sub-problems left of the minimum time.
+                self._refine(start, below=COARSE_BRACKET_BELOW, steps=COARSE_BISECTION_STEPS)
             if start is None:
                 converged = False
             elif len(ladder) == 1:
@@ -290,6 +297,9 @@ class _FastDriver:
                 for m in ladder[1:]:
                     run = fine if m == n else FastRun(_with_intervals(problem, m), self.method)
                     _prolong(prev, run)
+                    # A few warm-started ALM rounds re-optimise on this grid (the optimum moves
+                    # by the discretisation error); the projection then makes it exactly feasible.
+                    self._alm(run, final=False, max_outer=FINE_ALM_ROUNDS)
                     if not self._refine(run):
                         # The bracket failed: plain ALM on this grid from the warm start.
                         if not self._alm(run, final=m == n):

@@ -85,7 +85,9 @@ SPECS = {
                           _one_of('euler', 'rk4')),
     'solver.N': ('number of time intervals of the trajectory', _ir(2, 200000)),
     'solver.t_f0': ('[s] initial guess of the final time (> 0)', _fr(0, 1e4)),
-    'solver.max_iterations': ('iteration limit of one solve', _ir(1, 1_000_000_000)),
+    'solver.max_iterations': ("iteration limit of one solve; 0 = the mode's default (paper: "
+                              'M = 30000 gradient steps, fast: 500000 L-BFGS steps)',
+                              _ir(0, 1_000_000_000)),
     'solver.timeout': ('[s] wall-clock limit of one solve; 0 = none', _fr(0, 86400)),
     'solver.paper.K_B': ('K_B of eq. (7), paper mode (> 0)', _fr(0, 1e12)),
     'solver.paper.K_V': ('K_V, paper mode (> 0)', _fr(0, 1e12)),

@@ -236,7 +236,7 @@ class PlantNode(Node):
         behind = time.monotonic() - self._wall_start - self._sim_time
         if behind > MAX_CATCH_UP_S:
             self.get_logger().warning(f'simulation {behind:.3f} s behind real time: skipping',
-                                   throttle_duration_sec=5.0)
+                                      throttle_duration_sec=5.0)
             self._wall_start += behind - MAX_CATCH_UP_S
             behind = MAX_CATCH_UP_S
         for _ in range(int(behind / self._dt + 1e-9)):
