@@ -17,7 +17,7 @@ setup(
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in a plain venv,
     # from the PyPI wheels named in the 'ros' extra.
-    install_requires=['setuptools', 'numpy', 'numba', 'scipy', 'mcap', 'pyyaml', 'matplotlib'],
+    install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         'test': ['pytest', 'psutil', 'mcap-ros2-support', 'rosbags',

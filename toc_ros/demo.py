@@ -319,7 +319,7 @@ class _Link:
 # -- the run -----------------------------------------------------------------------------------
 
 class Demo:
-    """One run of the demo; ``run()`` returns the summary dict."""
+    """One run of the demo: start, wait_ready, run_stage per Stage, stop; fills summary."""
 
     def __init__(self, args, printer):
         self.args = args
@@ -503,7 +503,7 @@ class Demo:
     def _execute(self, number, plan, received, duration):
         """Wait until the plant rests at the goal (or gave up), record the final error."""
         link, q_goal = self.link, plan['goal_q']
-        window = []   # (time, errors, speeds) of the samples since the last unsettled one
+        window = []   # receipt times of the resting samples since the last moving one
         seen = [0]
 
         def settled():

@@ -24,13 +24,14 @@ constraints kept as constraints instead of fixed penalties:
           dist(arm segment at node i, c_k) >= R_k     (eq. 41, whole arm, any quadrant)
 
 solved by an augmented Lagrangian (Powell-Hestenes-Rockafellar) on the terminal and obstacle
-constraints, whose sub-problems are bound-constrained (projected L-BFGS, lbfgs_box) in scaled controls
-v = u / u_max in [-1, 1] and t_f.  The sub-problem gradient, including d/dt_f, comes from one
-BPTT sweep (bptt.adjoint_sweep).  Bounds hold exactly at every iterate; the outer loop stops
-when the terminal error and the clearance deficit are below tolerance and the multipliers
-have settled.  The obstacle constraint uses the squared segment distance (C1), scaled as
-(d^2 - R^2) / (2 R) ~ d - R, rather than the ray formula of eq. (41), whose derivative is
-unbounded where the ray is tangent to the circle.
+constraints.  Its sub-problems are bound-constrained in scaled controls v = u / u_max in
+[-1, 1] and t_f, and solved by a projected L-BFGS (lbfgs_box, in numba: scipy's L-BFGS-B spends
+~20x the cost of a function evaluation per iteration here).  The sub-problem gradient, including
+d/dt_f, comes from one BPTT sweep (bptt.adjoint_sweep); bounds hold exactly at every iterate.
+The obstacle constraint uses the squared segment distance (C1), scaled as (d^2 - R^2) / (2 R)
+~ d - R, rather than the ray formula of eq. (41), whose derivative is unbounded where the ray
+is tangent to the circle.  solver.py drives it over a coarse-to-fine ladder of grids and makes
+each result exactly feasible with FeasibilityProjector (Gauss-Newton on BPTT sensitivity rows).
 """
 
 from numba import njit
@@ -107,7 +108,8 @@ def _masked_dot(a, b, free):
 def lbfgs_box(z, lower, upper, max_iter, gtol, mem_s, mem_y, mem_info, x0, x_goal, u_max, p,
               method, circles, lam, rho, mu, states, jac_x, jac_u, jac_tau, grad_x, grad_u,
               out_grad_u, grad_z, cons):
-    """Minimise the augmented Lagrangian over the box by projected L-BFGS, in place on z.
+    """
+    Minimise the augmented Lagrangian over the box by projected L-BFGS, in place on z.
 
     The variables at a bound whose gradient points outwards are held; the two-loop recursion
     (memory mem_s, mem_y; mem_info = [pairs stored, next slot]) acts on the others, and an
@@ -279,7 +281,8 @@ class FastRun:
         return z[:2 * self.n].reshape(self.n, 2) * self.u_max[None, :]
 
     def solve_subproblem(self, max_iter, callback, chunk=100, gtol=1e-10):
-        """Minimise L for fixed multipliers from the current z (projected L-BFGS, in chunks).
+        """
+        Minimise L for fixed multipliers from the current z (projected L-BFGS, in chunks).
 
         callback(iterations) runs between chunks (progress, cancel); returns the stop code.
         """

@@ -25,7 +25,7 @@ than sliced, so that the hot loops allocate nothing.
 from numba import njit
 import numpy as np
 
-from .model import dynamics_jacobians, NX, rhs, rhs_partials
+from .model import NX, rhs, rhs_partials
 
 EULER = 0
 RK4 = 1
@@ -79,29 +79,78 @@ def rollout(x0, controls, tau, p, method, states):
 
 
 @njit(cache=True)
-def _rk4_linearized(i, states, controls, tau, p, jac_x, jac_u, jac_tau):
-    # Chain rule through the stages k_s = f(x + c_s tau k_{s-1}, u) (not a hot path).
-    x = states[i].copy()
-    u = controls[i].copy()
-    eye = np.eye(NX)
-    k1, a1, b1 = dynamics_jacobians(x, u, p)
-    k2, a2, b2 = dynamics_jacobians(x + 0.5 * tau * k1, u, p)
-    k3, a3, b3 = dynamics_jacobians(x + 0.5 * tau * k2, u, p)
-    k4, a4, b4 = dynamics_jacobians(x + tau * k3, u, p)
-    dk2x = a2 @ (eye + 0.5 * tau * a1)
-    dk2u = a2 @ (0.5 * tau * b1) + b2
-    dk3x = a3 @ (eye + 0.5 * tau * dk2x)
-    dk3u = a3 @ (0.5 * tau * dk2u) + b3
-    dk4x = a4 @ (eye + tau * dk3x)
-    dk4u = a4 @ (tau * dk3u) + b4
-    dk2t = a2 @ (0.5 * k1)
-    dk3t = a3 @ (0.5 * k2 + 0.5 * tau * dk2t)
-    dk4t = a4 @ (k3 + tau * dk3t)
-    incr = (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
-    states[i + 1, :] = x + tau * incr
-    jac_x[i, :, :] = eye + tau / 6.0 * (a1 + 2.0 * dk2x + 2.0 * dk3x + dk4x)
-    jac_u[i, :, :] = tau / 6.0 * (b1 + 2.0 * dk2u + 2.0 * dk3u + dk4u)
-    jac_tau[i, :] = incr + tau / 6.0 * (2.0 * dk2t + 2.0 * dk3t + dk4t)
+def _stage_jacobians(d, jx, ju):
+    """Write df/dx, df/du of eq. (37) from the rhs_partials tuple d into jx (4x4), ju (4x2)."""
+    for r in range(NX):
+        for c in range(NX):
+            jx[r, c] = 0.0
+        ju[r, 0] = 0.0
+        ju[r, 1] = 0.0
+    jx[0, 1] = 1.0
+    jx[1, 1], jx[1, 2], jx[1, 3] = d[0], d[1], d[2]
+    jx[2, 3] = 1.0
+    jx[3, 1], jx[3, 2] = d[3], d[4]
+    ju[1, 0], ju[3, 1] = d[5], d[6]
+
+
+@njit(cache=True)
+def _rk4_linearized(i, states, controls, tau, p, jac_x, jac_u, jac_tau, scratch):
+    # Chain rule through the stages k_s = f(x + c_s tau k_{s-1}, u); scratch holds the stage
+    # Jacobians a_s (4x4), b_s (4x2) and the running dk/dx, dk/du, dk/dtau, so nothing is
+    # allocated per step.
+    x1, x2, x3, x4 = states[i, 0], states[i, 1], states[i, 2], states[i, 3]
+    u1, u2 = controls[i, 0], controls[i, 1]
+    h = 0.5 * tau
+    k = scratch[5]
+    coef = (0.0, h, h, tau)
+    dkx, dku, dkt = scratch[0], scratch[1], scratch[2]   # (4, 4, 4), (4, 4, 2), (4, 4)
+    ax, bu = scratch[3], scratch[4]
+    for s in range(4):
+        c = coef[s]
+        if s == 0:
+            y1, y2, y3, y4 = x1, x2, x3, x4
+        else:
+            y1 = x1 + c * k[s - 1, 0]
+            y2 = x2 + c * k[s - 1, 1]
+            y3 = x3 + c * k[s - 1, 2]
+            y4 = x4 + c * k[s - 1, 3]
+        f = rhs(y1, y2, y3, y4, u1, u2, p)
+        k[s, 0], k[s, 1], k[s, 2], k[s, 3] = f
+        _stage_jacobians(rhs_partials(y1, y2, y3, y4, u1, u2, p), ax[0], bu[0])
+        a = ax[0]
+        b = bu[0]
+        # dk_s/dx = a (I + c dk_{s-1}/dx); dk_s/du = a c dk_{s-1}/du + b;
+        # dk_s/dtau = a (c' k_{s-1} + c dk_{s-1}/dtau) with c' = dc/dtau.
+        for r in range(NX):
+            for col in range(NX):
+                acc = a[r, col]
+                if s > 0:
+                    for m in range(NX):
+                        acc += a[r, m] * c * dkx[s - 1, m, col]
+                dkx[s, r, col] = acc
+            for col in range(2):
+                acc = b[r, col]
+                if s > 0:
+                    for m in range(NX):
+                        acc += a[r, m] * c * dku[s - 1, m, col]
+                dku[s, r, col] = acc
+            acc = 0.0
+            if s > 0:
+                dc = c / tau
+                for m in range(NX):
+                    acc += a[r, m] * (dc * k[s - 1, m] + c * dkt[s - 1, m])
+            dkt[s, r] = acc
+    w = tau / 6.0
+    for r in range(NX):
+        incr = (k[0, r] + 2.0 * k[1, r] + 2.0 * k[2, r] + k[3, r]) / 6.0
+        states[i + 1, r] = states[i, r] + tau * incr
+        jac_tau[i, r] = incr + w * (2.0 * dkt[1, r] + 2.0 * dkt[2, r] + dkt[3, r])
+        for col in range(NX):
+            jac_x[i, r, col] = (1.0 if r == col else 0.0) + w * (
+                dkx[0, r, col] + 2.0 * dkx[1, r, col] + 2.0 * dkx[2, r, col] + dkx[3, r, col])
+        for col in range(2):
+            jac_u[i, r, col] = w * (dku[0, r, col] + 2.0 * dku[1, r, col]
+                                    + 2.0 * dku[2, r, col] + dku[3, r, col])
 
 
 @njit(cache=True)
@@ -137,5 +186,7 @@ def rollout_linearized(x0, controls, tau, p, method, states, jac_x, jac_u, jac_t
             jac_u[i, 1, 0] = tau * d[5]
             jac_u[i, 3, 1] = tau * d[6]
     else:
+        scratch = (np.zeros((4, NX, NX)), np.zeros((4, NX, 2)), np.zeros((4, NX)),
+                   np.zeros((1, NX, NX)), np.zeros((1, NX, 2)), np.zeros((4, NX)))
         for i in range(controls.shape[0]):
-            _rk4_linearized(i, states, controls, tau, p, jac_x, jac_u, jac_tau)
+            _rk4_linearized(i, states, controls, tau, p, jac_x, jac_u, jac_tau, scratch)
