@@ -242,3 +242,22 @@ def eq37(x, u, hand_mass=50.0, link_mass=97.0, inertia=193.0, a=A):
     den = a1 + a2 * x3 + a3 * x3 * x3
     return [x2, (-2.0 * a3 * x2 * x3 * x4 - a2 * x2 * x4 + u[0]) / den, x4,
             x3 * x2 * x2 - a2 / (2.0 * a3) * x2 * x2 + u[1] / a3]
+
+
+def handshake(client, publisher, msg, heard, timeout=30.0, period=1.0):
+    """
+    Publish msg until heard() is true: proves the subscriber side matched the publisher.
+
+    get_subscription_count() > 0 only says that the publisher matched the subscription; the
+    node's side may match later and miss a volatile message sent in between.  msg should be
+    harmless (e.g. an input the node refuses) and heard() detect the node's reaction.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        publisher.publish(msg)
+        until = min(deadline, time.monotonic() + period)
+        while time.monotonic() < until:
+            if heard():
+                return
+            time.sleep(0.01)
+        assert time.monotonic() < deadline, f'no reaction to {publisher.topic_name}'

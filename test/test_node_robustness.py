@@ -22,8 +22,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
 from node_harness import (
-    is_final, JOINTS, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0, pose, pose_of,
-    RosClient, SOLVE_TIMEOUT, TEST_PARAMS, values)
+    handshake, is_final, JOINTS, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0, pose,
+    pose_of, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, values)
 import psutil
 import pytest
 from rcl_interfaces.srv import GetParameters
@@ -56,11 +56,26 @@ def solver(tmp_path_factory):
         for publisher in (ctx.goal_pose, ctx.goal_joints, ctx.joint_states, ctx.obstacles):
             client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
                             what=f'subscriber of {publisher.topic_name}')
+        refused_inputs_handshake(ctx)
         yield ctx
         assert node.stop() == 0, node.log()
     finally:
         node.stop()
         client.close()
+
+
+def refused_inputs_handshake(ctx):
+    """Make sure each input topic reaches the node: send refused inputs until they are heard."""
+    bad_pose = pose_of(PAPER_GOAL)
+    bad_pose.header.frame_id = 'handshake'
+    for publisher, msg, text in [
+            (ctx.goal_pose, bad_pose, "'handshake'"),
+            (ctx.goal_joints, JointState(name=['handshake'], position=[0.0]), "'handshake'"),
+            (ctx.obstacles, Float64MultiArray(data=[1.0]), 'multiple of 3')]:
+        since = time.monotonic()
+        handshake(ctx.client, publisher, msg, lambda: [
+            m for m in ctx.client.messages('solver_node/progress', since) if text in m.message])
+    time.sleep(0.5)    # joint_states has no reaction to wait for; give discovery a moment
 
 
 def finals(ctx, since):
@@ -74,6 +89,13 @@ def joints(names, positions, velocities=()):
 
 def state_msg(x):
     return joints(JOINTS, [x[0], x[2]], [x[1], x[3]])
+
+
+def set_start(ctx, x):
+    """Publish a measured state (a few times: the node keeps the latest)."""
+    for _ in range(3):
+        ctx.joint_states.publish(state_msg(x))
+        time.sleep(0.1)
 
 
 def rows(data, dims=()):
@@ -155,16 +177,14 @@ def test_bad_inputs_get_clear_refusals_and_the_node_keeps_serving(solver):
         assert level_name(reply) == 'ERROR' and expected in reply.message, (what, reply.message)
         refused.append(what)
     # A measured start state inside an obstacle: the plan is refused with that reason.
-    solver.joint_states.publish(state_msg((math.pi / 4, 0.0, 1.0, 0.0)))
-    time.sleep(0.3)
+    set_start(solver, (math.pi / 4, 0.0, 1.0, 0.0))
     since = time.monotonic()
     solver.goal_joints.publish(state_msg(PAPER_GOAL))
     reply = client.wait_for(lambda: finals(solver, since), 10.0, 'start in obstacle')[0]
     assert 'start state puts the arm inside obstacle 0' in reply.message, reply.message
     assert 'joint_states' in reply.message
     refused.append('start state in obstacle')
-    solver.joint_states.publish(state_msg(PAPER_X0))
-    time.sleep(0.3)
+    set_start(solver, PAPER_X0)
     # ~/plan refusals answer with an empty path at once.
     for what, goal, expected in [('plan in frame odom', framed('odom'), "frame 'odom'"),
                                  ('plan NaN', pose(math.nan, math.nan), 'NaN')]:
@@ -193,8 +213,7 @@ def test_bad_inputs_get_clear_refusals_and_the_node_keeps_serving(solver):
 def test_200_goals_back_to_back(solver, record_property):
     """Plans (mostly instant ones to the current state), bursts that preempt; RSS bounded."""
     client = solver.client
-    solver.joint_states.publish(state_msg(PAPER_X0))
-    time.sleep(0.3)
+    set_start(solver, PAPER_X0)
     process = psutil.Process(solver.node.process.pid)
 
     def run(count, first=0):

@@ -20,8 +20,8 @@ from types import SimpleNamespace
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from node_harness import (
-    is_final, JOINTS, NEAR_GOAL, NodeProcess, PAPER_X0, pose_of, RosClient, SOLVE_TIMEOUT,
-    TEST_PARAMS, values)
+    handshake, is_final, JOINTS, NEAR_GOAL, NodeProcess, PAPER_X0, pose_of, RosClient,
+    SOLVE_TIMEOUT, TEST_PARAMS, values)
 import numpy as np
 import pytest
 from rosgraph_msgs.msg import Clock
@@ -56,6 +56,12 @@ def plant(tmp_path_factory):
         for publisher in (ctx.trajectory, ctx.goal_pose):
             client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
                             what=f'subscriber of {publisher.topic_name}')
+        # Refused inputs until heard: both nodes matched the test's publishers.
+        handshake(client, ctx.trajectory, JointTrajectory(joint_names=['handshake']),
+                  lambda: 'handshake' in plant_node.log())
+        bad_goal = pose_of(NEAR_GOAL)
+        bad_goal.header.frame_id = 'handshake'
+        handshake(client, ctx.goal_pose, bad_goal, lambda: 'handshake' in solver_node.log())
         yield ctx
         assert plant_node.stop() == 0, plant_node.log()
     finally:
@@ -218,14 +224,16 @@ def test_reset_and_bad_trajectories(plant):
     time.sleep(0.3)
     since = reset(plant)
     np.testing.assert_allclose(latest_state(plant, since), PAPER_X0, atol=1e-9)
+    refusals = plant.plant_node.log().count('ignoring trajectory')
     bad = synthetic(0.5, [0.5, 0.9])
     bad.joint_names = ['rotation_joint', 'other_joint']
     plant.trajectory.publish(bad)
     unordered = synthetic(0.5, [0.5, 0.9])
     unordered.points[3].time_from_start = unordered.points[1].time_from_start
     plant.trajectory.publish(unordered)
-    plant.client.wait_for(lambda: plant.plant_node.log().count('ignoring trajectory') >= 2,
-                          5.0, 'refusals in the log')
+    plant.client.wait_for(
+        lambda: plant.plant_node.log().count('ignoring trajectory') >= refusals + 2, 5.0,
+        'refusals in the log')
     assert "lacks joints ['extension_joint']" in plant.plant_node.log()
     assert 'strictly increasing' in plant.plant_node.log()
     time.sleep(0.2)

@@ -113,7 +113,7 @@ def test_same_inputs_give_bit_identical_results():
     assert first.iterations == second.iterations
     assert np.array_equal(first.states, second.states)
     assert np.array_equal(first.controls, second.controls)
-    assert np.array_equal(first.history, second.history)
+    assert np.array_equal(first.history, second.history, equal_nan=True)
 
 
 def _solve_with_cancel(problem, options, delay):
@@ -154,7 +154,7 @@ def _check_best_so_far(problem, result):
 @pytest.mark.parametrize('mode', ['fast', 'paper'])
 def test_cancel_is_honoured_within_100_ms(mode):
     # Paper mode with a million iterations and the fast mode at N = 1000 both run for seconds.
-    options = SolverOptions(mode=mode, max_iterations=10 ** 6 if mode == 'paper' else 30000)
+    options = SolverOptions(mode=mode, max_iterations=10 ** 6 if mode == 'paper' else None)
     result, latency = _solve_with_cancel(PAPER, options, delay=0.4)
     assert result.status is Status.CANCELED, result.message
     assert latency <= STOP_LATENCY, latency
@@ -167,7 +167,7 @@ def test_cancel_is_honoured_within_100_ms(mode):
 def test_timeout_is_honoured_within_100_ms(mode):
     timeout = 0.4
     options = SolverOptions(mode=mode, timeout=timeout,
-                            max_iterations=10 ** 6 if mode == 'paper' else 30000)
+                            max_iterations=10 ** 6 if mode == 'paper' else None)
     start = time.monotonic()
     result = solve(PAPER, options)
     elapsed = time.monotonic() - start

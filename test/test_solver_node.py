@@ -24,8 +24,8 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from node_harness import (
-    A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0,
-    pose_of, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, U_MAX, values)
+    A, eq37, handshake, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL, NodeProcess,
+    PAPER_GOAL, PAPER_X0, pose_of, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, U_MAX, values)
 import numpy as np
 import pytest
 from rcl_interfaces.srv import DescribeParameters, GetParameters
@@ -68,11 +68,26 @@ def solver(tmp_path_factory):
         for publisher in (ctx.goal_pose, ctx.goal_joints, ctx.joint_states, ctx.obstacles):
             client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
                             what=f'subscriber of {publisher.topic_name}')
+        refused_inputs_handshake(ctx)
         yield ctx
         assert node.stop() == 0, node.log()
     finally:
         node.stop()
         client.close()
+
+
+def refused_inputs_handshake(ctx):
+    """Make sure each input topic reaches the node: send refused inputs until they are heard."""
+    bad_pose = pose_of(PAPER_GOAL)
+    bad_pose.header.frame_id = 'handshake'
+    for publisher, msg, text in [
+            (ctx.goal_pose, bad_pose, "'handshake'"),
+            (ctx.goal_joints, JointState(name=['handshake'], position=[0.0]), "'handshake'"),
+            (ctx.obstacles, Float64MultiArray(data=[1.0]), 'multiple of 3')]:
+        since = time.monotonic()
+        handshake(ctx.client, publisher, msg, lambda: [
+            m for m in ctx.client.messages('solver_node/progress', since) if text in m.message])
+    time.sleep(0.5)    # joint_states has no reaction to wait for; give discovery a moment
 
 
 def joint_state(x, names=JOINTS):
@@ -81,8 +96,9 @@ def joint_state(x, names=JOINTS):
 
 def set_start(ctx, x):
     """Publish a measured state; the node plans from the latest one."""
-    ctx.joint_states.publish(joint_state(x))
-    time.sleep(0.3)   # separate topics: let it arrive before the goal
+    for _ in range(3):
+        ctx.joint_states.publish(joint_state(x))
+        time.sleep(0.1)   # separate topics: let it arrive before the goal
 
 
 def finals(ctx, since):

@@ -18,7 +18,7 @@ toc-solve: solve one minimum-time problem from the command line (no ROS needed).
 The scenario comes from a ROS 2 parameter file (default: the paper's, config/toc_ros.yaml);
 command-line options override it.  Exit codes follow Status.exit_code(): 0 solved,
 1 solved inaccurately, 2 no convergence (or bad arguments, from argparse), 3 canceled/timed
-out, 4 invalid problem, 5 the --json file could not be written.
+out, 4 invalid problem, 5 the --json file could not be written, 130 a second Ctrl-C.
 """
 
 import argparse
@@ -33,6 +33,7 @@ import threading
 # so that --help and argument errors answer at once.
 
 EXIT_WRITE_ERROR = 5
+EXIT_INTERRUPTED = 130      # shell convention for SIGINT
 BAR_WIDTH = 24
 
 
@@ -44,7 +45,7 @@ def build_parser():
                     'obstacles (BPTT). SI units, radians.',
         epilog='Exit codes: 0 solved, 1 solved inaccurately (paper mode), 2 not converged or '
                'bad arguments, 3 canceled (Ctrl-C) or timed out, 4 invalid problem, '
-               '5 --json not writable.')
+               '5 --json not writable, 130 interrupted twice.')
     parser.add_argument('--config', metavar='FILE.yaml', default=None,
                         help='ROS 2 parameter file with the scenario (default: the paper '
                              "scenario, the package's config/toc_ros.yaml)")
@@ -63,7 +64,8 @@ def build_parser():
     obstacles.add_argument('--no-obstacles', action='store_true', help='solve without obstacles')
     parser.add_argument('--margin', type=float, metavar='DR',
                         help='clearance margin added to every radius [m]')
-    parser.add_argument('--max-iterations', type=int, metavar='M')
+    parser.add_argument('--max-iterations', type=int, metavar='M',
+                        help="iteration limit; 0 = the mode's default (paper: M = 30000)")
     parser.add_argument('--timeout', type=float, metavar='S',
                         help='wall-clock limit [s]; 0 = none (config default: 60)')
     parser.add_argument('--variant', choices=('eq37', 'eq36'),
@@ -174,13 +176,17 @@ def summary(result, problem):
              f'message     {result.message}',
              f'mode        {result.mode}, {problem.integrator}, N = {problem.n_intervals}, '
              f'{len(problem.obstacles)} obstacle(s), margin {problem.margin} m',
-             f't_min       {result.final_time:.6f} s',
+             f't_min       {_seconds(result.final_time)}',
              f'iterations  {result.iterations}',
              f'wall time   {result.wall_time_s:.3f} s']
     if result.has_trajectory:
         lines.append(f'violations  control excess {v.max_control_excess:.3g}, terminal error '
                      f'{v.terminal_error:.3g}, min clearance {v.min_clearance:.3g} m')
     return '\n'.join(lines)
+
+
+def _seconds(value):
+    return f'{value:.6f} s' if math.isfinite(value) else 'n/a (no trajectory)'
 
 
 def _strict(value):
@@ -228,6 +234,14 @@ def _solve_interruptible(problem, options, progress):
 def main(argv=None):
     """Entry point of toc-solve; returns the process exit code."""
     args = _parse(argv)
+    try:
+        return _run(args)
+    except KeyboardInterrupt:      # a second Ctrl-C, or one before the solve started
+        print('toc-solve: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _run(args):
     from toc_ros.core import ProblemError, SolveResult, Status
     try:
         problem, options = build_problem(args)
@@ -237,7 +251,7 @@ def main(argv=None):
         problem = None
     else:
         show_progress = not args.quiet and sys.stderr.isatty()
-        line = ProgressLine(sys.stderr, options.max_iterations, options.mode)
+        line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
         try:
             result = _solve_interruptible(problem, options, line if show_progress else None)
         finally:

@@ -49,6 +49,8 @@ def paper_iterations(n_iter, x0, x_goal, controls, tau_box, p, method, u_max, ci
                                             circles, k_b, k_v_hat, k_p, grad_mode, states,
                                             jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u)
         j_total = j1 + j2 + j3
+        if not np.isfinite(j_total):
+            return j_total, it   # diverged (eta too large for this N): the driver reports it
         hist_tf[hist_start + it] = n * tau
         hist_j[hist_start + it] = j_total
         if j_total < j_eps:
@@ -61,7 +63,7 @@ def paper_iterations(n_iter, x0, x_goal, controls, tau_box, p, method, u_max, ci
         for i in range(n):
             controls[i, 0] -= eta * out_grad_u[i, 0]
             controls[i, 1] -= eta * out_grad_u[i, 1]
-    return j_total
+    return j_total, n_iter
 
 
 class PaperRun:
@@ -95,13 +97,13 @@ class PaperRun:
         """Run n_iter more iterations."""
         ws = self.ws
         po = self.po
-        self.last_j = paper_iterations(
+        self.last_j, ran = paper_iterations(
             n_iter, self.x0, self.x_goal, self.controls, self.tau_box, self.p, self.method,
             self.u_max, self.circles, po.k_b, self.k_v_hat, self.k_p_hat, po.grad_mode(), po.eta,
             po.d_tau, po.j_eps, self.best_controls, self.best_box, self.hist_tf, self.hist_j,
             self.done, ws.states, ws.jac_x, ws.jac_u, ws.jac_tau, ws.grad_x, ws.grad_u,
             ws.out_grad_u)
-        self.done += n_iter
+        self.done += ran
 
     @property
     def t_f(self):

@@ -73,7 +73,8 @@ class _Clock:
 
     def report(self, make_progress, force=False):
         now = time.monotonic()
-        if self.progress is not None and (force or now - self.last_report >= self.period):
+        # Half the period: the check runs between chunks, so gaps stay below the period.
+        if self.progress is not None and (force or now - self.last_report >= 0.5 * self.period):
             self.last_report = now
             self.progress(make_progress())
 
@@ -118,6 +119,7 @@ def _solve_paper(problem, options, method, clock):
     run = PaperRun(problem, options, method)
     chunk = 1
     stopped = None
+    diverged = False
     while run.done < options.iteration_limit():
         stopped = clock.stop_reason()
         if stopped is not None:
@@ -125,6 +127,9 @@ def _solve_paper(problem, options, method, clock):
         n_iter = min(chunk, options.iteration_limit() - run.done)
         t0 = time.monotonic()
         run.advance(n_iter)
+        if not math.isfinite(run.last_j):
+            diverged = True
+            break
         per_iter = (time.monotonic() - t0) / n_iter
         # Chunks of ~25 ms keep progress, cancel and timeout responsive.
         chunk = max(1, min(5000, int(0.025 / max(per_iter, 1e-7))))
@@ -137,6 +142,11 @@ def _solve_paper(problem, options, method, clock):
     if stopped is not None:
         return _finish(problem, controls, final_time, run.done, history, stopped,
                        f'{stopped.value.lower()} after {run.done} iterations')
+    if diverged and not accepted:
+        return SolveResult(status=Status.STALLED, iterations=run.done, history=history,
+                           message=f'diverged (J_T not finite) after {run.done} iterations: the '
+                           f'learning rate eta = {options.paper.eta} is too large for N = '
+                           f'{problem.n_intervals}')
     if not accepted:
         return _finish(problem, controls, final_time, run.done, history,
                        Status.MAX_ITERATIONS,

@@ -113,7 +113,7 @@ class RecorderNode(Node):
     """Subscribes to the selected topics and writes every received message to a bag."""
 
     def __init__(self, **kwargs):
-        super().__init__('recorder', **kwargs)
+        super().__init__('recorder_node', **kwargs)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.declare_parameter('output', '', ParameterDescriptor(
             description='bag directory to create (must not exist or be empty); '
