@@ -46,7 +46,8 @@ BRACKET_STEPS = (0.0, 2e-4, 1e-3, 5e-3, 2e-2)
 BRACKET_BELOW = 1e-3
 BISECTION_STEPS = 8
 COARSE_BRACKET_BELOW = 1e-2
-FINE_ALM_ROUNDS = 4
+FINE_ALM_ROUNDS = 3
+FINE_ALM_INNER = 1000
 COARSE_BISECTION_STEPS = 10
 
 
@@ -191,7 +192,7 @@ class _FastDriver:
                                            self.last_value, self.best_t_f,
                                            self.clock.elapsed(), f'fast N={run.n}'))
 
-    def _alm(self, run, final, feasibility_first=False, max_outer=60):
+    def _alm(self, run, final, feasibility_first=False, max_outer=60, max_inner=2000):
         """
         ALM outer loop on run; returns True when the constraints meet ALM_TOL.
 
@@ -211,7 +212,8 @@ class _FastDriver:
         run.value_gradient(run.z)
         for _ in range(max_outer):
             # Inexact inner solves while far from feasible (augmented-Lagrangian practice).
-            run.solve_subproblem(2000, self._callback, gtol=max(1e-10, min(1e-3, 0.1 * prev)))
+            run.solve_subproblem(max_inner, self._callback,
+                                 gtol=max(1e-10, min(1e-3, 0.1 * prev)))
             term, deficit = run.violation()
             viol = max(term, deficit)
             self.last_value = float(run.z[-1])
@@ -309,7 +311,8 @@ class _FastDriver:
                     _prolong(prev, run)
                     # A few warm-started ALM rounds re-optimise on this grid (the optimum moves
                     # by the discretisation error); the projection then makes it exactly feasible.
-                    self._alm(run, final=False, max_outer=FINE_ALM_ROUNDS)
+                    self._alm(run, final=False, max_outer=FINE_ALM_ROUNDS,
+                              max_inner=FINE_ALM_INNER)
                     if not self._refine(run):
                         # The bracket failed: plain ALM on this grid from the warm start.
                         if not self._alm(run, final=m == n):
