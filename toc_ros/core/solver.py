@@ -33,21 +33,22 @@ from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
 from .result import Progress, SolveResult, Status
 
-# Fast mode: ALM stopping tolerances (tighter than the SOLVED tolerances of result.py, so the
-# re-integrated trajectory passes them with margin), and the coarse level of the mesh ladder.
+# Fast mode.  ALM_TOL: constraint tolerance of the augmented Lagrangian (tighter than the SOLVED
+# tolerances of result.py, so the re-integrated trajectory passes them with margin).
 ALM_TOL = 1e-9
 # Grids of the coarse-to-fine ladder (those below N / 2 are used): the coarse solve finds the
 # structure of the solution cheaply, each finer grid only moves it by the discretisation error.
 LADDER = (100, 300)
-PROLONG_RHO = 100.0
-# Fine-grid refinement: relative steps above the coarse t_f tried until feasible, the assumed
-# lower end of the bracket, and the bisection steps (0.1 % / 2^8 ~ 4e-6 relative).
+PROLONG_RHO = 100.0          # penalty parameter a finer grid starts with (multipliers carried)
+FINE_ALM_ROUNDS = 3          # warm-started ALM rounds on each finer grid ...
+FINE_ALM_INNER = 1000        # ... of at most this many L-BFGS iterations each
+# Feasibility bracketing on each grid: relative steps above the previous t_f tried until the
+# projection succeeds, the assumed lower end of the bracket, the bisection steps (0.1 % / 2^8).
 BRACKET_STEPS = (0.0, 2e-4, 1e-3, 5e-3, 2e-2)
 BRACKET_BELOW = 1e-3
 BISECTION_STEPS = 8
+# On the coarse grid the bracket reaches further down (the ALM stops once feasible).
 COARSE_BRACKET_BELOW = 1e-2
-FINE_ALM_ROUNDS = 3
-FINE_ALM_INNER = 1000
 COARSE_BISECTION_STEPS = 10
 
 
