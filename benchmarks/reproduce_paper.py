@@ -614,8 +614,7 @@ def _limits_text(res):
         f'u2_max = 500 N the whole-arm t_min is {_t(u1)} s in fast mode ({u1.status})'
         + (f' and {_t(ipopt)} s with IPOPT ({ipopt.status})' if ipopt is not None else '')
         + f' at N = {cfg.sweep_n}, against {base.t_f:.4f} s with 600 N m at N = {cfg.n}'
-        + ('; fast mode stopped in a worse local optimum here (it is a local method)'
-           if ipopt is not None and ipopt.ok and u1.t_f > ipopt.t_f * 1.001 else '') + '. '
+        + _u1_remark(u1, ipopt) + '. '
         'A faster rotation does not remove the need to retract the arm under the circle and '
         'extend it again, which u2_max limits.')
     if 'both_scaled' in res:
@@ -629,6 +628,14 @@ def _limits_text(res):
             f'u2_max = {500 * s:.0f} N; fast mode with these limits gives t_min = {_t(both)} s '
             f'({both.status}), which checks the scaling law.')
     return '\n\n'.join(text)
+
+
+def _u1_remark(fast, ipopt):
+    if not fast.ok:
+        return f'; fast mode did not converge here ({fast.status}: {fast.note})'
+    if ipopt is not None and ipopt.ok and fast.t_f > ipopt.t_f * 1.001:
+        return '; fast mode stopped in a worse local optimum here (it is a local method)'
+    return ''
 
 
 def _paper_text(res):
@@ -838,6 +845,21 @@ segment to the inflated circle at the nodes (negative: inside).
 """
 
 
+def _compare(fast, ref):
+    """Node-by-node differences of two solutions of the same grid (Fig. 6 caption)."""
+    if not (has_trajectory(fast) and has_trajectory(ref)) or fast.controls.shape != \
+            ref.controls.shape:
+        return ''
+    dx = np.max(np.abs(fast.states - ref.states), axis=0)
+    diff = np.abs(fast.controls - ref.controls)
+    du, nodes = diff.max(axis=0), (diff > 1.0).sum(axis=0)
+    return (f'Node by node the states differ by at most {dx[0]:.1e} rad, {dx[1]:.1e} rad/s, '
+            f'{dx[2] * 1e3:.2f} mm, {dx[3] * 1e3:.2f} mm/s; u2 by more than 1 N at {nodes[1]} '
+            f'of {diff.shape[0]} nodes (max {du[1]:.0f} N), but u1 at {nodes[0]} nodes (max '
+            f'{du[0]:.0f} N m): where u1 is off its bounds the minimum time does not pin it '
+            'down.')
+
+
 def render_markdown(res, figures):
     """Return the report text for results res and figure paths figures (relative)."""
     cfg, mach = res['config'], res['machine']
@@ -858,7 +880,8 @@ def render_markdown(res, figures):
         '*Fig. 5 analog: paper mode, controls with bounds (left) and states (right).*', '',
         f'![Fig. 6 analog]({figures["fig6"]})',
         '*Fig. 6 analog: fast-mode minimum-time controls and states'
-        + (' (dashed: IPOPT reference).*' if ref is not None else '.*'), '',
+        + (f' (dashed: IPOPT reference). {_compare(fast, ref)}*' if ref is not None else '.*'),
+        '',
         f'![Fig. 7 analog]({figures["fig7"]})',
         "*Fig. 7 analog: hand path (a + q2 along q1) with the obstacle R' and the inflated R, "
         'the arm at six equal time steps; whole-arm minimum time, the no-obstacle minimum time '

@@ -111,18 +111,21 @@ def path(report, out_path):
     fig = Figure(figsize=(7.0, 7.0), dpi=DPI, layout='constrained')
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    drawn = set()
     colours = ['C0', 'C1', 'C2', 'C3', 'C4', 'C5']
+    # Each obstacle in the colour of the plan it belongs to (grey when several plans share it):
+    # a later plan's obstacles must not look like collisions of an earlier path.
+    owners = {}
     for plan in report.plans:
-        colour = colours[plan.index % len(colours)]
         for x, y, r in plan.obstacles:
             key = (round(x, 6), round(y, 6), round(r, 6), round(plan.margin, 6))
-            if key in drawn:
-                continue
-            drawn.add(key)
-            ax.add_patch(Circle((x, y), r, color='0.55', alpha=0.6))
-            ax.add_patch(Circle((x, y), r + plan.margin, fill=False, color='0.3',
-                                linestyle='--', linewidth=0.9))
+            owners.setdefault(key, []).append(plan.index)
+    for (x, y, r, margin), plans in owners.items():
+        shade = colours[plans[0] % len(colours)] if len(set(plans)) == 1 else '0.45'
+        ax.add_patch(Circle((x, y), r, color=shade, alpha=0.3))
+        ax.add_patch(Circle((x, y), r + margin, fill=False, color=shade, linestyle='--',
+                            linewidth=0.9))
+    for plan in report.plans:
+        colour = colours[plan.index % len(colours)]
         hx, hy = hand_position(plan.states[:, 0], plan.states[:, 2], a)
         ax.plot(hx, hy, color=colour, label=f'plan {plan.index} hand path', **PLANNED)
         for i in np.linspace(0, len(plan.times) - 1, ARM_INSTANTS).round().astype(int):
@@ -138,7 +141,8 @@ def path(report, out_path):
     ax.set_ylabel('y [m]')
     ax.grid(True, alpha=0.3)
     ax.legend(loc='best', fontsize='small')
-    ax.set_title('Hand path, arm at equal time steps, obstacles (dashed: inflated)')
+    ax.set_title('Hand path, arm at equal times; obstacles coloured by plan (dashed: inflated)',
+                 fontsize='medium')
     return _save(fig, out_path)
 
 
