@@ -27,6 +27,7 @@ Run: ``ros2 run toc_ros replay_node --ros-args -p bag:=runs/x -p rate:=2.0``
 """
 
 import re
+import signal
 import sys
 import threading
 import time
@@ -412,6 +413,8 @@ def main(args=None):
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # A second Ctrl-C while shutting down must not abort the cleanup.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

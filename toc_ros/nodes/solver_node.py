@@ -32,6 +32,7 @@ Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml
 
 import dataclasses
 import math
+import signal
 import sys
 import threading
 import time
@@ -506,6 +507,8 @@ def main(args=None):
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # A second Ctrl-C while shutting down must not abort the cleanup.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
