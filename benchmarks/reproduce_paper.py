@@ -918,7 +918,8 @@ Machine: {mach['cpu']}, {mach['cores']} cores, {mach['system']}; {versions}; com
 {mach['commit']}. Load average {load} at the start and {load_after} at the end of the run:
 the machine is shared with other engineers' test runs, so **wall times are noisy** (fast mode
 has varied by several times between runs of the same problem); iteration counts and t_min
-are deterministic for a given commit. Numba warm-up {res['warm_up_s']:.1f} s, whole script {res['total_s']:.0f} s.
+are deterministic for a given commit. Numba warm-up {res['warm_up_s']:.1f} s, whole script
+{res['total_s']:.0f} s.
 
 {_method(res)}
 ## Why not 1.71 s

@@ -36,7 +36,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
-from toc_ros.nodes.recorder_node import _topic_list, adapt_qos, RecorderNode
+from toc_ros.nodes.common import topic_list
+from toc_ros.nodes.recorder_node import adapt_qos, RecorderNode
 from toc_ros.recording.process import default_output_dir, recorder_command, RecorderProcess
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 import yaml
@@ -270,12 +271,12 @@ def test_command_line_values_are_quoted_and_parsed_back():
                         '-p', 'exclude:="^/rosout$"']
     assert default_output_dir(now=datetime.datetime(
         2026, 11, 25, 17, 0, 0, tzinfo=datetime.timezone.utc)) == 'runs/2026-11-25T17-00-00Z'
-    assert _topic_list(Parameter('t', Parameter.Type.STRING_ARRAY, ['/a', ' b '])) == ['/a', 'b']
-    assert _topic_list(Parameter('t', Parameter.Type.STRING, '/a, /b  /c')) == ['/a', '/b', '/c']
-    assert _topic_list(Parameter('t', Parameter.Type.NOT_SET, None)) == []
-    assert _topic_list(Parameter('t', Parameter.Type.BYTE_ARRAY, [])) == []
+    assert topic_list(Parameter('t', Parameter.Type.STRING_ARRAY, ['/a', ' b '])) == ['/a', 'b']
+    assert topic_list(Parameter('t', Parameter.Type.STRING, '/a, /b  /c')) == ['/a', '/b', '/c']
+    assert topic_list(Parameter('t', Parameter.Type.NOT_SET, None)) == []
+    assert topic_list(Parameter('t', Parameter.Type.BYTE_ARRAY, [])) == []
     with pytest.raises(ValueError):
-        _topic_list(Parameter('t', Parameter.Type.INTEGER, 3))
+        topic_list(Parameter('t', Parameter.Type.INTEGER, 3))
 
 
 def test_qos_adapts_to_publishers_like_rosbag2():

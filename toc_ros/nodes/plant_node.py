@@ -35,16 +35,14 @@ Run: ``ros2 run toc_ros plant_node --ros-args --params-file config/toc_ros.yaml`
 """
 
 import dataclasses
-import signal
 import sys
 import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
-import rclpy
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -54,6 +52,7 @@ from toc_ros.config import robot_from_parameters
 from toc_ros.core import ProblemError
 from toc_ros.core.integrators import RK4, step
 from toc_ros.nodes import parameters
+from toc_ros.nodes.common import run_node
 from trajectory_msgs.msg import JointTrajectory
 
 PARAMETER_NAMES = [
@@ -301,27 +300,10 @@ class PlantNode(Node):
 
 def main(args=None):
     """Run plant_node until shutdown; exit code 2 for invalid parameters."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = PlantNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (ParameterError, InvalidParameterValueException,
-            InvalidParameterTypeException) as error:
-        print(f'plant_node: error: invalid parameters: {error}', file=sys.stderr)
-        exit_code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        # A second Ctrl-C while shutting down must not abort the cleanup.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return run_node('plant_node', PlantNode, SingleThreadedExecutor, args=args,
+                    errors=(ParameterError, InvalidParameterValueException,
+                            InvalidParameterTypeException),
+                    error_prefix='invalid parameters: ')
 
 
 if __name__ == '__main__':

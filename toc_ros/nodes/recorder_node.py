@@ -41,6 +41,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from toc_ros.nodes.common import topic_list
 from toc_ros.recording.bag_writer import BagWriter, qos_profile_to_dict, RecordingError
 from toc_ros.recording.msg_definitions import (
     full_definition, MessageDefinitionError, split_type_name, type_description_hash)
@@ -52,23 +53,6 @@ DRAIN_TIMEOUT_S = 5.0
 
 def _is_hidden(topic: str) -> bool:
     return any(token.startswith('_') for token in topic.split('/'))
-
-
-def _topic_list(parameter: Parameter) -> List[str]:
-    """Topics from a string array, a comma/space separated string or an empty value."""
-    value = parameter.value
-    if parameter.type_ == Parameter.Type.STRING_ARRAY:
-        names = list(value)
-    elif parameter.type_ == Parameter.Type.STRING:
-        names = re.split(r'[,\s]+', value)
-    elif parameter.type_ == Parameter.Type.NOT_SET or not value:
-        names = []  # "topics:=[]" arrives unset or as an empty array of another type
-    else:
-        raise ValueError(f'topics must be a list of topic names, got {value!r}')
-    names = [n.strip() for n in names if n and n.strip()]
-    if any(not isinstance(n, str) for n in names):
-        raise ValueError(f'topics must be strings, got {value!r}')
-    return names
 
 
 def _message_class(type_name: str):
@@ -135,7 +119,7 @@ class RecorderNode(Node):
             read_only=True))
 
         self._topics = {self.resolve_topic_name(t) for t in
-                        _topic_list(self.get_parameter('topics'))}
+                        topic_list(self.get_parameter('topics'))}
         exclude = self.get_parameter('exclude').value
         self._exclude = re.compile(exclude) if exclude else None
         self._include_hidden = bool(self.get_parameter('include_hidden_topics').value)
@@ -159,7 +143,7 @@ class RecorderNode(Node):
         for parameter in parameters:
             try:
                 if parameter.name == 'topics':
-                    for name in _topic_list(parameter):
+                    for name in topic_list(parameter):
                         self.resolve_topic_name(name)
                 elif parameter.name == 'exclude' and parameter.value:
                     re.compile(parameter.value)

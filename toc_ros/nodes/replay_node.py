@@ -26,8 +26,6 @@ playing (never with ``loop``), 1 when the recording cannot be played.
 Run: ``ros2 run toc_ros replay_node --ros-args -p bag:=runs/x -p rate:=2.0``
 """
 
-import re
-import signal
 import sys
 import threading
 import time
@@ -37,13 +35,14 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 import rclpy
 from rclpy.duration import Duration
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from toc_ros.analysis.bag_reader import message_class, Recording, RecordingError
+from toc_ros.nodes.common import run_node, topic_list
 
 CLOCK_TOPIC = '/clock'
 # /clock is published at least this often between messages (ros2 bag play's default 40 Hz).
@@ -96,20 +95,6 @@ def qos_from_offers(profiles: Iterable[dict]) -> QoSProfile:
         if not depths or max(depths) <= 0:
             qos.depth = 1
     return qos
-
-
-def topic_list(parameter: Parameter) -> List[str]:
-    """Topic names from a string array, a comma/space separated string or an empty value."""
-    value = parameter.value
-    if parameter.type_ == Parameter.Type.STRING_ARRAY:
-        names = list(value)
-    elif parameter.type_ == Parameter.Type.STRING:
-        names = re.split(r'[,\s]+', value)
-    elif parameter.type_ == Parameter.Type.NOT_SET or not value:
-        names = []  # "topics:=[]" arrives unset or as an empty array of another type
-    else:
-        raise ValueError(f'topics must be a list of topic names, got {value!r}')
-    return ['/' + n.strip().lstrip('/') for n in names if n and n.strip()]
 
 
 class Player:
@@ -261,7 +246,8 @@ class ReplayNode(Node):
                               '--ros-args -p bag:=PATH')
         self.recording = Recording(bag, warn=self.get_logger().warning)
         self._players: Dict[str, object] = {}
-        self._create_publishers(topic_list(self.get_parameter('topics')))
+        self._create_publishers(
+            ['/' + n.lstrip('/') for n in topic_list(self.get_parameter('topics'))])
         if not self._players:
             self.recording.close()
             raise ReplayError(f'nothing to play in {bag}: no playable topic')
@@ -287,7 +273,7 @@ class ReplayNode(Node):
         for parameter in parameters:
             try:
                 if parameter.name == 'topics':
-                    for name in topic_list(parameter):
+                    for name in ['/' + n.lstrip('/') for n in topic_list(parameter)]:
                         self.resolve_topic_name(name)
                 elif parameter.name == 'bag' and parameter.type_ != Parameter.Type.STRING:
                     raise ValueError(f'bag must be a path, got {parameter.value!r}')
@@ -393,32 +379,18 @@ class ReplayNode(Node):
         super().destroy_node()
 
 
+def _play(node, executor):
+    node.start()
+    while rclpy.ok() and not node.finished:
+        executor.spin_once(timeout_sec=0.05)
+    return node.exit_code
+
+
 def main(args=None):
     """Play the recording given by parameter bag; exit code 0 when it was played."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = ReplayNode()
-        node.start()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.finished:
-            executor.spin_once(timeout_sec=0.05)
-        exit_code = node.exit_code
-    except (ReplayError, RecordingError, InvalidParameterValueException,
-            InvalidParameterTypeException) as error:
-        print(f'replay_node: error: {error}', file=sys.stderr)
-        exit_code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        # A second Ctrl-C while shutting down must not abort the cleanup.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return run_node('replay_node', ReplayNode, SingleThreadedExecutor, args=args, spin=_play,
+                    errors=(ReplayError, RecordingError, InvalidParameterValueException,
+                            InvalidParameterTypeException), error_code=1)
 
 
 if __name__ == '__main__':

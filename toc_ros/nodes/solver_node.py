@@ -32,7 +32,6 @@ Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml
 
 import dataclasses
 import math
-import signal
 import sys
 import threading
 import time
@@ -45,7 +44,7 @@ import numpy as np
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -57,6 +56,7 @@ from toc_ros.config import (
     DEFAULTS, obstacle_rows, options_from_parameters, problem_from_parameters)
 from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
 from toc_ros.nodes import parameters
+from toc_ros.nodes.common import run_node
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
@@ -492,27 +492,10 @@ class SolverNode(Node):
 
 def main(args=None):
     """Run solver_node until shutdown; exit code 2 for invalid parameters."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = SolverNode()
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        executor.spin()
-    except (ParameterError, InvalidParameterValueException,
-            InvalidParameterTypeException) as error:
-        print(f'solver_node: error: invalid parameters: {error}', file=sys.stderr)
-        exit_code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        # A second Ctrl-C while shutting down must not abort the cleanup.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return run_node('solver_node', SolverNode, lambda: MultiThreadedExecutor(num_threads=4),
+                    args=args, errors=(ParameterError, InvalidParameterValueException,
+                                       InvalidParameterTypeException),
+                    error_prefix='invalid parameters: ')
 
 
 if __name__ == '__main__':

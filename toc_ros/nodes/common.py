@@ -1,0 +1,73 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""What the nodes share: the main() skeleton and the 'topics' parameter parsing."""
+
+import re
+import signal
+import sys
+from typing import List
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.parameter import Parameter
+
+
+def topic_list(parameter: Parameter) -> List[str]:
+    """Topic names from a string array, a comma/space separated string or an empty value."""
+    value = parameter.value
+    if parameter.type_ == Parameter.Type.STRING_ARRAY:
+        names = list(value)
+    elif parameter.type_ == Parameter.Type.STRING:
+        names = re.split(r'[,\s]+', value)
+    elif parameter.type_ == Parameter.Type.NOT_SET or not value:
+        names = []  # "topics:=[]" arrives unset or as an empty array of another type
+    else:
+        raise ValueError(f'topics must be a list of topic names, got {value!r}')
+    if any(not isinstance(n, str) for n in names):
+        raise ValueError(f'topics must be strings, got {value!r}')
+    return [n.strip() for n in names if n and n.strip()]
+
+
+def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), error_code=2,
+             error_prefix=''):
+    """
+    Run a node the demo_nodes_py way and return the process exit code.
+
+    spin(node, executor) replaces executor.spin() and returns the exit code; an exception in
+    errors is printed as '<name>: error: <error_prefix><error>' and gives error_code.
+    """
+    rclpy.init(args=args)
+    node = None
+    exit_code = 0
+    try:
+        node = make_node()
+        executor = make_executor()
+        executor.add_node(node)
+        if spin is None:
+            executor.spin()
+        else:
+            exit_code = spin(node, executor)
+    except errors as error:
+        print(f'{name}: error: {error_prefix}{error}', file=sys.stderr)
+        exit_code = error_code
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        # A second Ctrl-C while shutting down must not abort the cleanup.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return exit_code
