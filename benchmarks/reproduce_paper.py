@@ -270,10 +270,8 @@ def machine_info():
         commit, dirty = '', ''
     import matplotlib
     import numba
-    import scipy
     versions = {'python': platform.python_version(), 'numpy': np.__version__,
-                'numba': numba.__version__, 'scipy': scipy.__version__,
-                'matplotlib': matplotlib.__version__}
+                'numba': numba.__version__, 'matplotlib': matplotlib.__version__}
     try:
         import casadi
         versions['casadi'] = casadi.__version__

@@ -29,7 +29,7 @@ import signal
 import sys
 import threading
 
-# toc_ros.config and toc_ros.core (numba, scipy) are imported after the arguments are parsed,
+# toc_ros.config and toc_ros.core (numba) are imported after the arguments are parsed,
 # so that --help and argument errors answer at once.
 
 EXIT_WRITE_ERROR = 5
