@@ -36,11 +36,12 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 N = TEST_PARAMS['solver.N']
-# A plan that runs until canceled: paper mode without iteration or time limit in practice.
+# A plan that runs until canceled: paper mode without iteration or time limit in practice, with
+# a learning rate small enough not to diverge at this N (the paper's eta = 1000 does at N=100).
 LONG_SOLVE = {'solver.mode': 'paper', 'solver.max_iterations': 1_000_000_000,
-              'solver.timeout': 0.0}
+              'solver.timeout': 0.0, 'solver.paper.eta': 1.0}
 NORMAL_SOLVE = {'solver.mode': 'fast', 'solver.max_iterations': 0,
-                'solver.timeout': TEST_PARAMS['solver.timeout']}
+                'solver.timeout': TEST_PARAMS['solver.timeout'], 'solver.paper.eta': 1000.0}
 
 
 @pytest.fixture(scope='module')
