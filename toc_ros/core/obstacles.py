@@ -60,9 +60,10 @@ def ray_penetration(q1, q2, a, cx, cy, radius):
 @njit(cache=True)
 def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
     """
-    J3 of eq. (42) summed over circles and nodes 0..N; adds dJ3/dx to grad_x (N+1 x 4).
+    J3 of eq. (42) summed over circles and nodes 0..N; writes dJ3/dx into grad_x (N+1 x 4).
 
-    grad_mode GRAD_EXACT uses eq. (44) with the exact d r_min/d q1 (eq. 45); GRAD_SHORTCUT
+    Every row of grad_x is overwritten (zero where no circle is hit), so callers need not clear
+    it.  grad_mode GRAD_EXACT uses eq. (44) with the exact d r_min/d q1 (eq. 45); GRAD_SHORTCUT
     the paper's eq. (46), which is not the gradient of J3 (only a descent heuristic).
     """
     total = 0.0
@@ -75,11 +76,15 @@ def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
         bearing[k] = math.atan2(circles[k, 1], circles[k, 0])
         distance = math.hypot(circles[k, 0], circles[k, 1])
         half_width[k] = math.asin(min(1.0, circles[k, 2] / distance))
+    two_pi = 2.0 * math.pi
+    inv_two_pi = 1.0 / two_pi
     for i in range(states.shape[0]):
         q1, q2 = states[i, 0], states[i, 2]
+        g_q1 = 0.0
+        g_q2 = 0.0
         for k in range(n_circles):
             off = q1 - bearing[k]
-            off -= 2.0 * math.pi * math.floor(off / (2.0 * math.pi) + 0.5)
+            off -= two_pi * math.floor(off * inv_two_pi + 0.5)
             if abs(off) >= half_width[k]:
                 continue
             gap, dr_dq1, active = ray_penetration(q1, q2, a, circles[k, 0], circles[k, 1],
@@ -88,10 +93,14 @@ def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
                 continue
             total += k_p * gap * gap
             if grad_mode == GRAD_EXACT:
-                grad_x[i, 0] += 2.0 * k_p * dr_dq1 * gap
-                grad_x[i, 2] += -2.0 * k_p * gap
+                g_q1 += 2.0 * k_p * dr_dq1 * gap
+                g_q2 += -2.0 * k_p * gap
             else:
-                grad_x[i, 2] += k_p
+                g_q2 += k_p
+        grad_x[i, 0] = g_q1
+        grad_x[i, 1] = 0.0
+        grad_x[i, 2] = g_q2
+        grad_x[i, 3] = 0.0
     return total
 
 

@@ -15,9 +15,9 @@
 """
 Penalty terms of the paper's cost, eq. (6): J1 (eq. 7), J2 (eqs. 8-9), J3 (eq. 42).
 
-Each function returns its value and adds its partial derivatives to caller-owned gradient
-buffers (grad_x: N+1 x 4 over the states, grad_u: N x 2 over the controls), which the BPTT
-recursion (bptt.py) then propagates back through the dynamics.
+Each function returns its value and writes (J2, J3) or adds (J1) its partial derivatives to
+caller-owned gradient buffers (grad_x: N+1 x 4 over the states, grad_u: N x 2 over the
+controls), which the BPTT recursion (bptt.py) then propagates back through the dynamics.
 """
 
 from numba import njit
@@ -38,7 +38,11 @@ def terminal_penalty(x_final, x_goal, k_b, grad_x_final):
 
 @njit(cache=True)
 def control_bound_penalty(controls, u_max, k_v_hat, grad_u):
-    """J2 of eq. (8) with g = (u_max - u, u_max + u) >= 0 and the Heaviside H- of eq. (9)."""
+    """
+    J2 of eq. (8) with g = (u_max - u, u_max + u) >= 0 and the Heaviside H- of eq. (9).
+
+    Writes dJ2/du into every entry of grad_u (N x 2).
+    """
     total = 0.0
     for i in range(controls.shape[0]):
         for k in range(controls.shape[1]):
@@ -46,11 +50,13 @@ def control_bound_penalty(controls, u_max, k_v_hat, grad_u):
             if u > u_max[k]:          # g = u_max - u < 0, dg/du = -1
                 g = u_max[k] - u
                 total += k_v_hat * g * g
-                grad_u[i, k] += -2.0 * k_v_hat * g
+                grad_u[i, k] = -2.0 * k_v_hat * g
             elif u < -u_max[k]:       # g = u_max + u < 0, dg/du = +1
                 g = u_max[k] + u
                 total += k_v_hat * g * g
-                grad_u[i, k] += 2.0 * k_v_hat * g
+                grad_u[i, k] = 2.0 * k_v_hat * g
+            else:
+                grad_u[i, k] = 0.0
     return total
 
 
@@ -58,10 +64,9 @@ def control_bound_penalty(controls, u_max, k_v_hat, grad_u):
 def paper_penalties(states, controls, x_goal, u_max, a, circles, k_b, k_v_hat, k_p,
                     grad_mode, grad_x, grad_u):
     """J_T = J1 + J2 + J3 of eq. (33); returns (J1, J2, J3) and fills the gradient buffers."""
-    grad_x[:, :] = 0.0
-    grad_u[:, :] = 0.0
     n = controls.shape[0]
-    j1 = terminal_penalty(states[n], x_goal, k_b, grad_x[n])
-    j2 = control_bound_penalty(controls, u_max, k_v_hat, grad_u)
+    # J3 and J2 overwrite their buffers entirely; J1 then adds to the last row.
     j3 = obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x)
+    j2 = control_bound_penalty(controls, u_max, k_v_hat, grad_u)
+    j1 = terminal_penalty(states[n], x_goal, k_b, grad_x[n])
     return j1, j2, j3
