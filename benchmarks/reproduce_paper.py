@@ -829,9 +829,11 @@ N intervals of τ = t_f / N with controls constant on each interval.
 * **Fast mode** (`SolverOptions(mode='fast')`, the project's method): minimise t_f over u and
   t_f with the terminal condition (eq. 3), the bounds (eq. 47) and the whole-arm obstacle
   condition (eq. 41 for any quadrant, written as the arm-segment distance) as constraints: an
-  augmented Lagrangian whose L-BFGS-B sub-problems use the same BPTT gradient (plus ∂/∂t_f),
-  on a coarse grid, then carried to N by a feasibility projection and a bisection on t_f. Its
-  result is feasible: |u| ≤ u_max exactly, terminal error ≤ 1e-6, clearance ≥ −1e-6 m.
+  augmented Lagrangian whose bound-constrained sub-problems (projected L-BFGS) use the same
+  BPTT gradient (plus ∂/∂t_f), on a 100-interval grid from two starts, then on finer grids
+  (300, N) warm-started from the coarser one, each made exactly feasible by a Gauss-Newton
+  projection (BPTT sensitivity rows) and a bisection on t_f. Its result is feasible:
+  |u| ≤ u_max exactly, terminal error ≤ 1e-6, clearance ≥ −1e-6 m.
 * **Reference** (`benchmarks/reference_ipopt.py`): the same discrete problem (same integrator
   and N) as one NLP by direct transcription, solved by IPOPT (CasADi) from several initial
   guesses; independent code. It also offers the hand-only and no-obstacle conditions.
