@@ -362,8 +362,8 @@ class FeasibilityProjector:
     """
     Gauss-Newton projection onto {x(N) = x_goal, clearance >= 0} at a fixed t_f.
 
-    Minimum-norm steps in the controls that are not at a bound (a bound, once hit, stays); the
-    rows are the terminal residuals and the obstacle constraints that are violated or touching.
+    Minimum-norm steps in the controls that are inside the box or would leave their bound
+    inwards; the rows are the terminal residuals and the obstacle constraints that are violated or touching.
     Used to carry a coarse-grid optimum to the fine grid and to bracket t_f from above.
     """
 
@@ -423,8 +423,17 @@ class FeasibilityProjector:
                 target[row] = -cons[node, k]
             rows = np.empty((m, 2 * run.n + 1))
             sensitivity_rows(ws.jac_x, ws.jac_u, ws.jac_tau, run.u_max, nodes, seeds, rows)
-            free = np.abs(v) < 1.0 - 1e-12
-            jf = rows[:, :-1][:, free]
+            # Free variables: inside the box, or at a bound that the unconstrained minimum-norm
+            # step would leave inwards (so bang-bang arcs can give way where needed).
+            jall = rows[:, :-1]
+            gram = jall @ jall.T
+            scale = max(float(np.trace(gram)) / m, 1e-300)
+            try:
+                probe = jall.T @ np.linalg.solve(gram + damping * scale * np.eye(m), target)
+            except np.linalg.LinAlgError:
+                probe = np.zeros_like(v)
+            free = ~(((v >= 1.0 - 1e-12) & (probe > 0.0)) | ((v <= -1.0 + 1e-12) & (probe < 0.0)))
+            jf = jall[:, free]
             gram = jf @ jf.T
             scale = max(float(np.trace(gram)) / m, 1e-300)
             accepted = False

@@ -44,7 +44,7 @@ FINE_ALM_ROUNDS = 3          # warm-started ALM rounds on each finer grid ...
 FINE_ALM_INNER = 1000        # ... of at most this many L-BFGS iterations each
 # Feasibility bracketing on each grid: relative steps above the previous t_f tried until the
 # projection succeeds, the assumed lower end of the bracket, the bisection steps (0.1 % / 2^8).
-BRACKET_STEPS = (0.0, 2e-4, 1e-3, 5e-3, 2e-2)
+BRACKET_STEPS = (0.0, 2e-4, 1e-3, 5e-3, 2e-2, 0.1)
 BRACKET_BELOW = 1e-3
 BISECTION_STEPS = 8
 # On the coarse grid the bracket reaches further down (the ALM stops once feasible).
@@ -310,11 +310,18 @@ class _FastDriver:
                 for m in ladder[1:]:
                     run = fine if m == n else FastRun(_with_intervals(problem, m), self.method)
                     _prolong(prev, run)
+                    prolonged = run.z.copy()
                     # A few warm-started ALM rounds re-optimise on this grid (the optimum moves
                     # by the discretisation error); the projection then makes it exactly feasible.
                     self._alm(run, final=False, max_outer=FINE_ALM_ROUNDS,
                               max_inner=FINE_ALM_INNER)
-                    if not self._refine(run):
+                    refined = self._refine(run)
+                    if not refined:
+                        # The rounds can wander off on hard problems: bracket from the
+                        # prolonged coarse solution instead.
+                        run.z[:] = prolonged
+                        refined = self._refine(run)
+                    if not refined:
                         # The bracket failed: plain ALM on this grid from the warm start.
                         if not self._alm(run, final=m == n):
                             converged = False
