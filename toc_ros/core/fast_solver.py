@@ -432,7 +432,9 @@ class FeasibilityProjector:
                 probe = jall.T @ np.linalg.solve(gram + damping * scale * np.eye(m), target)
             except np.linalg.LinAlgError:
                 probe = np.zeros_like(v)
-            free = ~(((v >= 1.0 - 1e-12) & (probe > 0.0)) | ((v <= -1.0 + 1e-12) & (probe < 0.0)))
+            outward = (((v >= 1.0 - 1e-12) & (probe > 0.0))
+                       | ((v <= -1.0 + 1e-12) & (probe < 0.0)))
+            free = ~outward
             jf = jall[:, free]
             gram = jf @ jf.T
             scale = max(float(np.trace(gram)) / m, 1e-300)
