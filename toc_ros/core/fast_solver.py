@@ -362,9 +362,9 @@ class FeasibilityProjector:
     """
     Gauss-Newton projection onto {x(N) = x_goal, clearance >= 0} at a fixed t_f.
 
-    Minimum-norm steps in the controls that are inside the box or would leave their bound
-    inwards; the rows are the terminal residuals and the obstacle constraints that are violated or touching.
-    Used to carry a coarse-grid optimum to the fine grid and to bracket t_f from above.
+    Levenberg-Marquardt minimum-norm steps in the controls that are inside the box or would
+    leave their bound inwards; the rows are the terminal residuals and the violated obstacle
+    constraints.  Used to carry a coarse-grid optimum to a finer grid and to bracket t_f.
     """
 
     def __init__(self, run):
