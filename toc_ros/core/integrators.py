@@ -170,21 +170,21 @@ def rollout_linearized(x0, controls, tau, p, method, states, jac_x, jac_u, jac_t
             states[i + 1, 2] = x3 + tau * f[2]
             states[i + 1, 3] = x4 + tau * f[3]
             jac_tau[i, 0], jac_tau[i, 1], jac_tau[i, 2], jac_tau[i, 3] = f
-            for r in range(NX):
-                for c in range(NX):
-                    jac_x[i, r, c] = 0.0
-                jac_x[i, r, r] = 1.0
-                jac_u[i, r, 0] = 0.0
-                jac_u[i, r, 1] = 0.0
-            jac_x[i, 0, 1] = tau
+            # I + tau df/dx and tau df/du, every entry written once (sparsity of eq. 37).
+            jac_x[i, 0, 0], jac_x[i, 0, 1], jac_x[i, 0, 2], jac_x[i, 0, 3] = 1.0, tau, 0.0, 0.0
+            jac_x[i, 1, 0] = 0.0
             jac_x[i, 1, 1] = 1.0 + tau * d[0]
             jac_x[i, 1, 2] = tau * d[1]
             jac_x[i, 1, 3] = tau * d[2]
-            jac_x[i, 2, 3] = tau
+            jac_x[i, 2, 0], jac_x[i, 2, 1], jac_x[i, 2, 2], jac_x[i, 2, 3] = 0.0, 0.0, 1.0, tau
+            jac_x[i, 3, 0] = 0.0
             jac_x[i, 3, 1] = tau * d[3]
             jac_x[i, 3, 2] = tau * d[4]
-            jac_u[i, 1, 0] = tau * d[5]
-            jac_u[i, 3, 1] = tau * d[6]
+            jac_x[i, 3, 3] = 1.0
+            jac_u[i, 0, 0], jac_u[i, 0, 1] = 0.0, 0.0
+            jac_u[i, 1, 0], jac_u[i, 1, 1] = tau * d[5], 0.0
+            jac_u[i, 2, 0], jac_u[i, 2, 1] = 0.0, 0.0
+            jac_u[i, 3, 0], jac_u[i, 3, 1] = 0.0, tau * d[6]
     else:
         scratch = (np.zeros((4, NX, NX)), np.zeros((4, NX, 2)), np.zeros((4, NX)),
                    np.zeros((1, NX, NX)), np.zeros((1, NX, 2)), np.zeros((4, NX)))
