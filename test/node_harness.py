@@ -37,6 +37,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'toc_ros.yaml'
@@ -261,3 +263,17 @@ def handshake(client, publisher, msg, heard, timeout=30.0, period=1.0):
                 return
             time.sleep(0.01)
         assert time.monotonic() < deadline, f'no reaction to {publisher.topic_name}'
+
+
+def refused_inputs_handshake(ctx):
+    """Make sure each input topic reaches the node: send refused inputs until they are heard."""
+    bad_pose = pose_of(PAPER_GOAL)
+    bad_pose.header.frame_id = 'handshake'
+    for publisher, msg, text in [
+            (ctx.goal_pose, bad_pose, "'handshake'"),
+            (ctx.goal_joints, JointState(name=['handshake'], position=[0.0]), "'handshake'"),
+            (ctx.obstacles, Float64MultiArray(data=[1.0]), 'multiple of 3')]:
+        since = time.monotonic()
+        handshake(ctx.client, publisher, msg, lambda: [
+            m for m in ctx.client.messages('solver_node/progress', since) if text in m.message])
+    time.sleep(0.5)    # joint_states has no reaction to wait for; give discovery a moment

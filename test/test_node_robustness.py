@@ -22,8 +22,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
 from node_harness import (
-    handshake, is_final, JOINTS, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0, pose,
-    pose_of, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, values)
+    is_final, JOINTS, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0, pose,
+    pose_of, refused_inputs_handshake, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, values)
 import psutil
 import pytest
 from rcl_interfaces.srv import GetParameters
@@ -62,20 +62,6 @@ def solver(tmp_path_factory):
     finally:
         node.stop()
         client.close()
-
-
-def refused_inputs_handshake(ctx):
-    """Make sure each input topic reaches the node: send refused inputs until they are heard."""
-    bad_pose = pose_of(PAPER_GOAL)
-    bad_pose.header.frame_id = 'handshake'
-    for publisher, msg, text in [
-            (ctx.goal_pose, bad_pose, "'handshake'"),
-            (ctx.goal_joints, JointState(name=['handshake'], position=[0.0]), "'handshake'"),
-            (ctx.obstacles, Float64MultiArray(data=[1.0]), 'multiple of 3')]:
-        since = time.monotonic()
-        handshake(ctx.client, publisher, msg, lambda: [
-            m for m in ctx.client.messages('solver_node/progress', since) if text in m.message])
-    time.sleep(0.5)    # joint_states has no reaction to wait for; give discovery a moment
 
 
 def finals(ctx, since):

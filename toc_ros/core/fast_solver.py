@@ -236,11 +236,7 @@ class FastRun:
         self.problem = problem
         self.n = n
         self.method = method
-        self.p = problem.robot.packed()
-        self.x0 = np.asarray(problem.x0, float)
-        self.x_goal = np.asarray(problem.x_goal, float)
-        self.u_max = problem.robot.u_max
-        self.circles = np.ascontiguousarray(problem.circles())
+        self.p, self.x0, self.x_goal, self.u_max, self.circles = problem.kernel_arrays()
         self.n_cons = 4 + n * self.circles.shape[0]
         self.ws = Workspace(n)
         self.grad_z = np.zeros(2 * n + 1)

@@ -75,11 +75,7 @@ class PaperRun:
         self.problem = problem
         self.po = po
         self.method = method
-        self.p = problem.robot.packed()
-        self.x0 = np.asarray(problem.x0, float)
-        self.x_goal = np.asarray(problem.x_goal, float)
-        self.u_max = problem.robot.u_max
-        self.circles = np.ascontiguousarray(problem.circles())
+        self.p, self.x0, self.x_goal, self.u_max, self.circles = problem.kernel_arrays()
         self.tau0 = problem.t_f0 / n
         self.k_v_hat = self.tau0 * po.k_v
         self.k_p_hat = self.tau0 * po.k_p

@@ -62,6 +62,11 @@ class Problem:
         c[:, 2] += self.margin
         return c
 
+    def kernel_arrays(self):
+        """Return the kernels' inputs: packed robot data, x0, x_goal, u_max, inflated circles."""
+        return (self.robot.packed(), np.asarray(self.x0, float), np.asarray(self.x_goal, float),
+                self.robot.u_max, np.ascontiguousarray(self.circles()))
+
     def validate(self):
         """Raise ProblemError with every problem found (nothing is solved before this passes)."""
         errors = list(self.robot.check())
