@@ -69,6 +69,8 @@ class Problem:
 
     def validate(self):
         """Raise ProblemError with every problem found (nothing is solved before this passes)."""
+        if not isinstance(self.robot, RobotParams):
+            raise ProblemError('robot must be a toc_ros.core.RobotParams')
         errors = list(self.robot.check())
         x0 = _vector('x0', self.x0, 4, errors)
         xg = _vector('x_goal', self.x_goal, 4, errors)

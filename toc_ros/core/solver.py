@@ -83,16 +83,19 @@ class _Clock:
 
 def solve(problem, options=None, progress=None, cancel=None):
     """Solve a minimum-time problem; never raises for bad input (status INVALID_INPUT)."""
-    options = options or SolverOptions()
-    clock = _Clock(options, progress, cancel)
+    options = SolverOptions() if options is None else options
     try:
         if not isinstance(problem, Problem):
             raise ProblemError('problem must be a toc_ros.core.Problem')
+        if not isinstance(options, SolverOptions):
+            raise ProblemError('options must be a toc_ros.core.SolverOptions')
         problem.validate()
         options.validate()
     except ProblemError as exc:
-        return SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode=options.mode,
+        return SolveResult(status=Status.INVALID_INPUT, message=str(exc),
+                           mode=str(getattr(options, 'mode', '')),
                            integrator=str(getattr(problem, 'integrator', '')))
+    clock = _Clock(options, progress, cancel)
     method = integrator_id(problem.integrator)
     if options.mode == 'paper':
         result = _solve_paper(problem, options, method, clock)
