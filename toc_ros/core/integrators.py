@@ -78,7 +78,7 @@ def rollout(x0, controls, tau, p, method, states):
             controls[i, 0], controls[i, 1], tau, p, method)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _stage_jacobians(d, jx, ju):
     """Write df/dx, df/du of eq. (37) from the rhs_partials tuple d into jx (4x4), ju (4x2)."""
     for r in range(NX):
@@ -93,7 +93,7 @@ def _stage_jacobians(d, jx, ju):
     ju[1, 0], ju[3, 1] = d[5], d[6]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _rk4_linearized(i, states, controls, tau, p, jac_x, jac_u, jac_tau, scratch):
     # Chain rule through the stages k_s = f(x + c_s tau k_{s-1}, u); scratch holds the stage
     # Jacobians a_s (4x4), b_s (4x2) and the running dk/dx, dk/du, dk/dtau, so nothing is
