@@ -48,6 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:    # run as a script from a checkout (package not installed)
     sys.path.insert(0, str(ROOT))
 
+from toc_ros.analysis.plots import finish_plane_axes  # noqa: E402
 from toc_ros.core import (  # noqa: E402
     arm_clearance, hand_position, measure_violations, PaperOptions, Problem, solve,
     SolverOptions, Status, warm_up)
@@ -435,14 +436,7 @@ def plot_paths(runs, path, title, highlight=None):
     _draw_obstacles(ax, Problem())
     for k, run in enumerate(r for r in runs if has_trajectory(r)):
         _draw_run(ax, run, f'C{k}', highlight=highlight if k == 0 else None)
-    ax.plot(0.0, 0.0, 'ks', markersize=6, label='base')
-    ax.set_aspect('equal')
-    ax.autoscale_view()
-    ax.set_xlabel('x [m]')
-    ax.set_ylabel('y [m]')
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc='upper right', fontsize='small')
-    ax.set_title(title)
+    finish_plane_axes(ax, title, legend_loc='upper right')
     fig.savefig(path)
 
 

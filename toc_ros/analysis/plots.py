@@ -134,16 +134,21 @@ def path(report, out_path):
     for execution in report.executions:
         mx, my = hand_position(execution.states[:, 0], execution.states[:, 2], a)
         ax.plot(mx, my, label='measured' if execution.plan == 0 else None, **MEASURED)
+    finish_plane_axes(ax, 'Hand path, arm at equal times; obstacles coloured by plan (dashed: '
+                      'inflated)')
+    return _save(fig, out_path)
+
+
+def finish_plane_axes(ax, title, legend_loc='best'):
+    """Mark the base and label an x-y plane plot in metres with equal scales."""
     ax.plot(0.0, 0.0, 'ks', markersize=6, label='base')
     ax.set_aspect('equal')
     ax.autoscale_view()
     ax.set_xlabel('x [m]')
     ax.set_ylabel('y [m]')
     ax.grid(True, alpha=0.3)
-    ax.legend(loc='best', fontsize='small')
-    ax.set_title('Hand path, arm at equal times; obstacles coloured by plan (dashed: inflated)',
-                 fontsize='medium')
-    return _save(fig, out_path)
+    ax.legend(loc=legend_loc, fontsize='small')
+    ax.set_title(title, fontsize='medium')
 
 
 def convergence(report, path):
