@@ -240,3 +240,12 @@ def test_obstacle_rows():
 def test_obstacle_refusals(msg, reason):
     with pytest.raises(ConversionError, match=reason):
         conversions.obstacle_rows_from_msg(msg)
+
+
+def test_time_and_duration_round_the_total_not_the_fraction():
+    """15.9999999996 s is 16 s: rounding only the fraction would give 15 s + 0 ns."""
+    for convert in (conversions.time_msg, conversions.duration_msg):
+        msg = convert(15.9999999996)
+        assert (msg.sec, msg.nanosec) == (16, 0)
+        msg = convert(2.5)
+        assert (msg.sec, msg.nanosec) == (2, 500_000_000)

@@ -23,7 +23,7 @@ the robot's plane is the x-y plane of the base frame, the hand at (a + q2)(cos q
 from collections import namedtuple
 import math
 
-from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
@@ -68,10 +68,22 @@ class ConversionError(ValueError):
 # Output: core -> messages
 
 
+def _sec_nanosec(seconds):
+    # Round the total, not the fraction: 15.9999999996 s is (16, 0), not (15, 0).
+    total = int(round(seconds * 1e9))
+    return total // 1_000_000_000, total % 1_000_000_000
+
+
 def duration_msg(seconds):
     """builtin_interfaces/Duration of a non-negative time [s] (nanosecond resolution)."""
-    total = int(round(seconds * 1e9))
-    return Duration(sec=total // 1_000_000_000, nanosec=total % 1_000_000_000)
+    sec, nanosec = _sec_nanosec(seconds)
+    return Duration(sec=sec, nanosec=nanosec)
+
+
+def time_msg(seconds):
+    """builtin_interfaces/Time of a non-negative time [s] (nanosecond resolution)."""
+    sec, nanosec = _sec_nanosec(seconds)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def duration_seconds(duration):

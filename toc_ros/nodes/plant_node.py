@@ -38,7 +38,6 @@ import dataclasses
 import sys
 import time
 
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -255,9 +254,7 @@ class PlantNode(Node):
         if self._params['publish_clock']:
             if self._clock_pub is None:
                 self._clock_pub = self.create_publisher(Clock, '/clock', 10)
-            seconds = int(self._sim_time)
-            stamp = Time(sec=seconds, nanosec=int(round((self._sim_time - seconds) * 1e9))
-                         % 1_000_000_000)
+            stamp = conversions.time_msg(self._sim_time)
             self._clock_pub.publish(Clock(clock=stamp))
         else:
             stamp = self.get_clock().now().to_msg()
