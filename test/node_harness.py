@@ -19,6 +19,7 @@ Each test module gets a private rclpy context on a random ROS_DOMAIN_ID (localho
 and a random namespace, so concurrent test runs do not see each other.
 """
 
+import contextlib
 import math
 import os
 from pathlib import Path
@@ -28,9 +29,11 @@ import subprocess
 import sys
 import threading
 import time
+from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.srv import GetPlan
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -39,6 +42,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'toc_ros.yaml'
@@ -277,3 +281,38 @@ def refused_inputs_handshake(ctx):
         handshake(ctx.client, publisher, msg, lambda: [
             m for m in ctx.client.messages('solver_node/progress', since) if text in m.message])
     time.sleep(0.5)    # joint_states has no reaction to wait for; give discovery a moment
+
+
+@contextlib.contextmanager
+def running_solver(log_dir, collect=(), depth=10):
+    """
+    Run solver_node with TEST_PARAMS; yield its client, process, input publishers and clients.
+
+    collect: (message type, relative topic, qos) the client records; depth: history of the
+    goal publishers.  Every input topic is proven matched (refused_inputs_handshake) before the
+    body runs, and the node must exit cleanly at the end.
+    """
+    client = RosClient()
+    node = NodeProcess('solver_node', client.namespace, log_dir, TEST_PARAMS)
+    try:
+        node.wait_for_log('ready:')
+        for msg_type, topic, qos in collect:
+            client.collect(msg_type, topic, qos)
+        create = client.node.create_publisher
+        ctx = SimpleNamespace(
+            client=client, node=node,
+            goal_pose=create(PoseStamped, client.name('goal_pose'), depth),
+            goal_joints=create(JointState, client.name('goal_joints'), depth),
+            joint_states=create(JointState, client.name('joint_states'), 10),
+            obstacles=create(Float64MultiArray, client.name('obstacles'), 10),
+            plan=client.node.create_client(GetPlan, client.name('solver_node/plan')),
+            cancel=client.node.create_client(Trigger, client.name('solver_node/cancel')))
+        for publisher in (ctx.goal_pose, ctx.goal_joints, ctx.joint_states, ctx.obstacles):
+            client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
+                            what=f'subscriber of {publisher.topic_name}')
+        refused_inputs_handshake(ctx)
+        yield ctx
+        assert node.stop() == 0, node.log()
+    finally:
+        node.stop()
+        client.close()

@@ -16,14 +16,12 @@
 
 import math
 import time
-from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
 from node_harness import (
-    is_final, JOINTS, level_name, NEAR_GOAL, NodeProcess, PAPER_GOAL, PAPER_X0, pose,
-    pose_of, refused_inputs_handshake, RosClient, SOLVE_TIMEOUT, TEST_PARAMS, values)
+    is_final, JOINTS, level_name, NEAR_GOAL, PAPER_GOAL, PAPER_X0, pose,
+    pose_of, running_solver, SOLVE_TIMEOUT, TEST_PARAMS, values)
 import psutil
 import pytest
 from rcl_interfaces.srv import GetParameters
@@ -36,32 +34,10 @@ N = TEST_PARAMS['solver.N']
 
 @pytest.fixture(scope='module')
 def solver(tmp_path_factory):
-    client = RosClient()
-    node = NodeProcess('solver_node', client.namespace, tmp_path_factory.mktemp('robust'),
-                       TEST_PARAMS)
-    try:
-        node.wait_for_log('ready:')
-        client.collect(DiagnosticStatus, 'solver_node/progress', 1000)
-        client.collect(JointTrajectory, 'trajectory', 10)
-        ctx = SimpleNamespace(
-            client=client, node=node,
-            goal_pose=client.node.create_publisher(PoseStamped, client.name('goal_pose'), 100),
-            goal_joints=client.node.create_publisher(JointState, client.name('goal_joints'),
-                                                     100),
-            joint_states=client.node.create_publisher(JointState,
-                                                      client.name('joint_states'), 10),
-            obstacles=client.node.create_publisher(Float64MultiArray,
-                                                   client.name('obstacles'), 10),
-            plan=client.node.create_client(GetPlan, client.name('solver_node/plan')))
-        for publisher in (ctx.goal_pose, ctx.goal_joints, ctx.joint_states, ctx.obstacles):
-            client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
-                            what=f'subscriber of {publisher.topic_name}')
-        refused_inputs_handshake(ctx)
+    collect = [(DiagnosticStatus, 'solver_node/progress', 1000),
+               (JointTrajectory, 'trajectory', 10)]
+    with running_solver(tmp_path_factory.mktemp('robust'), collect, depth=100) as ctx:
         yield ctx
-        assert node.stop() == 0, node.log()
-    finally:
-        node.stop()
-        client.close()
 
 
 def finals(ctx, since):

@@ -17,15 +17,13 @@
 import math
 import re
 import time
-from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from node_harness import (
-    A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL, NodeProcess,
-    PAPER_GOAL, PAPER_X0, pose_of, refused_inputs_handshake, RosClient, SOLVE_TIMEOUT,
+    A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL,
+    PAPER_GOAL, PAPER_X0, pose_of, running_solver, SOLVE_TIMEOUT,
     TEST_PARAMS, U_MAX, values)
 import numpy as np
 import pytest
@@ -47,35 +45,11 @@ NORMAL_SOLVE = {'solver.mode': 'fast', 'solver.max_iterations': 0,
 
 @pytest.fixture(scope='module')
 def solver(tmp_path_factory):
-    client = RosClient()
-    node = NodeProcess('solver_node', client.namespace, tmp_path_factory.mktemp('solver'),
-                       TEST_PARAMS)
-    try:
-        node.wait_for_log('ready:')
-        client.collect(DiagnosticStatus, 'solver_node/progress', 100)
-        client.collect(JointTrajectory, 'trajectory', LATCHED)
-        client.collect(Path, 'planned_path')
-        client.collect(MarkerArray, 'markers', LATCHED)
-        ctx = SimpleNamespace(
-            client=client, node=node,
-            goal_pose=client.node.create_publisher(PoseStamped, client.name('goal_pose'), 10),
-            goal_joints=client.node.create_publisher(JointState, client.name('goal_joints'),
-                                                     10),
-            joint_states=client.node.create_publisher(JointState,
-                                                      client.name('joint_states'), 10),
-            obstacles=client.node.create_publisher(Float64MultiArray,
-                                                   client.name('obstacles'), 10),
-            plan=client.node.create_client(GetPlan, client.name('solver_node/plan')),
-            cancel=client.node.create_client(Trigger, client.name('solver_node/cancel')))
-        for publisher in (ctx.goal_pose, ctx.goal_joints, ctx.joint_states, ctx.obstacles):
-            client.wait_for(lambda p=publisher: p.get_subscription_count() > 0,
-                            what=f'subscriber of {publisher.topic_name}')
-        refused_inputs_handshake(ctx)
+    collect = [(DiagnosticStatus, 'solver_node/progress', 100),
+               (JointTrajectory, 'trajectory', LATCHED), (Path, 'planned_path', 10),
+               (MarkerArray, 'markers', LATCHED)]
+    with running_solver(tmp_path_factory.mktemp('solver'), collect) as ctx:
         yield ctx
-        assert node.stop() == 0, node.log()
-    finally:
-        node.stop()
-        client.close()
 
 
 def joint_state(x, names=JOINTS):
