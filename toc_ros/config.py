@@ -66,8 +66,8 @@ def default_config_path():
         path = os.path.join(get_package_share_directory('toc_ros'), 'config', 'toc_ros.yaml')
         if os.path.isfile(path):
             return path
-    except Exception:  # noqa: B902 - no ament index (plain venv without AMENT_PREFIX_PATH)
-        pass
+    except (ImportError, LookupError, OSError):
+        pass    # no ament index, or toc_ros not in it: fall back to the source tree
     return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                         'config', 'toc_ros.yaml')
 
