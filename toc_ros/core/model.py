@@ -120,6 +120,33 @@ def rhs_partials(x1, x2, x3, x4, u1, u2, p):
             1.0 / a3)
 
 
+@njit(cache=True, inline='always')
+def rhs_second_partials(x1, x2, x3, x4, u1, u2, p):
+    """
+    Non-zero second derivatives of eq. (37), same argument order as rhs_partials.
+
+    Returns (f1_x2x3, f1_x2x4, f1_x3x3, f1_x3x4, f1_x3u1, f3_x2x2, f3_x2x3) with f indexed
+    from 0 and x, u from 1 as in the paper (x2 = dq1, x3 = q2, x4 = dq2); every other second
+    derivative of f is zero (f0 = x2 and f2 = x4 are linear, f3 is linear in u2).
+    """
+    a1, a2, a3 = p[P_A1], p[P_A2], p[P_A3]
+    inertia = a1 + a2 * x3 + a3 * x3 * x3
+    d_inertia = a2 + 2.0 * a3 * x3
+    dd_inertia = 2.0 * a3
+    num = u1 - d_inertia * x2 * x4
+    inv = 1.0 / inertia
+    inv2 = inv * inv
+    centrifugal = x3 + p[P_SIGN] * a2 / (2.0 * a3)
+    return (-dd_inertia * x4 * inv + d_inertia * d_inertia * x4 * inv2,
+            -d_inertia * inv,
+            2.0 * d_inertia * dd_inertia * x2 * x4 * inv2 - num * dd_inertia * inv2
+            + 2.0 * num * d_inertia * d_inertia * inv2 * inv,
+            -dd_inertia * x2 * inv + d_inertia * d_inertia * x2 * inv2,
+            -d_inertia * inv2,
+            2.0 * centrifugal,
+            2.0 * x2)
+
+
 @njit(cache=True)
 def dynamics(x, u, p):
     """Right-hand side dx/dt = f(x, u) of eq. (37) as an array."""
