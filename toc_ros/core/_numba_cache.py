@@ -27,13 +27,16 @@ import numba
 
 
 def use_source_keyed_cache():
-    """Point numba's cache at <base>/toc_ros-<hash of toc_ros/core/*.py>."""
+    """Point numba's cache at <base>/toc_ros-<hash of the .py files under toc_ros/core>."""
     here = os.path.dirname(os.path.abspath(__file__))
     digest = hashlib.sha1()
-    for name in sorted(os.listdir(here)):
-        if name.endswith('.py'):
-            with open(os.path.join(here, name), 'rb') as stream:
-                digest.update(name.encode() + b'\0' + stream.read())
+    for folder, dirs, files in sorted(os.walk(here)):
+        dirs.sort()
+        for name in sorted(files):
+            if name.endswith('.py'):
+                path = os.path.join(folder, name)
+                with open(path, 'rb') as stream:
+                    digest.update(os.path.relpath(path, here).encode() + b'\0' + stream.read())
     base = os.environ.get('NUMBA_CACHE_DIR') or os.path.join(
         os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache'),
         'toc_ros', 'numba')

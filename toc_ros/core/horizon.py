@@ -30,9 +30,14 @@ EULER = 0
 RK4 = 1
 INTEGRATORS = {'euler': EULER, 'rk4': RK4}
 
-# RK4 stage offsets c_s (times tau) and weights b_s (times 6).
-_RK4_C = (0.0, 0.5, 0.5, 1.0)
-_RK4_W = (1.0, 2.0, 2.0, 1.0)
+
+
+@njit(inline='always')
+def _rk4_offset(s):
+    # Stage offsets c_s of classic RK4 (times tau).
+    if s == 0:
+        return 0.0
+    return 0.5 if s < 3 else 1.0
 
 
 def integrator_id(name):
@@ -65,7 +70,7 @@ def step(rhs, x, u, tau, p, method, out, work):
             for r in range(nx):
                 y[r] = x[r]
         else:
-            c = _RK4_C[s] * tau
+            c = _rk4_offset(s) * tau
             for r in range(nx):
                 y[r] = x[r] + c * k[s - 1, r]
         rhs(y, u, p, f)
@@ -109,7 +114,7 @@ def step_jacobians(rhs_jac, x, u, tau, p, method, out, jac_x, jac_u, jac_tau, wo
                 jac_u[r, c] = tau * fu[r, c]
         return
     for s in range(4):
-        cs = _RK4_C[s]
+        cs = _rk4_offset(s)
         c = cs * tau
         if s == 0:
             for r in range(nx):

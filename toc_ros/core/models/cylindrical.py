@@ -21,6 +21,7 @@ to the hand, and binds the generic horizon / interior-point kernels to them (cac
 """
 
 import math
+import sys
 
 from numba import njit
 import numpy as np
@@ -105,22 +106,27 @@ def segments(q, p, seg, seg_q, seg_qq):
     seg_qq[0, 3, 0, 1] = seg_qq[0, 3, 1, 0] = c
 
 
+# The wrappers name the kernels through the module object: numba refuses to cache a function
+# that passes a plain global dispatcher on to another function ("dynamic globals").
+this = sys.modules[__name__]
+
+
 @njit(cache=True, nogil=True)
 def rollout(x0, controls, tau, p, method, states):
     """Trajectory from x0 under piecewise-constant controls (N x nu) into states (N+1 x nx)."""
-    horizon.rollout(rhs, x0, controls, tau, p, method, states)
+    horizon.rollout(this.rhs, x0, controls, tau, p, method, states)
 
 
 @njit(cache=True, nogil=True)
 def ipm_iterate(ws, n_iter):
     """Run up to n_iter interior-point iterations on workspace ws (see ipm.py)."""
-    return ipm.iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter)
+    return ipm.iterate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws, n_iter)
 
 
 @njit(cache=True, nogil=True)
 def ipm_evaluate(ws):
     """Evaluate derivatives and KKT residuals at the current point of ws (see ipm.py)."""
-    return ipm.evaluate(rhs, rhs_jac, rhs_hess, segments, ws)
+    return ipm.evaluate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws)
 
 
 class CylindricalRobot(RobotModel):
@@ -138,8 +144,7 @@ class CylindricalRobot(RobotModel):
     @property
     def kernels(self):
         """The kernel module (this one)."""
-        import sys
-        return sys.modules[__name__]
+        return this
 
     def packed(self):
         """A1, A2, A3, a and the eq. (36)/(37) sign."""
