@@ -12,18 +12,1102 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Interior-point kernels (being written: placeholder so that model modules import)."""
+"""
+Fast mode's engine: a primal-dual interior-point method whose Newton steps are solved by a
+Riccati recursion, the second-order form of the BPTT recursion of eqs. (24)-(32).
+
+The transcription is multiple shooting on the paper's grid: decision variables are the states
+x(1..N), the scaled controls v(i) = u(i) / u_max (|v| < 1) and the final time T (tau = T / N);
+constraints are the shooting defects Phi(x(i), u(i), tau) - x(i+1) = 0 (eq. 2), the terminal
+state x(N) = x_goal, and c(x(i)) >= 0 for every link segment and inflated circle at the nodes
+i = 1..N, with c = (d^2 - R^2) / (2 R) (d: segment-to-centre distance; ~ clearance in metres,
+smooth where the distance is not).  The objective is T.
+
+Each iteration (IPOPT's algorithm, Waechter & Biegler 2006, reduced to what this structure
+needs):
+* derivatives at the current point: step Jacobians A(i), B(i), dPhi/dT (the X(j), U(j) of
+  eqs. 21-22), the Hessian of the Lagrangian (lam(i+1) . Phi'' and the obstacle curvature), the
+  barrier terms of the bounds condensed into the stage blocks (slacks and bound duals are
+  eliminated per constraint);
+* the Newton step by one backward Riccati sweep over stages (xi(i) = (dx(i), dT): T enters as a
+  constant state; eqs. 24-27 are this sweep's first-order part) plus a forward sweep.  The
+  terminal condition is handled through its multipliers nu: the step is affine in nu, the sweeps
+  run for nx + 1 right-hand sides and an nx-by-nx system gives nu.  Cost O(N (nx + nu)^3) per
+  iteration, no dense (N nx)-sized matrix anywhere;
+* inertia correction: when a reduced Hessian R + B^T P B is not positive definite, a multiple of
+  the identity is added to the Hessian and the sweep repeated;
+* a filter line search on (constraint violation, barrier objective) with the fraction-to-the-
+  boundary rule, then the monotone barrier update mu <- max(mu_min, min(0.2 mu, mu^1.5)).
+Exact Hessians make the local convergence quadratic for Euler; for RK4 the Hessian of the
+one-step map is approximated by Euler's (horizon.step_lagrangian_hessian).
+
+Everything lives in one Workspace (a namedtuple of arrays): scalars in fscal / iscal under the
+F_* / I_* names below.  The kernels take the model's pointwise kernels as arguments and are bound
+per model in the model modules (models/cylindrical.py).
+"""
+
+from collections import namedtuple
+import math
 
 from numba import njit
+import numpy as np
+
+from .horizon import hessian_work, step, step_jacobians, step_lagrangian_hessian, step_work
+
+# fscal entries.
+F_T = 0              # final time [s]
+F_MU = 1             # barrier parameter
+F_T_LOW = 2          # bounds on T [s]
+F_T_HIGH = 3
+F_ZT_LOW = 4         # duals of the T bounds
+F_ZT_HIGH = 5
+F_TOL = 6            # overall optimality tolerance (scaled, IPOPT's)
+F_CONSTR_TOL = 7     # constraint violation tolerance (unscaled)
+F_MU_MIN = 8
+F_THETA = 9          # constraint violation at the current point (l1)
+F_PHI = 10           # barrier objective at the current point
+F_ERR = 11           # optimality error E_0 at the current point
+F_DELTA = 12         # last inertia-correction shift
+F_RHO = 13           # terminal augmentation weight (does not change the step)
+F_THETA_MAX = 14
+F_THETA_MIN = 15
+F_ALPHA = 16         # last primal step length
+F_DUAL_INF = 17
+F_PRIMAL_INF = 18
+F_COMPL = 19
+F_DT = 20            # last step in T
+F_ALPHA_DUAL = 21
+N_FSCAL = 22
+
+# iscal entries.
+I_N = 0              # intervals
+I_METHOD = 1         # integrator id (horizon.EULER / RK4)
+I_ITER = 2           # iterations done
+I_MAX_ITER = 3
+I_N_FILTER = 4
+I_LS_FAILS = 5       # consecutive line-search failures
+I_STATUS = 6
+I_REG_TRIES = 7      # factorizations of the last iteration
+I_BACKTRACKS = 8     # line-search trials of the last iteration
+N_ISCAL = 9
+
+# Return codes of iterate().
+CONTINUE = 0
+CONVERGED = 1
+ITERATION_LIMIT = 2
+LINE_SEARCH_FAILED = 3
+NUMERICAL_FAILURE = 4
+
+# History columns (one row per iteration).
+H_T, H_THETA, H_ERR, H_MU, H_ALPHA, H_DELTA = 0, 1, 2, 3, 4, 5
+N_HIST = 6
+
+MAX_FILTER = 200
+MAX_BACKTRACKS = 40
+MAX_LS_FAILS = 8
+KAPPA_SIGMA = 1e10
+
+Workspace = namedtuple('Workspace', [
+    # problem data
+    'p', 'x0', 'x_goal', 'u_max', 'circles',
+    # primal: states, scaled controls; duals: dynamics, terminal, obstacles, control bounds
+    'x', 'v', 'lam', 'nu', 's', 'z', 'zl', 'zu',
+    # derivatives at the current point
+    'jac_x', 'jac_v', 'jac_t', 'defect', 'cons', 'cons_q',
+    # stage blocks of the Newton system: Q (xi, xi), S (v, xi), R (v, v), q, r
+    'qq', 'ss', 'rr', 'qv', 'rv',
+    # Riccati sweep
+    'pp', 'pc', 'gain', 'ff', 'chol',
+    # step
+    'dx', 'dv', 'lam_new', 'nu_new', 'ds', 'dz', 'dzl', 'dzu',
+    # trial point of the line search
+    'xt', 'vt', 'st', 'ct',
+    # filter, history, scalars
+    'filt', 'hist', 'fscal', 'iscal',
+])
+
+
+def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
+    """Allocate a Workspace for N = n intervals (scalars still to be set by the caller)."""
+    circles = np.ascontiguousarray(np.reshape(circles, (-1, 3)), dtype=float)
+    nb = n_links * circles.shape[0]
+    nxi = nx + 1
+    ncol = nx + 1
+    z = np.zeros
+    return Workspace(
+        p=np.ascontiguousarray(p, dtype=float), x0=np.array(x0, dtype=float),
+        x_goal=np.array(x_goal, dtype=float), u_max=np.array(u_max, dtype=float),
+        circles=circles,
+        x=z((n + 1, nx)), v=z((n, nu)), lam=z((n + 1, nx)), nu=z(nx), s=z((n + 1, nb)),
+        z=z((n + 1, nb)), zl=z((n, nu)), zu=z((n, nu)),
+        jac_x=z((n, nx, nx)), jac_v=z((n, nx, nu)), jac_t=z((n, nx)), defect=z((n, nx)),
+        cons=z((n + 1, nb)), cons_q=z((n + 1, nb, nx // 2)),
+        qq=z((n + 1, nxi, nxi)), ss=z((n, nu, nxi)), rr=z((n, nu, nu)), qv=z((n + 1, nxi)),
+        rv=z((n, nu)),
+        pp=z((n + 1, nxi, nxi)), pc=z((n + 1, nxi, ncol)), gain=z((n, nu, nxi)),
+        ff=z((n, nu, ncol)), chol=z((n, nu, nu)),
+        dx=z((n + 1, nx)), dv=z((n, nu)), lam_new=z((n + 1, nx)), nu_new=z(nx),
+        ds=z((n + 1, nb)), dz=z((n + 1, nb)), dzl=z((n, nu)), dzu=z((n, nu)),
+        xt=z((n + 1, nx)), vt=z((n, nu)), st=z((n + 1, nb)), ct=z((n + 1, nb)),
+        filt=z((MAX_FILTER, 2)), hist=np.full((max_iter, N_HIST), np.nan),
+        fscal=z(N_FSCAL), iscal=np.zeros(N_ISCAL, dtype=np.int64))
+
+
+# ---------------------------------------------------------------------------------------------
+# Obstacle constraint c = (d^2 - R^2) / (2 R) of one segment and one circle, with derivatives.
+# ---------------------------------------------------------------------------------------------
+
+@njit(inline='always')
+def _segment_distance_sq(seg, cx, cy, g, h):
+    """
+    Squared distance from segment (ax, ay, bx, by) to (cx, cy); gradient g (4) and Hessian h (4x4)
+    with respect to the endpoint coordinates.  Written with w = C - A, v = B - A.
+    """
+    wx, wy = cx - seg[0], cy - seg[1]
+    vx, vy = seg[2] - seg[0], seg[3] - seg[1]
+    length_sq = vx * vx + vy * vy
+    proj = wx * vx + wy * vy
+    for i in range(4):
+        g[i] = 0.0
+        for j in range(4):
+            h[i, j] = 0.0
+    # Derivatives in (w, v): gw, gv (2 each), hww, hwv, hvv (2x2 each).
+    if length_sq <= 1e-300 or proj <= 0.0:
+        d2 = wx * wx + wy * wy
+        gwx, gwy, gvx, gvy = 2.0 * wx, 2.0 * wy, 0.0, 0.0
+        hww = ((2.0, 0.0), (0.0, 2.0))
+        hwv = ((0.0, 0.0), (0.0, 0.0))
+        hvv = ((0.0, 0.0), (0.0, 0.0))
+    elif proj >= length_sq:
+        ex, ey = wx - vx, wy - vy
+        d2 = ex * ex + ey * ey
+        gwx, gwy, gvx, gvy = 2.0 * ex, 2.0 * ey, -2.0 * ex, -2.0 * ey
+        hww = ((2.0, 0.0), (0.0, 2.0))
+        hwv = ((-2.0, 0.0), (0.0, -2.0))
+        hvv = ((2.0, 0.0), (0.0, 2.0))
+    else:
+        inv = 1.0 / length_sq
+        t = proj * inv
+        d2 = wx * wx + wy * wy - proj * t
+        gwx, gwy = 2.0 * wx - 2.0 * t * vx, 2.0 * wy - 2.0 * t * vy
+        gvx = -2.0 * t * wx + 2.0 * t * t * vx
+        gvy = -2.0 * t * wy + 2.0 * t * t * vy
+        w = (wx, wy)
+        v = (vx, vy)
+        hww = ((2.0 - 2.0 * vx * vx * inv, -2.0 * vx * vy * inv),
+               (-2.0 * vy * vx * inv, 2.0 - 2.0 * vy * vy * inv))
+        hwv = ((-2.0 * v[0] * w[0] * inv - 2.0 * t + 4.0 * t * v[0] * v[0] * inv,
+                -2.0 * v[0] * w[1] * inv + 4.0 * t * v[0] * v[1] * inv),
+               (-2.0 * v[1] * w[0] * inv + 4.0 * t * v[1] * v[0] * inv,
+                -2.0 * v[1] * w[1] * inv - 2.0 * t + 4.0 * t * v[1] * v[1] * inv))
+        hvv = ((-2.0 * w[0] * w[0] * inv + 8.0 * t * w[0] * v[0] * inv + 2.0 * t * t
+                - 8.0 * t * t * v[0] * v[0] * inv,
+                -2.0 * w[0] * w[1] * inv + 4.0 * t * (w[0] * v[1] + v[0] * w[1]) * inv
+                - 8.0 * t * t * v[0] * v[1] * inv),
+               (-2.0 * w[1] * w[0] * inv + 4.0 * t * (w[1] * v[0] + v[1] * w[0]) * inv
+                - 8.0 * t * t * v[1] * v[0] * inv,
+                -2.0 * w[1] * w[1] * inv + 8.0 * t * w[1] * v[1] * inv + 2.0 * t * t
+                - 8.0 * t * t * v[1] * v[1] * inv))
+    # Endpoint coordinates: w = C - A, v = B - A, so d/dA = -d/dw - d/dv, d/dB = d/dv.
+    g[0], g[1] = -gwx - gvx, -gwy - gvy
+    g[2], g[3] = gvx, gvy
+    for i in range(2):
+        for j in range(2):
+            h[i, j] = hww[i][j] + hwv[i][j] + hwv[j][i] + hvv[i][j]
+            h[i, 2 + j] = -hwv[i][j] - hvv[i][j]
+            h[2 + j, i] = h[i, 2 + j]
+            h[2 + i, 2 + j] = hvv[i][j]
+    return d2
 
 
 @njit
-def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
-    """Placeholder."""
-    return 0
+def obstacle_terms(segments, q, p, circles, cons, cons_q, z, s, hess_q, work, want_hess):
+    """
+    Obstacle constraints of one node: cons (L K), cons_q (L K, n); when want_hess, hess_q (n x n)
+    receives sum_j (z_j / s_j) grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block
+    of the condensed Newton system).
+    """
+    seg, seg_q, seg_qq, ge, he = work
+    n = q.shape[0]
+    n_links = seg.shape[0]
+    n_circles = circles.shape[0]
+    segments(q, p, seg, seg_q, seg_qq)
+    if want_hess:
+        for a in range(n):
+            for b in range(n):
+                hess_q[a, b] = 0.0
+    for link in range(n_links):
+        for k in range(n_circles):
+            j = link * n_circles + k
+            radius = circles[k, 2]
+            scale = 0.5 / radius
+            d2 = _segment_distance_sq(seg[link], circles[k, 0], circles[k, 1], ge, he)
+            cons[j] = (d2 - radius * radius) * scale
+            for a in range(n):
+                acc = 0.0
+                for r in range(4):
+                    acc += ge[r] * seg_q[link, r, a]
+                cons_q[j, a] = acc * scale
+            if want_hess:
+                sigma = z[j] / s[j]
+                zj = z[j]
+                for a in range(n):
+                    for b in range(a, n):
+                        acc = 0.0
+                        for r in range(4):
+                            acc += ge[r] * seg_qq[link, r, a, b]
+                            for t in range(4):
+                                acc += seg_q[link, r, a] * he[r, t] * seg_q[link, t, b]
+                        val = sigma * cons_q[j, a] * cons_q[j, b] - zj * acc * scale
+                        hess_q[a, b] += val
+                        if b != a:
+                            hess_q[b, a] += val
+
+
+@njit
+def obstacle_work(n_links, n):
+    """Work buffers of obstacle_terms."""
+    return (np.zeros((n_links, 4)), np.zeros((n_links, 4, n)), np.zeros((n_links, 4, n, n)),
+            np.zeros(4), np.zeros((4, 4)))
+
+
+# ---------------------------------------------------------------------------------------------
+# Evaluation: derivatives, stage blocks and residuals at the current point.
+# ---------------------------------------------------------------------------------------------
+
+@njit
+def _controls(v, u_max, u):
+    for c in range(v.shape[0]):
+        u[c] = v[c] * u_max[c]
 
 
 @njit
 def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
-    """Placeholder."""
-    return 0
+    """
+    Derivatives and the stage blocks of the Newton system at the current point; fills
+    fscal[F_THETA, F_PHI, F_ERR, F_DUAL_INF, F_PRIMAL_INF, F_COMPL].  Returns False when a value
+    is not finite.
+    """
+    n = ws.iscal[I_N]
+    method = ws.iscal[I_METHOD]
+    nx = ws.x.shape[1]
+    nu = ws.v.shape[1]
+    nq = nx // 2
+    nb = ws.s.shape[1]
+    fs = ws.fscal
+    t_f = fs[F_T]
+    mu = fs[F_MU]
+    tau = t_f / n
+    p = ws.p
+    u_max = ws.u_max
+    work = step_work(nx, nu)
+    hwork = hessian_work(nx, nu)
+    owork = obstacle_work(max(1, nb // max(1, ws.circles.shape[0])), nq)
+    u = np.zeros(nu)
+    nxt = np.zeros(nx)
+    jac_u = np.zeros((nx, nu))
+    hxx = np.zeros((nx, nx))
+    hxu = np.zeros((nx, nu))
+    huu = np.zeros((nu, nu))
+    hxt = np.zeros(nx)
+    hut = np.zeros(nu)
+    q = np.zeros(nq)
+    hq = np.zeros((nq, nq))
+    nxi = nx + 1
+    qq, ss, rr, qv, rv = ws.qq, ws.ss, ws.rr, ws.qv, ws.rv
+    theta = 0.0
+    primal = 0.0
+    dual = 0.0
+    compl = 0.0
+    barrier = 0.0
+    mult_sum = 0.0
+    mult_cnt = 0
+    bound_sum = 0.0
+    bound_cnt = 0
+    for i in range(n + 1):
+        for a in range(nxi):
+            qv[i, a] = 0.0
+            for b in range(nxi):
+                qq[i, a, b] = 0.0
+    # Shooting stages.
+    for i in range(n):
+        _controls(ws.v[i], u_max, u)
+        step_jacobians(rhs_jac, ws.x[i], u, tau, p, method, nxt, ws.jac_x[i], jac_u,
+                       ws.jac_t[i], work)
+        for r in range(nx):
+            ws.defect[i, r] = nxt[r] - ws.x[i + 1, r]
+            ws.jac_t[i, r] /= n
+            for c in range(nu):
+                ws.jac_v[i, r, c] = jac_u[r, c] * u_max[c]
+            d = abs(ws.defect[i, r])
+            theta += d
+            primal = max(primal, d)
+        step_lagrangian_hessian(rhs_jac, rhs_hess, ws.x[i], u, tau, p, ws.lam[i + 1], hxx,
+                                hxu, huu, hxt, hut, work, hwork)
+        # Stage blocks (dT = d tau * N: the tau-derivatives are divided by N).
+        for a in range(nx):
+            for b in range(nx):
+                qq[i, a, b] += hxx[a, b]
+            qq[i, a, nx] += hxt[a] / n
+            qq[i, nx, a] += hxt[a] / n
+        for c in range(nu):
+            for a in range(nx):
+                ss[i, c, a] = hxu[a, c] * u_max[c]
+            ss[i, c, nx] = hut[c] * u_max[c] / n
+            for d2 in range(nu):
+                rr[i, c, d2] = huu[c, d2] * u_max[c] * u_max[d2]
+            vc = ws.v[i, c]
+            sl = 1.0 + vc
+            su = 1.0 - vc
+            zl = ws.zl[i, c]
+            zu = ws.zu[i, c]
+            rr[i, c, c] += zl / sl + zu / su
+            rv[i, c] = mu / su - mu / sl
+            barrier -= math.log(sl) + math.log(su)
+            compl = max(compl, abs(sl * zl - mu), abs(su * zu - mu))
+            bound_sum += zl + zu
+            bound_cnt += 2
+        # Dual residual in v(i): B^T lam(i+1) - zl + zu.
+        for c in range(nu):
+            acc = -ws.zl[i, c] + ws.zu[i, c]
+            for r in range(nx):
+                acc += ws.jac_v[i, r, c] * ws.lam[i + 1, r]
+            dual = max(dual, abs(acc))
+    # Obstacle constraints at the nodes 1..N.
+    for i in range(1, n + 1):
+        if nb == 0:
+            break
+        for a in range(nq):
+            q[a] = ws.x[i, 2 * a]
+        obstacle_terms(segments, q, p, ws.circles, ws.cons[i], ws.cons_q[i], ws.z[i], ws.s[i],
+                       hq, owork, True)
+        for a in range(nq):
+            for b in range(nq):
+                qq[i, 2 * a, 2 * b] += hq[a, b]
+        for j in range(nb):
+            c = ws.cons[i, j]
+            sj = ws.s[i, j]
+            zj = ws.z[i, j]
+            res = c - sj
+            theta += abs(res)
+            primal = max(primal, abs(res))
+            coef = (zj / sj) * (sj - c) + mu / sj
+            for a in range(nq):
+                qv[i, 2 * a] -= ws.cons_q[i, j, a] * coef
+            barrier -= math.log(sj)
+            compl = max(compl, abs(sj * zj - mu))
+            bound_sum += zj
+            bound_cnt += 1
+    # Terminal condition and the T row.
+    rho = fs[F_RHO]
+    for r in range(nx):
+        res = ws.x[n, r] - ws.x_goal[r]
+        theta += abs(res)
+        primal = max(primal, abs(res))
+        qq[n, r, r] += rho
+        qv[n, r] += rho * res
+    s_low = t_f - fs[F_T_LOW]
+    s_high = fs[F_T_HIGH] - t_f
+    z_low = fs[F_ZT_LOW]
+    z_high = fs[F_ZT_HIGH]
+    qq[n, nx, nx] += z_low / s_low + z_high / s_high
+    qv[n, nx] += 1.0 - mu / s_low + mu / s_high
+    barrier -= math.log(s_low) + math.log(s_high)
+    compl = max(compl, abs(s_low * z_low - mu), abs(s_high * z_high - mu))
+    bound_sum += z_low + z_high
+    bound_cnt += 2
+    # Dual residuals in x(i) (i = 1..N) and T.
+    grad_t = 1.0 - z_low + z_high
+    for i in range(1, n + 1):
+        for a in range(nx):
+            acc = -ws.lam[i, a]
+            if i < n:
+                for r in range(nx):
+                    acc += ws.jac_x[i, r, a] * ws.lam[i + 1, r]
+            else:
+                acc += ws.nu[a]
+            if a % 2 == 0:
+                for j in range(nb):
+                    acc -= ws.cons_q[i, j, a // 2] * ws.z[i, j]
+            dual = max(dual, abs(acc))
+    for i in range(n):
+        for r in range(nx):
+            grad_t += ws.jac_t[i, r] * ws.lam[i + 1, r]
+        for r in range(nx):
+            mult_sum += abs(ws.lam[i + 1, r])
+            mult_cnt += 1
+    dual = max(dual, abs(grad_t))
+    for r in range(nx):
+        mult_sum += abs(ws.nu[r])
+        mult_cnt += 1
+    # IPOPT's scaled optimality error (s_max = 100).
+    s_max = 100.0
+    s_d = max(s_max, (mult_sum + bound_sum) / max(1, mult_cnt + bound_cnt)) / s_max
+    s_c = max(s_max, bound_sum / max(1, bound_cnt)) / s_max
+    fs[F_THETA] = theta
+    fs[F_PHI] = t_f + mu * barrier
+    fs[F_DUAL_INF] = dual
+    fs[F_PRIMAL_INF] = primal
+    fs[F_COMPL] = compl
+    # E_0: the complementarity at mu = 0 is needed for the convergence test.
+    compl0 = _complementarity(ws, 0.0)
+    fs[F_ERR] = max(dual / s_d, primal, compl0 / s_c)
+    return math.isfinite(theta) and math.isfinite(dual) and math.isfinite(fs[F_PHI])
+
+
+@njit
+def _complementarity(ws, mu):
+    """max |s z - mu| over every bound and slack."""
+    n = ws.iscal[I_N]
+    out = 0.0
+    for i in range(n):
+        for c in range(ws.v.shape[1]):
+            out = max(out, abs((1.0 + ws.v[i, c]) * ws.zl[i, c] - mu),
+                      abs((1.0 - ws.v[i, c]) * ws.zu[i, c] - mu))
+    for i in range(1, n + 1):
+        for j in range(ws.s.shape[1]):
+            out = max(out, abs(ws.s[i, j] * ws.z[i, j] - mu))
+    fs = ws.fscal
+    out = max(out, abs((fs[F_T] - fs[F_T_LOW]) * fs[F_ZT_LOW] - mu),
+              abs((fs[F_T_HIGH] - fs[F_T]) * fs[F_ZT_HIGH] - mu))
+    return out
+
+
+@njit
+def _barrier_error(ws):
+    """E_mu (IPOPT's eq. 5 with the current mu)."""
+    fs = ws.fscal
+    n = ws.iscal[I_N]
+    bound_sum = 0.0
+    bound_cnt = 0
+    mult_sum = 0.0
+    mult_cnt = 0
+    for i in range(n):
+        for c in range(ws.v.shape[1]):
+            bound_sum += ws.zl[i, c] + ws.zu[i, c]
+            bound_cnt += 2
+        for r in range(ws.x.shape[1]):
+            mult_sum += abs(ws.lam[i + 1, r])
+            mult_cnt += 1
+    for i in range(1, n + 1):
+        for j in range(ws.s.shape[1]):
+            bound_sum += ws.z[i, j]
+            bound_cnt += 1
+    s_max = 100.0
+    s_d = max(s_max, (mult_sum + bound_sum) / max(1, mult_cnt + bound_cnt)) / s_max
+    s_c = max(s_max, bound_sum / max(1, bound_cnt)) / s_max
+    return max(fs[F_DUAL_INF] / s_d, fs[F_PRIMAL_INF], fs[F_COMPL] / s_c)
+
+
+# ---------------------------------------------------------------------------------------------
+# The Newton step: Riccati sweep with T as a constant state and the terminal multipliers nu.
+# ---------------------------------------------------------------------------------------------
+
+@njit(inline='always')
+def _cholesky(a, out, m):
+    """Cholesky factor of the m x m matrix a into out (lower); False when not positive definite."""
+    for i in range(m):
+        for j in range(i + 1):
+            acc = a[i, j]
+            for k in range(j):
+                acc -= out[i, k] * out[j, k]
+            if i == j:
+                if not acc > 0.0:
+                    return False
+                out[i, i] = math.sqrt(acc)
+            else:
+                out[i, j] = acc / out[j, j]
+        for j in range(i + 1, m):
+            out[i, j] = 0.0
+    return True
+
+
+@njit(inline='always')
+def _chol_solve(lower, b, m):
+    """Solve (L L^T) y = b in place for one vector b of length m."""
+    for i in range(m):
+        acc = b[i]
+        for k in range(i):
+            acc -= lower[i, k] * b[k]
+        b[i] = acc / lower[i, i]
+    for i in range(m - 1, -1, -1):
+        acc = b[i]
+        for k in range(i + 1, m):
+            acc -= lower[k, i] * b[k]
+        b[i] = acc / lower[i, i]
+
+
+@njit
+def factorize(ws, delta):
+    """
+    Backward Riccati sweep for the current stage blocks with the shift delta on the primal
+    diagonal.  Returns False when a reduced Hessian is not positive definite (the caller then
+    raises delta).  pc holds nx + 1 right-hand sides: column 0 the Newton step's, column 1 + r
+    the derivative with respect to the terminal multiplier nu_r.
+    """
+    n = ws.iscal[I_N]
+    nx = ws.x.shape[1]
+    nu = ws.v.shape[1]
+    nxi = nx + 1
+    ncol = nx + 1
+    pp, pc = ws.pp, ws.pc
+    pa = np.zeros((nxi, nxi))
+    pb = np.zeros((nxi, nu))
+    rhat = np.zeros((nu, nu))
+    shat = np.zeros((nu, nxi))
+    h = np.zeros(nxi)
+    rcol = np.zeros(nu)
+    for a in range(nxi):
+        for b in range(nxi):
+            pp[n, a, b] = ws.qq[n, a, b]
+        pp[n, a, a] += delta
+        for c in range(ncol):
+            pc[n, a, c] = 0.0
+        pc[n, a, 0] = ws.qv[n, a]
+    for r in range(nx):
+        pc[n, r, 1 + r] = 1.0
+    for i in range(n - 1, -1, -1):
+        p1 = pp[i + 1]
+        ax = ws.jac_x[i]
+        bv = ws.jac_v[i]
+        at = ws.jac_t[i]
+        # pa = P Abar, pb = P Bbar with Abar = [[A, a_T], [0, 1]], Bbar = [B; 0].
+        for a in range(nxi):
+            for b in range(nx):
+                acc = 0.0
+                for m in range(nx):
+                    acc += p1[a, m] * ax[m, b]
+                pa[a, b] = acc
+            acc = p1[a, nx]
+            for m in range(nx):
+                acc += p1[a, m] * at[m]
+            pa[a, nx] = acc
+            for c in range(nu):
+                acc = 0.0
+                for m in range(nx):
+                    acc += p1[a, m] * bv[m, c]
+                pb[a, c] = acc
+        # rhat = R + B^T P B, shat = S + B^T P Abar.
+        for c in range(nu):
+            for d in range(nu):
+                acc = ws.rr[i, c, d]
+                for m in range(nx):
+                    acc += bv[m, c] * pb[m, d]
+                rhat[c, d] = acc
+            rhat[c, c] += delta
+            for b in range(nxi):
+                acc = ws.ss[i, c, b]
+                for m in range(nx):
+                    acc += bv[m, c] * pa[m, b]
+                shat[c, b] = acc
+        lower = ws.chol[i]
+        if not _cholesky(rhat, lower, nu):
+            return False
+        # gain = -rhat^-1 shat.
+        for b in range(nxi):
+            for c in range(nu):
+                rcol[c] = shat[c, b]
+            _chol_solve(lower, rcol, nu)
+            for c in range(nu):
+                ws.gain[i, c, b] = -rcol[c]
+        # P(i) = Q + Abar^T P Abar + shat^T gain (x part of xi(0) is fixed, T part is free).
+        for a in range(nxi):
+            for b in range(a, nxi):
+                if a < nx:
+                    acc = 0.0
+                    for m in range(nx):
+                        acc += ax[m, a] * pa[m, b]
+                else:
+                    acc = pa[nx, b]
+                    for m in range(nx):
+                        acc += at[m] * pa[m, b]
+                acc += ws.qq[i, a, b]
+                for c in range(nu):
+                    acc += shat[c, a] * ws.gain[i, c, b]
+                pp[i, a, b] = acc
+                pp[i, b, a] = acc
+        if i > 0:
+            for a in range(nx):
+                pp[i, a, a] += delta
+        # Right-hand sides: h = P b + p(i+1) (b: the defect, column 0 only).
+        for col in range(ncol):
+            for a in range(nxi):
+                acc = pc[i + 1, a, col]
+                if col == 0:
+                    for m in range(nx):
+                        acc += p1[a, m] * ws.defect[i, m]
+                h[a] = acc
+            for c in range(nu):
+                acc = ws.rv[i, c] if col == 0 else 0.0
+                for m in range(nx):
+                    acc += bv[m, c] * h[m]
+                rcol[c] = acc
+            _chol_solve(lower, rcol, nu)
+            for c in range(nu):
+                ws.ff[i, c, col] = -rcol[c]
+            for a in range(nxi):
+                if a < nx:
+                    acc = 0.0
+                    for m in range(nx):
+                        acc += ax[m, a] * h[m]
+                else:
+                    acc = h[nx]
+                    for m in range(nx):
+                        acc += at[m] * h[m]
+                if col == 0:
+                    acc += ws.qv[i, a]
+                for c in range(nu):
+                    acc += shat[c, a] * ws.ff[i, c, col]
+                pc[i, a, col] = acc
+    # T is a free initial state component: its curvature must be positive too.
+    return pp[0, nx, nx] > 0.0
+
+
+@njit
+def _forward(ws, col_weights, dt, xi, store):
+    """
+    Forward sweep with feed-forward sum_c w_c ff[:, :, c] from xi(0) = (0, dt); returns xi(N)
+    in xi.  With store, writes dx, dv and the new multipliers lam_new.
+    """
+    n = ws.iscal[I_N]
+    nx = ws.x.shape[1]
+    nu = ws.v.shape[1]
+    nxi = nx + 1
+    ncol = nx + 1
+    nxt = np.zeros(nxi)
+    dv = np.zeros(nu)
+    for a in range(nx):
+        xi[a] = 0.0
+    xi[nx] = dt
+    if store:
+        for a in range(nx):
+            ws.dx[0, a] = 0.0
+    for i in range(n):
+        for c in range(nu):
+            acc = 0.0
+            for col in range(ncol):
+                acc += ws.ff[i, c, col] * col_weights[col]
+            for b in range(nxi):
+                acc += ws.gain[i, c, b] * xi[b]
+            dv[c] = acc
+        for r in range(nx):
+            acc = ws.jac_t[i, r] * xi[nx] + ws.defect[i, r] * col_weights[0]
+            for m in range(nx):
+                acc += ws.jac_x[i, r, m] * xi[m]
+            for c in range(nu):
+                acc += ws.jac_v[i, r, c] * dv[c]
+            nxt[r] = acc
+        nxt[nx] = xi[nx]
+        for a in range(nxi):
+            xi[a] = nxt[a]
+        if store:
+            for c in range(nu):
+                ws.dv[i, c] = dv[c]
+            for a in range(nx):
+                ws.dx[i + 1, a] = xi[a]
+                acc = 0.0
+                for b in range(nxi):
+                    acc += ws.pp[i + 1, a, b] * xi[b]
+                for col in range(ncol):
+                    acc += ws.pc[i + 1, a, col] * col_weights[col]
+                ws.lam_new[i + 1, a] = acc
+
+
+@njit
+def newton_step(ws, delta):
+    """
+    Solve for the Newton step after a successful factorize(ws, delta): nu from the nx x nx
+    terminal system, then dx, dv, dT and the new multipliers.  Returns dT, or nan when the
+    terminal system is singular.
+    """
+    n = ws.iscal[I_N]
+    nx = ws.x.shape[1]
+    ncol = nx + 1
+    p_tt = ws.pp[0, nx, nx]
+    xi = np.zeros(nx + 1)
+    weights = np.zeros(ncol)
+    # dT per right-hand side (T is free at i = 0): dT_c = -pc[0, T, c] / P[T, T].
+    dts = np.zeros(ncol)
+    for c in range(ncol):
+        dts[c] = -ws.pc[0, nx, c] / p_tt
+    # dx(N) for column 0 (nu = 0) and its derivative for each nu_r.
+    weights[0] = 1.0
+    _forward(ws, weights, dts[0], xi, False)
+    rhs = np.zeros(nx)
+    for r in range(nx):
+        rhs[r] = -(ws.x[n, r] - ws.x_goal[r]) - xi[r]
+    mat = np.zeros((nx, nx))
+    for c in range(nx):
+        for k in range(ncol):
+            weights[k] = 0.0
+        weights[1 + c] = 1.0
+        _forward(ws, weights, dts[1 + c], xi, False)
+        for r in range(nx):
+            mat[r, c] = xi[r]
+    # mat is symmetric negative definite when the step is well defined.
+    neg = np.zeros((nx, nx))
+    lower = np.zeros((nx, nx))
+    scale = 0.0
+    for r in range(nx):
+        scale = max(scale, abs(mat[r, r]))
+        for c in range(nx):
+            neg[r, c] = -0.5 * (mat[r, c] + mat[c, r])
+    if not scale > 0.0:
+        return np.nan
+    for r in range(nx):
+        neg[r, r] += 1e-14 * scale
+    if not _cholesky(neg, lower, nx):
+        return np.nan
+    sol = -rhs
+    _chol_solve(lower, sol, nx)
+    weights[0] = 1.0
+    dt = dts[0]
+    for r in range(nx):
+        weights[1 + r] = sol[r]
+        ws.nu_new[r] = sol[r]
+        dt += sol[r] * dts[1 + r]
+    _forward(ws, weights, dt, xi, True)
+    return dt
+
+
+@njit
+def recover_bound_steps(ws, dt):
+    """Slack and bound-dual steps from the primal step (condensed per constraint)."""
+    n = ws.iscal[I_N]
+    nu = ws.v.shape[1]
+    nq = ws.x.shape[1] // 2
+    nb = ws.s.shape[1]
+    mu = ws.fscal[F_MU]
+    for i in range(n):
+        for c in range(nu):
+            sl = 1.0 + ws.v[i, c]
+            su = 1.0 - ws.v[i, c]
+            dvc = ws.dv[i, c]
+            ws.dzl[i, c] = mu / sl - ws.zl[i, c] - ws.zl[i, c] / sl * dvc
+            ws.dzu[i, c] = mu / su - ws.zu[i, c] + ws.zu[i, c] / su * dvc
+    for i in range(1, n + 1):
+        for j in range(nb):
+            acc = ws.cons[i, j] - ws.s[i, j]
+            for a in range(nq):
+                acc += ws.cons_q[i, j, a] * ws.dx[i, 2 * a]
+            ws.ds[i, j] = acc
+            sj = ws.s[i, j]
+            ws.dz[i, j] = mu / sj - ws.z[i, j] - ws.z[i, j] / sj * acc
+
+
+@njit
+def _max_step(value, step, frac, alpha):
+    # Largest alpha' <= alpha with value + alpha' step >= (1 - frac) value (value > 0).
+    if step < 0.0:
+        limit = -frac * value / step
+        if limit < alpha:
+            return limit
+    return alpha
+
+
+@njit
+def fraction_to_boundary(ws, dt, frac):
+    """(alpha_primal, alpha_dual) of the fraction-to-the-boundary rule."""
+    n = ws.iscal[I_N]
+    nu = ws.v.shape[1]
+    nb = ws.s.shape[1]
+    fs = ws.fscal
+    ap = 1.0
+    ad = 1.0
+    for i in range(n):
+        for c in range(nu):
+            ap = _max_step(1.0 + ws.v[i, c], ws.dv[i, c], frac, ap)
+            ap = _max_step(1.0 - ws.v[i, c], -ws.dv[i, c], frac, ap)
+            ad = _max_step(ws.zl[i, c], ws.dzl[i, c], frac, ad)
+            ad = _max_step(ws.zu[i, c], ws.dzu[i, c], frac, ad)
+    for i in range(1, n + 1):
+        for j in range(nb):
+            ap = _max_step(ws.s[i, j], ws.ds[i, j], frac, ap)
+            ad = _max_step(ws.z[i, j], ws.dz[i, j], frac, ad)
+    ap = _max_step(fs[F_T] - fs[F_T_LOW], dt, frac, ap)
+    ap = _max_step(fs[F_T_HIGH] - fs[F_T], -dt, frac, ap)
+    return ap, ad
+
+
+# ---------------------------------------------------------------------------------------------
+# Line search.
+# ---------------------------------------------------------------------------------------------
+
+@njit
+def trial_merit(rhs, segments, ws, alpha, dt):
+    """(theta, phi) at the trial point x + alpha dx, v + alpha dv, s + alpha ds, T + alpha dT."""
+    n = ws.iscal[I_N]
+    method = ws.iscal[I_METHOD]
+    nx = ws.x.shape[1]
+    nu = ws.v.shape[1]
+    nq = nx // 2
+    nb = ws.s.shape[1]
+    fs = ws.fscal
+    mu = fs[F_MU]
+    t_f = fs[F_T] + alpha * dt
+    tau = t_f / n
+    work = step_work(nx, nu)
+    owork = obstacle_work(max(1, nb // max(1, ws.circles.shape[0])), nq)
+    u = np.zeros(nu)
+    nxt = np.zeros(nx)
+    q = np.zeros(nq)
+    dummy_q = np.zeros((nq, nq))
+    cons_q = np.zeros((max(nb, 1), nq))
+    for i in range(n + 1):
+        for r in range(nx):
+            ws.xt[i, r] = ws.x[i, r] + alpha * ws.dx[i, r]
+    theta = 0.0
+    barrier = 0.0
+    for i in range(n):
+        for c in range(nu):
+            vc = ws.v[i, c] + alpha * ws.dv[i, c]
+            ws.vt[i, c] = vc
+            barrier -= math.log(1.0 + vc) + math.log(1.0 - vc)
+        _controls(ws.vt[i], ws.u_max, u)
+        step(rhs, ws.xt[i], u, tau, ws.p, method, nxt, work)
+        for r in range(nx):
+            theta += abs(nxt[r] - ws.xt[i + 1, r])
+    for r in range(nx):
+        theta += abs(ws.xt[n, r] - ws.x_goal[r])
+    for i in range(1, n + 1):
+        if nb == 0:
+            break
+        for a in range(nq):
+            q[a] = ws.xt[i, 2 * a]
+        obstacle_terms(segments, q, ws.p, ws.circles, ws.ct[i], cons_q, ws.z[i], ws.s[i],
+                       dummy_q, owork, False)
+        for j in range(nb):
+            sj = ws.s[i, j] + alpha * ws.ds[i, j]
+            ws.st[i, j] = sj
+            theta += abs(ws.ct[i, j] - sj)
+            barrier -= math.log(sj)
+    barrier -= math.log(t_f - fs[F_T_LOW]) + math.log(fs[F_T_HIGH] - t_f)
+    return theta, t_f + mu * barrier
+
+
+@njit
+def barrier_slope(ws, dt):
+    """Directional derivative of the barrier objective along the step."""
+    n = ws.iscal[I_N]
+    nu = ws.v.shape[1]
+    nb = ws.s.shape[1]
+    fs = ws.fscal
+    mu = fs[F_MU]
+    acc = 0.0
+    for i in range(n):
+        for c in range(nu):
+            acc += ws.dv[i, c] * (1.0 / (1.0 - ws.v[i, c]) - 1.0 / (1.0 + ws.v[i, c]))
+    for i in range(1, n + 1):
+        for j in range(nb):
+            acc -= ws.ds[i, j] / ws.s[i, j]
+    acc -= dt / (fs[F_T] - fs[F_T_LOW]) - dt / (fs[F_T_HIGH] - fs[F_T])
+    return dt + mu * acc
+
+
+@njit
+def _in_filter(ws, theta, phi):
+    for k in range(ws.iscal[I_N_FILTER]):
+        if theta >= ws.filt[k, 0] and phi >= ws.filt[k, 1]:
+            return True
+    return False
+
+
+@njit
+def _add_to_filter(ws, theta, phi):
+    k = ws.iscal[I_N_FILTER]
+    if k < MAX_FILTER:
+        ws.filt[k, 0] = theta
+        ws.filt[k, 1] = phi
+        ws.iscal[I_N_FILTER] = k + 1
+    else:
+        # Full: replace the entry with the largest theta (keeps the recent, tighter ones).
+        worst = 0
+        for j in range(k):
+            if ws.filt[j, 0] > ws.filt[worst, 0]:
+                worst = j
+        ws.filt[worst, 0] = theta
+        ws.filt[worst, 1] = phi
+
+
+@njit
+def accept_trial(ws, alpha, alpha_dual, dt):
+    """Move to the trial point (primal from the trial buffers, duals by alpha / alpha_dual)."""
+    n = ws.iscal[I_N]
+    nx = ws.x.shape[1]
+    nu = ws.v.shape[1]
+    nb = ws.s.shape[1]
+    fs = ws.fscal
+    mu = fs[F_MU]
+    for i in range(n + 1):
+        for r in range(nx):
+            ws.x[i, r] = ws.xt[i, r]
+            if i > 0:
+                ws.lam[i, r] += alpha * (ws.lam_new[i, r] - ws.lam[i, r])
+    for r in range(nx):
+        ws.nu[r] += alpha * (ws.nu_new[r] - ws.nu[r])
+    for i in range(n):
+        for c in range(nu):
+            ws.v[i, c] = ws.vt[i, c]
+            zl = ws.zl[i, c] + alpha_dual * ws.dzl[i, c]
+            zu = ws.zu[i, c] + alpha_dual * ws.dzu[i, c]
+            # IPOPT's safeguard keeps the duals within a factor KAPPA_SIGMA of mu / s.
+            sl = 1.0 + ws.v[i, c]
+            su = 1.0 - ws.v[i, c]
+            ws.zl[i, c] = min(max(zl, mu / (KAPPA_SIGMA * sl)), KAPPA_SIGMA * mu / sl)
+            ws.zu[i, c] = min(max(zu, mu / (KAPPA_SIGMA * su)), KAPPA_SIGMA * mu / su)
+    for i in range(1, n + 1):
+        for j in range(nb):
+            sj = ws.st[i, j]
+            ws.s[i, j] = sj
+            zj = ws.z[i, j] + alpha_dual * ws.dz[i, j]
+            ws.z[i, j] = min(max(zj, mu / (KAPPA_SIGMA * sj)), KAPPA_SIGMA * mu / sj)
+    # T-bound duals: Newton step of (T - T_low) z = mu (and the upper one) from the old slack.
+    s_low = fs[F_T] - fs[F_T_LOW]
+    s_high = fs[F_T_HIGH] - fs[F_T]
+    zl = fs[F_ZT_LOW] + alpha_dual * (mu / s_low - fs[F_ZT_LOW] - fs[F_ZT_LOW] / s_low * dt)
+    zu = fs[F_ZT_HIGH] + alpha_dual * (mu / s_high - fs[F_ZT_HIGH]
+                                       + fs[F_ZT_HIGH] / s_high * dt)
+    fs[F_T] += alpha * dt
+    s_low = fs[F_T] - fs[F_T_LOW]
+    s_high = fs[F_T_HIGH] - fs[F_T]
+    fs[F_ZT_LOW] = min(max(zl, mu / (KAPPA_SIGMA * s_low)), KAPPA_SIGMA * mu / s_low)
+    fs[F_ZT_HIGH] = min(max(zu, mu / (KAPPA_SIGMA * s_high)), KAPPA_SIGMA * mu / s_high)
+
+
+@njit
+def _t_bound_dual_limit(ws, dt, frac, ad):
+    fs = ws.fscal
+    mu = fs[F_MU]
+    s_low = fs[F_T] - fs[F_T_LOW]
+    s_high = fs[F_T_HIGH] - fs[F_T]
+    dzl_t = mu / s_low - fs[F_ZT_LOW] - fs[F_ZT_LOW] / s_low * dt
+    dzu_t = mu / s_high - fs[F_ZT_HIGH] + fs[F_ZT_HIGH] / s_high * dt
+    ad = _max_step(fs[F_ZT_LOW], dzl_t, frac, ad)
+    return _max_step(fs[F_ZT_HIGH], dzu_t, frac, ad)
+
+
+# ---------------------------------------------------------------------------------------------
+# The iteration loop.
+# ---------------------------------------------------------------------------------------------
+
+@njit
+def _update_barrier(ws):
+    """Monotone barrier update while the barrier problem is solved to kappa_eps mu."""
+    fs = ws.fscal
+    changed = False
+    while True:
+        mu = fs[F_MU]
+        if mu <= fs[F_MU_MIN] or _barrier_error(ws) > 10.0 * mu:
+            break
+        fs[F_MU] = max(fs[F_MU_MIN], min(0.2 * mu, mu ** 1.5))
+        fs[F_COMPL] = _complementarity(ws, fs[F_MU])
+        changed = True
+    if changed:
+        ws.iscal[I_N_FILTER] = 0
+    return changed
+
+
+@njit
+def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
+    """
+    Run up to n_iter interior-point iterations from the current point; returns CONTINUE,
+    CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED or NUMERICAL_FAILURE.
+    """
+    fs = ws.fscal
+    it = ws.iscal
+    for _ in range(n_iter):
+        if not evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
+            return NUMERICAL_FAILURE
+        k = it[I_ITER]
+        if k < ws.hist.shape[0]:
+            ws.hist[k, H_T] = fs[F_T]
+            ws.hist[k, H_THETA] = fs[F_THETA]
+            ws.hist[k, H_ERR] = fs[F_ERR]
+            ws.hist[k, H_MU] = fs[F_MU]
+        if fs[F_ERR] <= fs[F_TOL] and fs[F_PRIMAL_INF] <= fs[F_CONSTR_TOL]:
+            return CONVERGED
+        if it[I_ITER] >= it[I_MAX_ITER]:
+            return ITERATION_LIMIT
+        if _update_barrier(ws):
+            # The stage blocks depend on mu through the barrier terms: evaluate again.
+            if not evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
+                return NUMERICAL_FAILURE
+        if it[I_ITER] == 0 or fs[F_THETA_MAX] <= 0.0:
+            fs[F_THETA_MAX] = 1e4 * max(1.0, fs[F_THETA])
+            fs[F_THETA_MIN] = 1e-4 * max(1.0, fs[F_THETA])
+        # Inertia correction (IPOPT's rules for delta_w).
+        delta = 0.0
+        last = fs[F_DELTA]
+        tries = 0
+        dt = np.nan
+        while True:
+            tries += 1
+            if factorize(ws, delta):
+                dt = newton_step(ws, delta)
+                if math.isfinite(dt):
+                    break
+            if delta == 0.0:
+                delta = 1e-4 if last == 0.0 else max(1e-20, last / 3.0)
+            else:
+                delta *= 100.0 if last == 0.0 else 8.0
+            if delta > 1e40:
+                return NUMERICAL_FAILURE
+        fs[F_DELTA] = delta
+        it[I_REG_TRIES] = tries
+        recover_bound_steps(ws, dt)
+        frac = max(0.99, 1.0 - fs[F_MU])
+        alpha_max, alpha_dual = fraction_to_boundary(ws, dt, frac)
+        alpha_dual = _t_bound_dual_limit(ws, dt, frac, alpha_dual)
+        theta0 = fs[F_THETA]
+        phi0 = fs[F_PHI]
+        slope = barrier_slope(ws, dt)
+        alpha = alpha_max
+        accepted = False
+        f_type = False
+        backtracks = 0
+        for _ls in range(MAX_BACKTRACKS):
+            backtracks += 1
+            theta, phi = trial_merit(rhs, segments, ws, alpha, dt)
+            if not (math.isfinite(theta) and math.isfinite(phi)):
+                alpha *= 0.5
+                continue
+            if theta > fs[F_THETA_MAX] or _in_filter(ws, theta, phi):
+                alpha *= 0.5
+                continue
+            switching = (slope < 0.0 and alpha * (-slope) ** 2.3 > theta0 ** 1.1)
+            if theta0 <= fs[F_THETA_MIN] and switching:
+                if phi <= phi0 + 1e-4 * alpha * slope:
+                    accepted = True
+                    f_type = True
+                    break
+            elif theta <= (1.0 - 1e-5) * theta0 or phi <= phi0 - 1e-8 * theta0:
+                accepted = True
+                break
+            alpha *= 0.5
+        it[I_BACKTRACKS] = backtracks
+        if not accepted:
+            # No acceptable point: take the shortest trial that is at least finite, reset the
+            # filter and count the failure (IPOPT would enter feasibility restoration).
+            it[I_LS_FAILS] += 1
+            if it[I_LS_FAILS] > MAX_LS_FAILS:
+                return LINE_SEARCH_FAILED
+            alpha = alpha_max
+            for _ls in range(MAX_BACKTRACKS):
+                theta, phi = trial_merit(rhs, segments, ws, alpha, dt)
+                if math.isfinite(theta) and math.isfinite(phi) and theta < 10.0 * theta0 + 1e-8:
+                    break
+                alpha *= 0.5
+            it[I_N_FILTER] = 0
+        else:
+            it[I_LS_FAILS] = 0
+            if not f_type:
+                _add_to_filter(ws, (1.0 - 1e-5) * theta0, phi0 - 1e-8 * theta0)
+        accept_trial(ws, alpha, alpha_dual, dt)
+        fs[F_ALPHA] = alpha
+        fs[F_ALPHA_DUAL] = alpha_dual
+        fs[F_DT] = dt
+        if k < ws.hist.shape[0]:
+            ws.hist[k, H_ALPHA] = alpha
+            ws.hist[k, H_DELTA] = delta
+        it[I_ITER] += 1
+    return CONTINUE
