@@ -133,8 +133,9 @@ def _joint_state(parser, name, values):
     return (q1, dq1, q2, dq2)
 
 
-def _parse(argv):
-    parser = build_parser()
+def parse_args(argv, parser=None):
+    """Parse toc-solve's arguments (parser: one from build_parser(), to reuse it)."""
+    parser = build_parser() if parser is None else parser
     args = parser.parse_args(argv)
     args.x0 = _joint_state(parser, 'start', args.start)
     args.x_goal = _joint_state(parser, 'goal', args.goal)
@@ -147,16 +148,21 @@ def _parse(argv):
     return args
 
 
-def build_problem(args):
+_parse = parse_args
+
+
+def build_problem(args, parameters=None):
     """
     Build the Problem and SolverOptions from the parameter file plus the command-line overrides.
 
+    parameters: the flat parameters of the file, already loaded (toc-sweep reads it once).
     Raises ProblemError when the file or a value in it is unusable.
     """
     from toc_ros.config import (default_config_path, load_parameters, options_from_parameters,
                                 problem_from_parameters)
     from toc_ros.core import ProblemError
-    params = load_parameters(args.config or default_config_path())
+    params = (load_parameters(args.config or default_config_path()) if parameters is None
+              else dict(parameters))
     params.update(parameter_overrides(args))
     overrides = {'solver.mode': args.mode, 'solver.integrator': args.integrator,
                  'solver.N': args.N, 'solver.max_iterations': args.max_iterations,
@@ -277,7 +283,7 @@ def _solve_interruptible(problem, options, progress):
 
 def main(argv=None):
     """Entry point of toc-solve; returns the process exit code."""
-    args = _parse(argv)
+    args = parse_args(argv)
     try:
         return _run(args)
     except KeyboardInterrupt:      # a second Ctrl-C, or one before the solve started
