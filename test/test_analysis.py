@@ -36,10 +36,10 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from toc_ros import conversions
-from toc_ros.analysis.bag_reader import Recording
 from toc_ros.analysis.cli import main
 from toc_ros.core import Problem, RobotParams, solve
 from toc_ros.core.integrators import RK4, rollout
+from toc_ros.recording.bag_reader import Recording
 from toc_ros.recording.bag_writer import BagWriter
 
 T0 = 1_700_000_000_000_000_000

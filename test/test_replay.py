@@ -31,8 +31,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
-from toc_ros.analysis.bag_reader import RawMessage
 from toc_ros.nodes.replay_node import Player, qos_from_offers
+from toc_ros.recording.bag_reader import RawMessage
 from toc_ros.recording.bag_writer import BagWriter
 from toc_ros.recording.msg_definitions import MessageDefinition
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint

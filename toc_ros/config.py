@@ -19,44 +19,45 @@ One mapping from flat parameter names ('robot.a', 'solver.N', ...) to the core t
 toc-solve and by the nodes (whose ROS parameters carry the same names).
 """
 
-import math
+from dataclasses import dataclass
 import os
+import sys
+import textwrap
+from typing import Tuple
 
 import yaml
 
 from .core.model import RobotParams
-from .core.problem import PaperOptions, Problem, ProblemError, SolverOptions
+from .core.problem import Problem, ProblemError, SolverOptions
+from .core.settings import from_parameters, parameter_table, setting
 
+
+@dataclass(frozen=True)
+class Frames:
+    """Names the nodes and the scenario file share (not part of the numeric problem)."""
+
+    joint_names: Tuple[str, ...] = setting(
+        ('rotation_joint', 'extension_joint'), '[rotation joint, extension joint]: names used '
+        'in joint_states, goals and trajectories')
+    base_frame: str = setting(
+        'base_link', 'frame of goal poses, planned paths and markers (the robot base)')
+
+
+# The scenario's settings: (dataclass, prefix of its flat names).  The flat names are the ROS
+# parameter names of the nodes; each field's setting() in the core is the one definition.
+SCENARIO = ((Frames, ''), (Problem, ''), (SolverOptions, 'solver.'))
+SCENARIO_TABLE = tuple(p for cls, prefix in SCENARIO for p in parameter_table(cls, prefix))
 # Flat parameter name -> default; the defaults are the paper's scenario.
-DEFAULTS = {
-    'robot.hand_mass': 50.0,
-    'robot.link_mass': 97.0,
-    'robot.inertia': 193.0,
-    'robot.a': 1.1,
-    'robot.u_max': [600.0, 500.0],
-    'robot.model_variant': 'eq37',
-    'joint_names': ['rotation_joint', 'extension_joint'],
-    'base_frame': 'base_link',
-    'initial_state': [math.pi / 12.0, 0.0, 1.0, 0.0],
-    'goal_state': [5.0 * math.pi / 12.0, 0.0, 1.0, 0.0],
-    'obstacles.x': [1.0],
-    'obstacles.y': [1.0],
-    'obstacles.radius': [0.2],
-    'obstacles.margin': 0.01,
-    'solver.mode': 'fast',
-    'solver.integrator': 'euler',
-    'solver.N': 1000,
-    'solver.t_f0': 2.5,
-    'solver.max_iterations': 0,          # 0: the mode's default (paper: M = 30000)
-    'solver.timeout': 60.0,
-    'solver.paper.K_B': 600.0,
-    'solver.paper.K_V': 0.01,
-    'solver.paper.K_p': 1000.0,
-    'solver.paper.eta': 1000.0,
-    'solver.paper.d_tau': 1e-5,
-    'solver.paper.J_eps': 0.01,
-    'solver.paper.obstacle_gradient': 'shortcut',
-}
+DEFAULTS = {p.name: p.default for p in SCENARIO_TABLE}
+
+YAML_HEADER = """\
+# The paper's scenario (Kasac & Novakovic, section 4): a 2-DOF cylindrical robot (rotation q1,
+# extension q2) moves from q = (pi/12 rad, 1 m) to (5 pi/12 rad, 1 m) at rest, around a circle
+# of radius 0.2 m at (1 m, 1 m) with clearance margin 0.01 m, |u1| <= 600 N m, |u2| <= 500 N.
+# ROS 2 parameter file (ros2 run toc_ros solver_node --ros-args --params-file ...); the CLI
+# toc-solve reads the same file. SI units and radians throughout; x forward, y left (REP-103).
+# Generated from the settings of the core dataclasses: python -m toc_ros.config --write
+"""
 
 
 def default_config_path():
@@ -101,49 +102,108 @@ def load_parameters(path=None, node_name='solver_node'):
 
 def obstacle_rows(params):
     """(x, y, radius) rows from the equal-length obstacles.* arrays."""
-    xs, ys, rs = (list(params[f'obstacles.{k}']) for k in ('x', 'y', 'radius'))
-    if not len(xs) == len(ys) == len(rs):
-        raise ProblemError('obstacles.x, obstacles.y and obstacles.radius must have equal '
-                           f'lengths, got {len(xs)}, {len(ys)}, {len(rs)}')
-    return tuple((float(x), float(y), float(r)) for x, y, r in zip(xs, ys, rs))
+    try:
+        return from_parameters(Problem, params).obstacles
+    except (TypeError, ValueError) as exc:
+        raise ProblemError(str(exc))
 
 
 def robot_from_parameters(params):
-    """Build the RobotParams from flat parameters."""
-    u_max = list(params['robot.u_max'])
-    if len(u_max) != 2:
-        raise ProblemError(f'robot.u_max must have 2 entries, got {len(u_max)}')
-    return RobotParams(hand_mass=float(params['robot.hand_mass']),
-                       link_mass=float(params['robot.link_mass']),
-                       inertia=float(params['robot.inertia']), a=float(params['robot.a']),
-                       u1_max=float(u_max[0]), u2_max=float(u_max[1]),
-                       model_variant=str(params['robot.model_variant']))
+    """Build the RobotParams from flat parameters (ProblemError for a wrong array size)."""
+    try:
+        return from_parameters(RobotParams, params, 'robot.')
+    except ValueError as exc:      # e.g. robot.u_max with 3 entries
+        raise ProblemError(str(exc))
 
 
 def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
     """Problem from flat parameters; x0, x_goal, obstacles override the parameter values."""
-    return Problem(
-        x0=tuple(float(v) for v in (params['initial_state'] if x0 is None else x0)),
-        x_goal=tuple(float(v) for v in (params['goal_state'] if x_goal is None else x_goal)),
-        obstacles=obstacle_rows(params) if obstacles is None else tuple(obstacles),
-        margin=float(params['obstacles.margin']),
-        robot=robot_from_parameters(params),
-        n_intervals=int(params['solver.N']),
-        integrator=str(params['solver.integrator']),
-        t_f0=float(params['solver.t_f0']))
+    overrides = {k: tuple(float(v) for v in value)
+                 for k, value in (('x0', x0), ('x_goal', x_goal)) if value is not None}
+    if obstacles is not None:
+        overrides['obstacles'] = tuple(tuple(row) for row in obstacles)
+    try:
+        return from_parameters(Problem, params, **overrides)
+    except ValueError as exc:
+        if isinstance(exc, ProblemError):
+            raise
+        raise ProblemError(str(exc))
 
 
 def options_from_parameters(params):
-    """Build the SolverOptions (timeout <= 0: no limit; max_iterations 0: mode default)."""
-    timeout = float(params['solver.timeout'])
-    return SolverOptions(
-        mode=str(params['solver.mode']),
-        max_iterations=int(params['solver.max_iterations']) or None,
-        timeout=timeout if timeout > 0 else None,
-        paper=PaperOptions(k_b=float(params['solver.paper.K_B']),
-                           k_v=float(params['solver.paper.K_V']),
-                           k_p=float(params['solver.paper.K_p']),
-                           eta=float(params['solver.paper.eta']),
-                           d_tau=float(params['solver.paper.d_tau']),
-                           j_eps=float(params['solver.paper.J_eps']),
-                           obstacle_gradient=str(params['solver.paper.obstacle_gradient'])))
+    """Build the SolverOptions (timeout 0: no limit; max_iterations 0: mode default)."""
+    try:
+        return from_parameters(SolverOptions, params, 'solver.')
+    except ValueError as exc:
+        if isinstance(exc, ProblemError):
+            raise
+        raise ProblemError(str(exc))
+
+
+def _yaml_value(value):
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(_yaml_value(v) for v in value) + ']'
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        text = repr(value)
+        mantissa, _, exponent = text.partition('e')
+        if exponent and '.' not in mantissa:      # YAML 1.1 needs the dot: 1.0e-05
+            text = f'{mantissa}.0e{exponent}'
+        return text
+    return str(value)
+
+
+def parameter_comment(parameter):
+    """One-line explanation of a parameter: unit, description, choices (YAML and --help)."""
+    return parameter.full_description()
+
+
+def scenario_yaml(table=SCENARIO_TABLE):
+    """Text of config/toc_ros.yaml: every scenario parameter with its default and comment."""
+    lines = [YAML_HEADER.rstrip('\n'), '/**:', '  ros__parameters:']
+    opened = []
+    previous = None
+    for parameter in table:
+        *groups, key = parameter.name.split('.')
+        common = 0
+        while common < min(len(opened), len(groups)) and opened[common] == groups[common]:
+            common += 1
+        opened = opened[:common]
+        for group in groups[common:]:
+            lines.append('    ' + '  ' * len(opened) + f'{group}:')
+            opened.append(group)
+        indent = '    ' + '  ' * len(opened)
+        comment = parameter_comment(parameter)
+        if comment != previous:      # columns of one setting share their comment
+            lines += [f'{indent}# {text}' for text in textwrap.wrap(comment, 97 - len(indent))]
+        previous = comment
+        lines.append(f'{indent}{key}: {_yaml_value(parameter.default)}')
+    return '\n'.join(lines) + '\n'
+
+
+def main(argv=None):
+    """Print, write (--write) or check (--check) config/toc_ros.yaml: python -m toc_ros.config."""
+    argv = sys.argv[1:] if argv is None else argv
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                        'config', 'toc_ros.yaml')
+    text = scenario_yaml()
+    if argv == ['--write']:
+        with open(path, 'w') as stream:
+            stream.write(text)
+        return 0
+    if argv == ['--check']:
+        with open(path) as stream:
+            same = stream.read() == text
+        print(f'{path} is ' + ('up to date' if same else 'out of date: run python -m '
+                               'toc_ros.config --write'))
+        return 0 if same else 1
+    if argv:
+        print('usage: python -m toc_ros.config [--write | --check]', file=sys.stderr)
+        return 2
+    sys.stdout.write(text)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

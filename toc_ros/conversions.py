@@ -29,7 +29,7 @@ from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from std_msgs.msg import ColorRGBA
-from toc_ros.core import Status
+from toc_ros.core import Problem, ProblemError, Status
 from toc_ros.core.model import dynamics
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
@@ -377,24 +377,12 @@ def obstacle_rows_from_msg(msg):
     elif data.size % 3:
         raise ConversionError(f'obstacles data must hold rows of (x, y, radius): {data.size} '
                               'values is not a multiple of 3')
-    rows = data.reshape(-1, 3)
-    check_obstacles(rows)
-    return tuple((float(x), float(y), float(r)) for x, y, r in rows)
-
-
-def check_obstacles(rows, margin=0.0):
-    """Raise ConversionError unless rows are finite (x, y, radius > 0) circles off the base."""
-    errors = []
-    for k, (x, y, r) in enumerate(np.asarray(rows, dtype=float).reshape(-1, 3)):
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r)):
-            errors.append(f'obstacle {k} has a non-finite value ({x}, {y}, {r})')
-        elif r <= 0.0:
-            errors.append(f'obstacle {k} radius must be > 0 m, got {r}')
-        elif math.isfinite(margin) and math.hypot(x, y) <= r + margin:
-            errors.append(f'obstacle {k} at ({x}, {y}) with inflated radius {r + margin} '
-                          'contains the robot base')
-    if errors:
-        raise ConversionError('; '.join(errors))
+    rows = tuple((float(x), float(y), float(r)) for x, y, r in data.reshape(-1, 3))
+    try:    # the one obstacle check: Problem.validate (finite, radius > 0, off the base)
+        Problem(obstacles=rows, margin=0.0).validate(states=False)
+    except ProblemError as exc:
+        raise ConversionError(str(exc))
+    return rows
 
 
 def trajectory_arrays(msg, joint_names):

@@ -76,8 +76,9 @@ STAGES = (
     Stage('replan', (math.pi / 12.0, 0.8), ((0.9, 1.2, 0.2), (1.5, 0.6, 0.15))),
 )
 
-# Acceptance: |q - q_goal| per joint once the plant is at rest [rad, m].  The plant's PD
-# (parameters.NODE_DEFAULTS gains) rests within ~1e-5 of the goal about 0.8 s after the end.
+# Acceptance: |q - q_goal| per joint once the plant is at rest [rad, m].  The plant's PD (the
+# default gains of parameters.PlantSettings) rests within ~1e-5 of the goal about 0.8 s after
+# the end.
 POSITION_TOL = (1e-3, 1e-3)
 # At rest: every joint_states sample over SETTLE_WINDOW_S within these bounds.
 SETTLE_POSITION = 1e-3      # [rad, m]

@@ -29,8 +29,8 @@ import signal
 import sys
 import threading
 
-# toc_ros.config and toc_ros.core (numba) are imported after the arguments are parsed,
-# so that --help and argument errors answer at once.
+# The solver (numba kernels) is imported after the arguments are parsed, so that --help and
+# argument errors answer at once; toc_ros.config only reads the settings table.
 
 EXIT_WRITE_ERROR = 5
 EXIT_INTERRUPTED = 130      # shell convention for SIGINT
@@ -75,7 +75,50 @@ def build_parser():
     parser.add_argument('--json', metavar='PATH', help='write the result as JSON to PATH')
     parser.add_argument('--quiet', action='store_true',
                         help='no progress line and no summary (errors still go to stderr)')
+    _add_parameter_options(parser)
     return parser
+
+
+PARAMETER_DEST = 'parameter:'
+_TYPES = {'double': float, 'integer': int, 'string': str, 'double_array': float,
+          'string_array': str}
+
+
+def _bool(text):
+    if text.lower() in ('true', '1', 'yes'):
+        return True
+    if text.lower() in ('false', '0', 'no'):
+        return False
+    raise argparse.ArgumentTypeError(f'expected true or false, got {text!r}')
+
+
+def _add_parameter_options(parser):
+    """One --<name> option per scenario parameter (the table of toc_ros.config)."""
+    from toc_ros.config import SCENARIO_TABLE
+    group = parser.add_argument_group(
+        'scenario parameters', 'every parameter of the scenario file by its ROS name; '
+        'overrides --config, the shortcuts above override these')
+    for spec in SCENARIO_TABLE:
+        text = spec.full_description()
+        facts = [f'default {spec.default}']
+        if spec.low is not None and spec.high is not None:
+            facts.append(f'range [{spec.low:g}, {spec.high:g}]')
+        kwargs = {'type': _bool if spec.ros_type == 'bool' else _TYPES[spec.ros_type],
+                  'dest': PARAMETER_DEST + spec.name, 'default': None,
+                  'help': f'{text} ({"; ".join(facts)})'.replace('%', '%%')}
+        if spec.ros_type.endswith('_array'):
+            kwargs.update(nargs='+', metavar='V')
+        elif spec.choices:
+            kwargs['choices'] = spec.choices
+        else:
+            kwargs['metavar'] = spec.ros_type.upper()
+        group.add_argument(f'--{spec.name}', **kwargs)
+
+
+def parameter_overrides(args):
+    """Flat parameters given as --<name> options (name -> value)."""
+    return {dest[len(PARAMETER_DEST):]: value for dest, value in vars(args).items()
+            if dest.startswith(PARAMETER_DEST) and value is not None}
 
 
 def _joint_state(parser, name, values):
@@ -90,8 +133,9 @@ def _joint_state(parser, name, values):
     return (q1, dq1, q2, dq2)
 
 
-def _parse(argv):
-    parser = build_parser()
+def parse_args(argv, parser=None):
+    """Parse toc-solve's arguments (parser: one from build_parser(), to reuse it)."""
+    parser = build_parser() if parser is None else parser
     args = parser.parse_args(argv)
     args.x0 = _joint_state(parser, 'start', args.start)
     args.x_goal = _joint_state(parser, 'goal', args.goal)
@@ -104,16 +148,22 @@ def _parse(argv):
     return args
 
 
-def build_problem(args):
+_parse = parse_args
+
+
+def build_problem(args, parameters=None):
     """
     Build the Problem and SolverOptions from the parameter file plus the command-line overrides.
 
+    parameters: the flat parameters of the file, already loaded (toc-sweep reads it once).
     Raises ProblemError when the file or a value in it is unusable.
     """
     from toc_ros.config import (default_config_path, load_parameters, options_from_parameters,
                                 problem_from_parameters)
     from toc_ros.core import ProblemError
-    params = load_parameters(args.config or default_config_path())
+    params = (load_parameters(args.config or default_config_path()) if parameters is None
+              else dict(parameters))
+    params.update(parameter_overrides(args))
     overrides = {'solver.mode': args.mode, 'solver.integrator': args.integrator,
                  'solver.N': args.N, 'solver.max_iterations': args.max_iterations,
                  'solver.timeout': args.timeout, 'obstacles.margin': args.margin,
@@ -233,7 +283,7 @@ def _solve_interruptible(problem, options, progress):
 
 def main(argv=None):
     """Entry point of toc-solve; returns the process exit code."""
-    args = _parse(argv)
+    args = parse_args(argv)
     try:
         return _run(args)
     except KeyboardInterrupt:      # a second Ctrl-C, or one before the solve started

@@ -12,4 +12,4 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Reading recordings back: the rosbag2/MCAP reader, the run report and its plots."""
+"""Analysis of recordings (read with ``toc_ros.recording.bag_reader``): run report and plots."""

@@ -27,8 +27,8 @@ import sys
 
 from toc_ros.config import load_parameters
 from toc_ros.core import ProblemError
+from toc_ros.recording.bag_reader import Recording, RecordingError
 
-from .bag_reader import Recording, RecordingError
 from .plots import draw_all
 from .report import analyse, load_run, markdown, ROLES
 

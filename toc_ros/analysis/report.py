@@ -142,7 +142,7 @@ class Run:
 
 
 def load_run(recording, params, warn=None) -> Run:
-    """Decode the messages of every role from a bag_reader.Recording."""
+    """Decode the messages of every role from a toc_ros.recording.bag_reader.Recording."""
     readable = recording.readable_topics()
     topics = find_topics(readable, warn)
     by_topic = {t: r for r, t in topics.items() if t is not None}

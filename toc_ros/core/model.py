@@ -33,6 +33,8 @@ import math
 from numba import njit
 import numpy as np
 
+from .settings import setting
+
 NX = 4
 NU = 2
 
@@ -47,13 +49,20 @@ MODEL_VARIANTS = ('eq37', 'eq36')
 class RobotParams:
     """Physical data of the robot (paper, section 4.1); defaults are the paper's values."""
 
-    hand_mass: float = 50.0      # M [kg], manipulator hand and load
-    link_mass: float = 97.0      # m [kg]
-    inertia: float = 193.0       # I1 + I2 [kg m^2]
-    a: float = 1.1               # [m]
-    u1_max: float = 600.0        # [N m]
-    u2_max: float = 500.0        # [N]
-    model_variant: str = 'eq37'
+    hand_mass: float = setting(50.0, 'M: mass of the manipulator hand and its load',
+                               unit='kg', low=0.0, high=1e4)
+    link_mass: float = setting(97.0, 'm: mass of the extension link', unit='kg', low=0.0,
+                               high=1e4)
+    inertia: float = setting(193.0, 'I1 + I2: inertia about the rotation axis',
+                             unit='kg m^2', low=0.0, high=1e5)
+    a: float = setting(1.1, 'a: distance from point S to the centre of mass of the hand',
+                       unit='m', low=0.0, high=100.0)
+    u1_max: float = setting(600.0, 'control bounds |u1| <= u_max[0], |u2| <= u_max[1], both '
+                            '> 0', unit='N m, N', ros_name='u_max', index=0)
+    u2_max: float = setting(500.0, 'control bounds (see u1_max)', ros_name='u_max', index=1)
+    model_variant: str = setting(
+        'eq37', "sign of the centrifugal term: 'eq37' (as printed in the paper) or 'eq36' "
+        '(derived from eq. 36)', choices=MODEL_VARIANTS)
 
     def check(self):
         """Return a list of problems with the data (empty when valid)."""

@@ -24,6 +24,7 @@ from .integrators import integrator_id, rollout
 from .model import RobotParams
 from .obstacles import arm_clearance, GRAD_EXACT, GRAD_SHORTCUT
 from .result import Violations
+from .settings import setting
 
 PAPER_X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
 PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
@@ -47,14 +48,26 @@ class Problem:
     R = R' + dR (section 4.2).  N intervals of tau = t_f / N, t_f0 the initial final time.
     """
 
-    x0: Tuple[float, ...] = PAPER_X0
-    x_goal: Tuple[float, ...] = PAPER_GOAL
-    obstacles: Tuple[Tuple[float, float, float], ...] = ((1.0, 1.0, 0.2),)
-    margin: float = 0.01
+    x0: Tuple[float, ...] = setting(
+        PAPER_X0, '[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: start state while no joint_states '
+        'arrived (plant: state at start-up and after ~/reset)', ros_name='initial_state')
+    x_goal: Tuple[float, ...] = setting(
+        PAPER_GOAL, '[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: goal of the scenario file '
+        '(toc-solve); the node plans to goals from goal_pose, goal_joints and ~/plan',
+        ros_name='goal_state')
+    obstacles: Tuple[Tuple[float, float, float], ...] = setting(
+        ((1.0, 1.0, 0.2),), "obstacle circles (x, y, radius R' > 0): obstacles.x/.y/.radius "
+        'have equal lengths; set them together (atomically) or publish on the obstacles topic',
+        unit='m', columns=('x', 'y', 'radius'))
+    margin: float = setting(0.01, "dR: clearance margin, the arm stays outside R' + dR",
+                            unit='m', low=0.0, high=100.0, ros_name='obstacles.margin')
     robot: RobotParams = field(default_factory=RobotParams)
-    n_intervals: int = 1000
-    integrator: str = 'euler'
-    t_f0: float = 2.5
+    n_intervals: int = setting(1000, 'number of time intervals of the trajectory', low=2,
+                               high=MAX_INTERVALS, ros_name='solver.N')
+    integrator: str = setting('euler', "discretisation of eq. (37): 'euler' (the paper's) or "
+                              "'rk4'", choices=('euler', 'rk4'), ros_name='solver.integrator')
+    t_f0: float = setting(2.5, 'initial guess of the final time (> 0)', unit='s', low=0.0,
+                          high=1e4, ros_name='solver.t_f0')
 
     def circles(self):
         """Obstacles as a (K, 3) array with inflated radii R = R' + dR."""
@@ -67,8 +80,13 @@ class Problem:
         return (self.robot.packed(), np.asarray(self.x0, float), np.asarray(self.x_goal, float),
                 self.robot.u_max, np.ascontiguousarray(self.circles()))
 
-    def validate(self):
-        """Raise ProblemError with every problem found (nothing is solved before this passes)."""
+    def validate(self, states=True):
+        """
+        Raise ProblemError with every problem found (nothing is solved before this passes).
+
+        states=False skips the checks of x0 and x_goal against the arm length and the
+        obstacles (a node checks those per request, against the measured start).
+        """
         if not isinstance(self.robot, RobotParams):
             raise ProblemError('robot must be a toc_ros.core.RobotParams')
         errors = list(self.robot.check())
@@ -100,7 +118,7 @@ class Problem:
                 elif _finite_number(self.margin) and math.hypot(cx, cy) <= radius + self.margin:
                     errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
                                   f'{radius + self.margin} contains the robot base')
-        if not errors:
+        if not errors and states:
             a = self.robot.a
             for name, x in (('start', x0), ('goal', xg)):
                 if a + x[2] <= 0.0:
@@ -119,13 +137,20 @@ class Problem:
 class PaperOptions:
     """Constants of the section-3 heuristic (defaults: the paper's section 4 values)."""
 
-    k_b: float = 600.0        # K_B, eq. (7)
-    k_v: float = 0.01         # K_V; J2 uses K_V-hat = tau0 K_V (section 4, constant tau0)
-    k_p: float = 1000.0       # K_p, eq. (42)
-    eta: float = 1000.0       # learning rate, eq. (32)
-    d_tau: float = 1e-5       # [s] decrement of tau, eq. (34)
-    j_eps: float = 0.01       # J_eps, eq. (34)
-    obstacle_gradient: str = 'shortcut'   # 'shortcut' (eq. 46) or 'exact' (eqs. 44-45)
+    k_b: float = setting(600.0, 'K_B of eq. (7), paper mode (> 0)', low=0.0, high=1e12,
+                         ros_name='K_B')
+    # J2 uses K_V-hat = tau0 K_V (section 4, constant tau0).
+    k_v: float = setting(0.01, 'K_V, paper mode (> 0)', low=0.0, high=1e12, ros_name='K_V')
+    k_p: float = setting(1000.0, 'K_p of eq. (42), obstacle penalty, paper mode (> 0)',
+                         low=0.0, high=1e12, ros_name='K_p')
+    eta: float = setting(1000.0, 'learning rate eta of eq. (32), paper mode (> 0)', low=0.0,
+                         high=1e12)
+    d_tau: float = setting(1e-5, 'decrement of tau = t_f / N of eq. (34), paper mode (> 0)',
+                           unit='s', low=0.0, high=1.0)
+    j_eps: float = setting(0.01, 'J_eps of eq. (34), paper mode (> 0)', low=0.0, high=1e12,
+                           ros_name='J_eps')
+    obstacle_gradient: str = setting('shortcut', "'shortcut' (eq. 46) or 'exact' (eqs. 44-45)",
+                                     choices=('shortcut', 'exact'))
 
     def grad_mode(self):
         """Kernel id of the obstacle-gradient variant."""
@@ -136,9 +161,16 @@ class PaperOptions:
 class SolverOptions:
     """How to solve: mode, iteration and time limits, progress period."""
 
-    mode: str = 'fast'
-    max_iterations: Optional[int] = None   # None: the mode's default (DEFAULT_ITERATIONS)
-    timeout: Optional[float] = None      # [s] wall clock; None = no limit
+    mode: str = setting('fast', "'fast' (feasible minimum time) or 'paper' (the section-3 "
+                        'heuristic)', choices=MODES)
+    # None: the mode's default (DEFAULT_ITERATIONS)
+    max_iterations: Optional[int] = setting(
+        None, "iteration limit of one solve; 0 = the mode's default (paper: M = 30000 gradient "
+        'steps, fast: 500000 L-BFGS steps)', low=0, high=1_000_000_000, none_value=0)
+    # [s] wall clock; None = no limit (the nodes and the scenario file default to 60 s)
+    timeout: Optional[float] = setting(None, 'wall-clock limit of one solve; 0 = none',
+                                       unit='s', low=0.0, high=86400.0, none_value=0.0,
+                                       ros_default=60.0)
     progress_period: float = 0.1         # [s] between progress callbacks
     paper: PaperOptions = field(default_factory=PaperOptions)
 

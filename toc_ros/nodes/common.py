@@ -12,16 +12,48 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""What the nodes share: the main() skeleton and the 'topics' parameter parsing."""
+"""What the nodes share: the main() skeleton, shutdown-safe callbacks, 'topics' parsing."""
 
+import functools
 import re
 import signal
 import sys
 from typing import List
 
 import rclpy
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.parameter import Parameter
+
+# What rclpy raises when a publisher, timer... is used after its context was shut down
+# (e.g. RCLError "publisher's context is invalid" when SIGINT lands during a callback).
+SHUTDOWN_RACE_ERRORS = (rclpy_implementation.RCLError, InvalidHandle)
+
+
+def is_shutdown_race(node, error: BaseException) -> bool:
+    """Tell whether error comes from using node's entities after its context was shut down."""
+    return (isinstance(error, SHUTDOWN_RACE_ERRORS) and node is not None
+            and not node.context.ok())
+
+
+def survives_shutdown(callback):
+    """
+    Decorate a Node method used as a callback: what it does after shutdown is dropped.
+
+    rclpy's SIGINT handler shuts the context down from another thread, so a timer callback
+    that is running at that moment fails in its next publish. That is the end of the node,
+    not an error: the call returns None. The same errors while the context is valid propagate.
+    """
+    @functools.wraps(callback)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return callback(self, *args, **kwargs)
+        except SHUTDOWN_RACE_ERRORS as error:
+            if not is_shutdown_race(self, error):
+                raise
+            return None
+    return wrapper
 
 
 def topic_list(parameter: Parameter) -> List[str]:
@@ -64,6 +96,9 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
         exit_code = error_code
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except SHUTDOWN_RACE_ERRORS as error:
+        if not is_shutdown_race(node, error):  # a callback racing shutdown is no failure
+            raise
     finally:
         # A second Ctrl-C while shutting down must not abort the cleanup.
         signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -21,107 +21,77 @@ the candidate() dict built here.
 """
 
 import array
+from dataclasses import dataclass
 import math
+from typing import Tuple
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 
-from toc_ros.config import DEFAULTS
+from toc_ros.config import SCENARIO_TABLE
+from toc_ros.core.settings import parameter_table, setting
 
 
-def _fr(low, high):
-    return {'floating_point_range': [FloatingPointRange(from_value=float(low),
-                                                        to_value=float(high), step=0.0)]}
+@dataclass(frozen=True)
+class SolverNodeSettings:
+    """solver_node's own parameters (beyond the scenario's)."""
+
+    extension_limits: Tuple[float, float] = setting(
+        (-1.0, 3.0), '[q2_min, q2_max] m: reachable extension of goals (goal_pose, goal_joints, '
+        '~/plan); the paper gives none, so generous defaults')
 
 
-def _ir(low, high):
-    return {'integer_range': [IntegerRange(from_value=low, to_value=high, step=1)]}
+@dataclass(frozen=True)
+class PlantSettings:
+    """plant_node's own parameters (beyond the robot data and joint names)."""
+
+    rate: float = setting(100.0, 'publishing rate of joint_states (and /clock)', unit='Hz',
+                          low=1.0, high=1000.0)
+    integration_rate: float = setting(1000.0, 'fixed RK4 step rate of the simulation (>= rate)',
+                                      unit='Hz', low=1.0, high=100000.0)
+    # About critically damped around the paper's configuration (rotation inertia ~510 kg m^2
+    # at q2 = 1 m, moving mass 147 kg): settles to < 1e-3 within ~1 s after a plan.
+    kp: Tuple[float, float] = setting(
+        (15000.0, 8000.0), 'proportional gains of the tracking PD per joint (>= 0)',
+        unit='N m/rad, N/m')
+    kd: Tuple[float, float] = setting(
+        (5000.0, 2000.0), 'derivative gains of the tracking PD per joint (>= 0)',
+        unit='N m s/rad, N s/m')
+    payload_mass_offset: float = setting(
+        0.0, 'added to robot.hand_mass in the simulated plant only (model mismatch; the hand '
+        'mass stays > 0)', unit='kg', low=-1e4, high=1e4)
+    inertia_scale: float = setting(
+        1.0, 'factor on robot.inertia in the simulated plant only (model mismatch)', low=0.0,
+        high=100.0)
+    publish_clock: bool = setting(False, 'publish the simulated time on /clock')
 
 
-def _one_of(*choices):
-    return {'additional_constraints': 'one of: ' + ', '.join(choices)}
-
-
-# Node-specific parameters (not in the scenario file's DEFAULTS).
-NODE_DEFAULTS = {
-    'extension_limits': [-1.0, 3.0],
-    'rate': 100.0,
-    'integration_rate': 1000.0,
-    # About critically damped around the paper's configuration (rotation inertia ~510 kg m^2 at
-    # q2 = 1 m, moving mass 147 kg): settles to < 1e-3 within ~1 s after a plan.
-    'kp': [15000.0, 8000.0],
-    'kd': [5000.0, 2000.0],
-    'payload_mass_offset': 0.0,
-    'inertia_scale': 1.0,
-    'publish_clock': False,
-}
-
-# name -> (description, extra descriptor fields)
-SPECS = {
-    'robot.hand_mass': ('M [kg]: mass of the manipulator hand and its load', _fr(0, 1e4)),
-    'robot.link_mass': ('m [kg]: mass of the extension link', _fr(0, 1e4)),
-    'robot.inertia': ('I1 + I2 [kg m^2]: inertia about the rotation axis', _fr(0, 1e5)),
-    'robot.a': ('a [m]: distance from point S to the centre of mass of the hand', _fr(0, 100)),
-    'robot.u_max': ('[N m, N]: control bounds |u1| <= u_max[0], |u2| <= u_max[1], both > 0',
-                    {}),
-    'robot.model_variant': ("sign of the centrifugal term: 'eq37' (as printed in the paper) or "
-                            "'eq36' (derived from eq. 36)", _one_of('eq37', 'eq36')),
-    'joint_names': ('[rotation joint, extension joint]: names used in joint_states, goals and '
-                    'trajectories', {}),
-    'base_frame': ('frame of goal poses, planned paths and markers (the robot base)', {}),
-    'initial_state': ('[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: start state while no joint_states '
-                      'arrived (plant: state at start-up and after ~/reset)', {}),
-    'goal_state': ('[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: goal of the scenario file (toc-solve); '
-                   'the node plans to goals from goal_pose, goal_joints and ~/plan', {}),
-    'obstacles.x': ('[m] obstacle centres x; obstacles.x/.y/.radius have equal lengths: set '
-                    'them together (atomically) or publish on the obstacles topic', {}),
-    'obstacles.y': ('[m] obstacle centres y (see obstacles.x)', {}),
-    'obstacles.radius': ("[m] obstacle radii R' > 0 (see obstacles.x)", {}),
-    'obstacles.margin': ("dR [m]: clearance margin, the arm stays outside R' + dR",
-                         _fr(0, 100)),
-    'solver.mode': ("'fast' (feasible minimum time) or 'paper' (the section-3 heuristic)",
-                    _one_of('fast', 'paper')),
-    'solver.integrator': ("discretisation of eq. (37): 'euler' (the paper's) or 'rk4'",
-                          _one_of('euler', 'rk4')),
-    'solver.N': ('number of time intervals of the trajectory', _ir(2, 200000)),
-    'solver.t_f0': ('[s] initial guess of the final time (> 0)', _fr(0, 1e4)),
-    'solver.max_iterations': ("iteration limit of one solve; 0 = the mode's default (paper: "
-                              'M = 30000 gradient steps, fast: 500000 L-BFGS steps)',
-                              _ir(0, 1_000_000_000)),
-    'solver.timeout': ('[s] wall-clock limit of one solve; 0 = none', _fr(0, 86400)),
-    'solver.paper.K_B': ('K_B of eq. (7), paper mode (> 0)', _fr(0, 1e12)),
-    'solver.paper.K_V': ('K_V, paper mode (> 0)', _fr(0, 1e12)),
-    'solver.paper.K_p': ('K_p of eq. (42), obstacle penalty, paper mode (> 0)', _fr(0, 1e12)),
-    'solver.paper.eta': ('learning rate eta of eq. (32), paper mode (> 0)', _fr(0, 1e12)),
-    'solver.paper.d_tau': ('[s] decrement of tau of eq. (34), paper mode (> 0)', _fr(0, 1)),
-    'solver.paper.J_eps': ('J_eps of eq. (34), paper mode (> 0)', _fr(0, 1e12)),
-    'solver.paper.obstacle_gradient': ("'shortcut' (eq. 46) or 'exact' (eqs. 44-45)",
-                                       _one_of('shortcut', 'exact')),
-    'extension_limits': ('[q2_min, q2_max] m: reachable extension of goals (goal_pose, '
-                         'goal_joints, ~/plan); the paper gives none, so generous defaults',
-                         {}),
-    'rate': ('[Hz] publishing rate of joint_states (and /clock)', _fr(1, 1000)),
-    'integration_rate': ('[Hz] fixed RK4 step rate of the simulation (>= rate)',
-                         _fr(1, 100000)),
-    'kp': ('[N m/rad, N/m] proportional gains of the tracking PD per joint (>= 0)', {}),
-    'kd': ('[N m s/rad, N s/m] derivative gains of the tracking PD per joint (>= 0)', {}),
-    'payload_mass_offset': ('[kg] added to robot.hand_mass in the simulated plant only '
-                            '(model mismatch; the hand mass stays > 0)', _fr(-1e4, 1e4)),
-    'inertia_scale': ('factor on robot.inertia in the simulated plant only (model mismatch)',
-                      _fr(0, 100)),
-    'publish_clock': ('publish the simulated time on /clock', {}),
-}
+# Every flat parameter of the nodes: name -> settings.Parameter (default, type, range, text).
+TABLE = {p.name: p for p in (list(SCENARIO_TABLE) + parameter_table(SolverNodeSettings)
+                             + parameter_table(PlantSettings))}
+SOLVER_NODE_NAMES = [p.name for p in SCENARIO_TABLE] + [
+    p.name for p in parameter_table(SolverNodeSettings)]
 
 
 def default(name):
     """Return the default value of a flat parameter."""
-    return NODE_DEFAULTS[name] if name in NODE_DEFAULTS else DEFAULTS[name]
+    return TABLE[name].default
 
 
 def descriptor(name):
-    """Build the ParameterDescriptor (description, range) of a flat parameter."""
-    description, extra = SPECS[name]
-    return ParameterDescriptor(description=description, **extra)
+    """Build the ParameterDescriptor (description, range, choices) of a flat parameter."""
+    spec = TABLE[name]
+    extra = {}
+    if spec.low is not None and spec.high is not None:
+        if spec.ros_type == 'double':
+            extra['floating_point_range'] = [FloatingPointRange(
+                from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+        elif spec.ros_type == 'integer':
+            extra['integer_range'] = [IntegerRange(from_value=int(spec.low),
+                                                   to_value=int(spec.high), step=1)]
+    if spec.choices:
+        extra['additional_constraints'] = 'one of: ' + ', '.join(spec.choices)
+    return ParameterDescriptor(description=spec.full_description(), **extra)
 
 
 def declare(node, names):

@@ -51,7 +51,7 @@ from toc_ros.config import robot_from_parameters
 from toc_ros.core import ProblemError
 from toc_ros.core.integrators import RK4, step
 from toc_ros.nodes import parameters
-from toc_ros.nodes.common import run_node
+from toc_ros.nodes.common import run_node, survives_shutdown
 from trajectory_msgs.msg import JointTrajectory
 
 PARAMETER_NAMES = [
@@ -231,6 +231,7 @@ class PlantNode(Node):
 
     # -- simulation ---------------------------------------------------------------------------
 
+    @survives_shutdown
     def _tick(self):
         behind = time.monotonic() - self._wall_start - self._sim_time
         if behind > MAX_CATCH_UP_S:
@@ -266,6 +267,7 @@ class PlantNode(Node):
         msg.effort = [float(self._u[0]), float(self._u[1])]
         self._state_pub.publish(msg)
 
+    @survives_shutdown
     def _publish_tracking(self):
         q_ref, dq_ref, _ = self._target(self._sim_time)
         error = q_ref - self._x[[0, 2]]

@@ -41,8 +41,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from toc_ros.analysis.bag_reader import message_class, Recording, RecordingError
 from toc_ros.nodes.common import run_node, topic_list
+from toc_ros.recording.bag_reader import message_class, Recording, RecordingError
 
 CLOCK_TOPIC = '/clock'
 # /clock is published at least this often between messages (ros2 bag play's default 40 Hz).

@@ -52,15 +52,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import conversions
-from toc_ros.config import (
-    DEFAULTS, obstacle_rows, options_from_parameters, problem_from_parameters)
+from toc_ros.config import obstacle_rows, options_from_parameters, problem_from_parameters
 from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-PARAMETER_NAMES = list(DEFAULTS) + ['extension_limits']
+PARAMETER_NAMES = parameters.SOLVER_NODE_NAMES
 PUBLISHED = (Status.SOLVED, Status.SOLVED_INACCURATE)
 # ~/progress while solving: the core reports every 0.1 s; the heartbeat fills gaps (set-up,
 # slow iterations) so that no gap exceeds MAX_PROGRESS_GAP_S.
@@ -91,19 +90,18 @@ def parameter_errors(params):
         limit_errors = [f'extension_limits must be [q2_min, q2_max] with q2_min < q2_max, got '
                         f'{params["extension_limits"]}']
     errors += limit_errors
-    try:
-        conversions.check_obstacles(obstacle_rows(params), float(params['obstacles.margin']))
-    except (ProblemError, ValueError) as exc:
-        errors.append(str(exc))
     state_errors = (parameters.vector_errors('initial_state', params['initial_state'], 4)
                     + parameters.vector_errors('goal_state', params['goal_state'], 4))
     errors += state_errors
-    builds = [lambda: options_from_parameters(params)]
+    try:
+        options_from_parameters(params).validate()
+    except (ProblemError, TypeError, ValueError) as exc:
+        errors.append(str(exc))
     if not state_errors:    # else the Problem would repeat them as x0 / x_goal errors
-        builds.append(lambda: problem_from_parameters(params, obstacles=()))
-    for build in builds:
         try:
-            build().validate()
+            # The one check of the problem data, obstacles included (start and goal against
+            # the obstacles are checked per request, against the measured start).
+            problem_from_parameters(params).validate(states=False)
         except (ProblemError, TypeError, ValueError) as exc:
             errors.append(str(exc))
     return errors

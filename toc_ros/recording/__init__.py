@@ -15,16 +15,18 @@
 """
 Recording of ROS 2 topics into rosbag2 bag directories with MCAP storage.
 
-``bag_writer`` and ``msg_definitions`` need no rclpy; the recorder node lives in
+``bag_writer`` writes a bag, ``bag_reader`` reads one back (also a cut-off one); neither they
+nor ``msg_definitions`` need rclpy (only ``Recording.decode`` does). The recorder node lives in
 ``toc_ros.nodes.recorder_node`` and ``process`` starts and stops it as a separate process.
 """
 
+from .bag_reader import RawMessage, Recording, TopicInfo
 from .bag_writer import BagSummary, BagWriter, qos_profile_to_dict, RecordingError
 from .msg_definitions import full_definition, MessageDefinition, MessageDefinitionError
 from .process import recorder_command, RecorderProcess
 
 __all__ = [
     'BagSummary', 'BagWriter', 'full_definition', 'MessageDefinition',
-    'MessageDefinitionError', 'qos_profile_to_dict', 'recorder_command', 'RecorderProcess',
-    'RecordingError',
+    'MessageDefinitionError', 'qos_profile_to_dict', 'RawMessage', 'recorder_command',
+    'RecorderProcess', 'Recording', 'RecordingError', 'TopicInfo',
 ]

@@ -40,8 +40,6 @@ STORAGE_IDENTIFIER = 'mcap'
 SERIALIZATION_FORMAT = 'cdr'
 # Refuse to start with less free space than this; a full disk mid-run is reported on write.
 MIN_FREE_BYTES = 4 * 1024 * 1024
-# rcutils' "infinite" duration, written as {sec: 9223372036, nsec: 854775807} like rosbag2 does.
-DURATION_INFINITE_NS = 2**63 - 1
 _NO_MESSAGE_START = 2**63 - 1
 
 
@@ -53,8 +51,8 @@ def _library_string() -> str:
         return 'toc_ros recorder; mcap-python'
 
 
-class RecordingError(RuntimeError):
-    """The bag cannot be created or written; the message says what and where."""
+class RecordingError(Exception):
+    """A bag cannot be created, written or read; the message says what and where."""
 
 
 class TopicSummary(NamedTuple):
@@ -188,11 +186,6 @@ class BagWriter:
     def message_count(self) -> int:
         """Messages written so far."""
         return self._message_count
-
-    def topic_names(self) -> List[str]:
-        """Names of the topics declared so far."""
-        with self._lock:
-            return list(self._topics)
 
     # -- create -----------------------------------------------------------------------------
     def create(self) -> 'BagWriter':

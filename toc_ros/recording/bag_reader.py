@@ -39,6 +39,8 @@ from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
 import yaml
 
+from .bag_writer import RecordingError
+
 MAGIC = b'\x89MCAP0\r\n'
 _RECORD_HEAD = struct.Struct('<BQ')
 # start, end, uncompressed size, crc: the fixed head of a chunk record before its compression
@@ -48,10 +50,6 @@ ROS2_SCHEMA_ENCODINGS = ('ros2msg', 'ros2idl')
 # Errors the mcap library and the decompressors raise on damaged bytes.
 _DAMAGE = (McapError, struct.error, ValueError, EOFError, UnicodeDecodeError, IndexError,
            KeyError, RuntimeError)
-
-
-class RecordingError(Exception):
-    """The recording cannot be read at all; the message says why."""
 
 
 class TopicInfo(NamedTuple):

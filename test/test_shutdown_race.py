@@ -1,0 +1,84 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Timer callbacks racing shutdown (SIGINT after a SIGSTOP pause) end the node cleanly."""
+
+import random
+import signal
+import time
+
+from node_harness import NodeProcess
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.exceptions import InvalidHandle
+from rclpy.signals import SignalHandlerOptions
+from toc_ros.nodes.plant_node import PlantNode
+
+
+@pytest.fixture
+def plant_in_process():
+    context = Context()
+    rclpy.init(context=context, domain_id=random.randint(101, 200),
+               signal_handler_options=SignalHandlerOptions.NO)
+    node = PlantNode(context=context)
+    yield node, context
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def test_callbacks_after_the_context_shut_down_return_quietly(plant_in_process):
+    node, context = plant_in_process
+    node._tick()
+    node._publish_tracking()
+    rclpy.shutdown(context=context)
+    # Without the guard both raise RCLError "publisher's context is invalid".
+    assert node._tick() is None
+    assert node._publish_tracking() is None
+
+
+def test_the_same_errors_with_a_live_context_still_propagate(plant_in_process):
+    node, _context = plant_in_process
+    node._state_pub.destroy()
+    with pytest.raises(InvalidHandle):
+        node._tick()
+
+
+@pytest.mark.parametrize('pause_s, delay_s', [(5.0, None), (2.0, 0.0), (2.0, 0.05)])
+def test_plant_sigint_after_a_sigstop_pause_exits_0(tmp_path, monkeypatch, pause_s, delay_s):
+    """SIGINT while stopped (delay None) or right after SIGCONT, during the catch-up."""
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    plant = NodeProcess('plant_node', '/race', tmp_path,
+                        params={'integration_rate': 5000.0, 'rate': 500.0})
+    try:
+        plant.wait_for_log('ready:')
+        time.sleep(0.5)
+        plant.process.send_signal(signal.SIGSTOP)
+        time.sleep(pause_s)
+        if delay_s is None:
+            plant.process.send_signal(signal.SIGINT)
+            plant.process.send_signal(signal.SIGCONT)
+        else:
+            plant.process.send_signal(signal.SIGCONT)
+            time.sleep(delay_s)
+            plant.process.send_signal(signal.SIGINT)
+        exit_code = plant.process.wait(timeout=20)
+    finally:
+        if plant.process.poll() is None:
+            plant.process.kill()
+            plant.process.wait()
+    log = plant.log()
+    assert exit_code == 0, log
+    assert 'Traceback' not in log and 'RCLError' not in log, log
