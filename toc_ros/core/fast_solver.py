@@ -13,445 +13,390 @@
 # limitations under the License.
 
 """
-Fast mode: a feasible minimum-time solution built on the same BPTT gradient.
+Fast mode: the discrete minimum-time problem of eqs. (1)-(5) (J0 = N tau = t_f) with the
+constraints kept as constraints, solved by the interior-point method of ipm.py:
 
-The discrete problem is the paper's (eqs. 1-5 with F-hat = 1, i.e. J0 = N tau = t_f) with the
-constraints kept as constraints instead of fixed penalties:
-
-    minimise t_f  over  u(0..N-1), t_f
-    s.t.  x(N) = x_goal                               (eq. 3)
+    minimise t_f  over  x(1..N), u(0..N-1), t_f
+    s.t.  x(i+1) = Phi(x(i), u(i), t_f / N)          (eq. 2, multiple shooting)
+          x(N) = x_goal                               (eq. 3)
           |u_k(i)| <= u_k,max                         (eq. 47)
-          dist(arm segment at node i, c_k) >= R_k     (eq. 41, whole arm, any quadrant)
+          dist(link segment at node i, c_k) >= R_k    (eq. 41 for every link, any quadrant)
 
-solved by an augmented Lagrangian (Powell-Hestenes-Rockafellar) on the terminal and obstacle
-constraints.  Its sub-problems are bound-constrained in scaled controls v = u / u_max in
-[-1, 1] and t_f, and solved by a projected L-BFGS (lbfgs_box, in numba: scipy's L-BFGS-B spends
-~20x the cost of a function evaluation per iteration here).  The sub-problem gradient, including
-d/dt_f, comes from one BPTT sweep (bptt.adjoint_sweep); bounds hold exactly at every iterate.
-The obstacle constraint uses the squared segment distance (C1), scaled as (d^2 - R^2) / (2 R)
-~ d - R, rather than the ray formula of eq. (41), whose derivative is unbounded where the ray
-is tangent to the circle.  solver.py drives it over a coarse-to-fine ladder of grids and makes
-each result exactly feasible with FeasibilityProjector (Gauss-Newton on BPTT sensitivity rows).
+A cold solve first runs on a coarse grid (COARSE_INTERVALS), whose solution (primal and dual)
+is carried to the requested grid, where a few Newton-type iterations finish.  A warm start
+(initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
+being executed) skips the coarse grid.
 """
 
-from numba import njit
+import math
+import time
+
 import numpy as np
 
-from .bptt import adjoint_sweep, Workspace
-from .integrators import rollout_linearized
-from .obstacles import segment_distance_sq
+from . import ipm
+from .obstacles import segment_clearance
+from .result import SolveResult, Status
 
-LBFGS_MEMORY = 10
-
-
-@njit(cache=True)
-def alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, states,
-                       jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u, grad_z, cons):
-    """
-    Augmented Lagrangian L(v, t_f) and dL/dz for z = [v (2N, row-major), t_f].
-
-    cons receives the terminal residuals (4) then the obstacle constraints (N x K, row-major).
-    """
-    n = jac_u.shape[0]
-    t_f = z[2 * n]
-    tau = t_f / n
-    controls = grad_u  # reuse as scratch for u, overwritten below by the partials
-    for i in range(n):
-        controls[i, 0] = z[2 * i] * u_max[0]
-        controls[i, 1] = z[2 * i + 1] * u_max[1]
-    rollout_linearized(x0, controls, tau, p, method, states, jac_x, jac_u, jac_tau)
-    grad_x[:, :] = 0.0
-    grad_u[:, :] = 0.0
-    value = t_f
-    for r in range(4):
-        h = states[n, r] - x_goal[r]
-        cons[r] = h
-        value += lam[r] * h + 0.5 * rho * h * h
-        grad_x[n, r] += lam[r] + rho * h
-    n_circles = circles.shape[0]
-    a = p[3]
-    for i in range(1, n + 1):
-        for k in range(n_circles):
-            radius = circles[k, 2]
-            d2, d2_q1, d2_q2 = segment_distance_sq(states[i, 0], states[i, 2], a,
-                                                   circles[k, 0], circles[k, 1])
-            c = (d2 - radius * radius) / (2.0 * radius)
-            idx = (i - 1) * n_circles + k
-            cons[4 + idx] = c
-            m = mu[idx]
-            shifted = m - rho * c
-            if shifted > 0.0:
-                value += (shifted * shifted - m * m) / (2.0 * rho)
-                g = -shifted / (2.0 * radius)
-                grad_x[i, 0] += g * d2_q1
-                grad_x[i, 2] += g * d2_q2
-            else:
-                value -= m * m / (2.0 * rho)
-    d_tau, _ = adjoint_sweep(jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u)
-    for i in range(n):
-        grad_z[2 * i] = out_grad_u[i, 0] * u_max[0]
-        grad_z[2 * i + 1] = out_grad_u[i, 1] * u_max[1]
-    grad_z[2 * n] = 1.0 + d_tau / n
-    return value
-
-
-@njit(cache=True)
-def _masked_dot(a, b, free):
-    acc = 0.0
-    for i in range(a.shape[0]):
-        if free[i]:
-            acc += a[i] * b[i]
-    return acc
-
-
-@njit(cache=True)
-def lbfgs_box(z, lower, upper, max_iter, gtol, mem_s, mem_y, mem_info, x0, x_goal, u_max, p,
-              method, circles, lam, rho, mu, states, jac_x, jac_u, jac_tau, grad_x, grad_u,
-              out_grad_u, grad_z, cons):
-    """
-    Minimise the augmented Lagrangian over the box by projected L-BFGS, in place on z.
-
-    The variables at a bound whose gradient points outwards are held; the two-loop recursion
-    (memory mem_s, mem_y; mem_info = [pairs stored, next slot]) acts on the others, and an
-    Armijo backtracking search runs along the projection of that direction onto the box.
-    Memory persists across calls, so the solve can run in chunks.  Returns (iterations,
-    code, value) with code 1 = projected gradient below gtol, 2 = no further decrease,
-    0 = max_iter reached.
-    """
-    n = z.shape[0]
-    depth = mem_s.shape[0]
-    value = alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, states,
-                               jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u, grad_z,
-                               cons)
-    g = grad_z.copy()
-    free = np.empty(n, dtype=np.bool_)
-    d = np.empty(n)
-    trial = np.empty(n)
-    alpha_hist = np.empty(depth)
-    stalls = 0
-    for it in range(max_iter):
-        pg = 0.0
-        for i in range(n):
-            at_low = z[i] <= lower[i] and g[i] > 0.0
-            at_high = z[i] >= upper[i] and g[i] < 0.0
-            free[i] = not (at_low or at_high)
-            if free[i]:
-                pg = max(pg, abs(g[i]))
-        if pg <= gtol:
-            return it, 1, value
-        # Two-loop recursion on the free variables.
-        for i in range(n):
-            d[i] = -g[i] if free[i] else 0.0
-        count = int(mem_info[0])
-        head = int(mem_info[1])
-        for k in range(count):
-            slot = (head - 1 - k) % depth
-            sy = _masked_dot(mem_s[slot], mem_y[slot], free)
-            if sy <= 0.0:
-                alpha_hist[k] = 0.0
-                continue
-            a = _masked_dot(mem_s[slot], d, free) / sy
-            alpha_hist[k] = a
-            for i in range(n):
-                if free[i]:
-                    d[i] -= a * mem_y[slot, i]
-        if count > 0:
-            slot = (head - 1) % depth
-            yy = _masked_dot(mem_y[slot], mem_y[slot], free)
-            sy = _masked_dot(mem_s[slot], mem_y[slot], free)
-            if yy > 0.0 and sy > 0.0:
-                for i in range(n):
-                    d[i] *= sy / yy
-        for k in range(count - 1, -1, -1):
-            slot = (head - 1 - k) % depth
-            sy = _masked_dot(mem_s[slot], mem_y[slot], free)
-            if sy <= 0.0:
-                continue
-            b = _masked_dot(mem_y[slot], d, free) / sy
-            for i in range(n):
-                if free[i]:
-                    d[i] += mem_s[slot, i] * (alpha_hist[k] - b)
-        slope = _masked_dot(g, d, free)
-        if slope >= 0.0:       # not a descent direction: restart from steepest descent
-            mem_info[0] = 0.0
-            for i in range(n):
-                d[i] = -g[i] if free[i] else 0.0
-            slope = _masked_dot(g, d, free)
-        step = 1.0
-        if int(mem_info[0]) == 0:
-            step = min(1.0, 1.0 / max(pg, 1e-300))
-        accepted = False
-        for _ in range(40):
-            decrease = 0.0
-            for i in range(n):
-                t = z[i] + step * d[i]
-                t = min(upper[i], max(lower[i], t))
-                trial[i] = t
-                decrease += g[i] * (t - z[i])
-            new_value = alm_value_gradient(trial, x0, x_goal, u_max, p, method, circles, lam,
-                                           rho, mu, states, jac_x, jac_u, jac_tau, grad_x,
-                                           grad_u, out_grad_u, grad_z, cons)
-            if new_value <= value + 1e-4 * decrease and decrease < 0.0:
-                accepted = True
-                break
-            step *= 0.5
-        if not accepted:
-            # Leave cons/grad consistent with z before giving up.
-            alm_value_gradient(z, x0, x_goal, u_max, p, method, circles, lam, rho, mu, states,
-                               jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u, grad_z,
-                               cons)
-            return it, 2, value
-        slot = int(mem_info[1])
-        sy = 0.0
-        for i in range(n):
-            mem_s[slot, i] = trial[i] - z[i]
-            mem_y[slot, i] = grad_z[i] - g[i]
-            sy += mem_s[slot, i] * mem_y[slot, i]
-        if sy > 1e-16:
-            mem_info[1] = (slot + 1) % depth
-            mem_info[0] = min(mem_info[0] + 1.0, float(depth))
-        for i in range(n):
-            z[i] = trial[i]
-            g[i] = grad_z[i]
-        # Relative decrease at round-off level for several steps: nothing left to gain.
-        if value - new_value <= 1e-15 * max(1.0, abs(value)):
-            stalls += 1
-            if stalls >= 5:
-                return it + 1, 2, new_value
-        else:
-            stalls = 0
-        value = new_value
-    return max_iter, 0, value
+# Grids: a cold solve on N > 2 COARSE_INTERVALS starts on COARSE_INTERVALS intervals.
+COARSE_INTERVALS = 100
+# Barrier parameter of a cold start (IPOPT's default), and of a warm start on N intervals:
+# MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
+MU_COLD = 0.1
+MU_WARM = 1e-5
+# Tolerances: IPOPT's scaled optimality error, and the unscaled constraint violation (well
+# inside the SOLVED tolerances of result.py, so the re-integrated trajectory passes them).
+TOL = 1e-8
+CONSTR_TOL = 1e-10
+MU_MIN = 1e-11
+# Interior push of the initial controls and slacks (IPOPT's bound_push).
+BOUND_PUSH = 1e-2
+# Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (see ipm.py).
+RHO_TERMINAL = 1e2
+# l1 weight of the obstacle constraints' elastic variables: above every obstacle multiplier
+# (they are O(1) here), so the elastic variables vanish at the solution.
+ELASTIC_WEIGHT = 100.0
+# Box on t_f [s].
+T_LOW = 1e-3
+T_HIGH_FACTOR = 100.0
+CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITERATIONS,
+               ipm.LINE_SEARCH_FAILED: Status.STALLED, ipm.NUMERICAL_FAILURE: Status.STALLED}
 
 
 class Stop(Exception):
-    """Raised inside the sub-problem to unwind on cancel/timeout."""
+    """Raised between iteration chunks to stop a solve (argument: the Status)."""
 
 
-class FastRun:
-    """Augmented-Lagrangian minimum-time solve, driven by solver.py."""
+class InteriorPointRun:
+    """One interior-point solve on one grid (the Workspace plus the driver state)."""
 
-    def __init__(self, problem, method, t_f_bounds=(1e-3, 1e3)):
-        n = problem.n_intervals
+    def __init__(self, problem, n, max_iter):
+        model = problem.robot_model
         self.problem = problem
+        self.model = model
+        self.kernels = model.kernels
         self.n = n
-        self.method = method
-        self.p, self.x0, self.x_goal, self.u_max, self.circles = problem.kernel_arrays()
-        self.n_cons = 4 + n * self.circles.shape[0]
-        self.ws = Workspace(n)
-        self.grad_z = np.zeros(2 * n + 1)
-        self.cons = np.zeros(self.n_cons)
-        self.lam = np.zeros(4)
-        self.mu = np.zeros(self.n_cons - 4)
-        self.rho = 10.0
-        self.z = np.zeros(2 * n + 1)
-        self.z[2 * n] = problem.t_f0
-        self.lower = np.full(2 * n + 1, -1.0)
-        self.upper = np.full(2 * n + 1, 1.0)
-        self.lower[-1], self.upper[-1] = t_f_bounds
-        self.mem_s = np.zeros((LBFGS_MEMORY, 2 * n + 1))
-        self.mem_y = np.zeros((LBFGS_MEMORY, 2 * n + 1))
-        self.mem_info = np.zeros(2)
-        self.evaluations = 0
-        self.iterations = 0
+        self.u_max = np.asarray(model.u_max, dtype=float)
+        self.circles = np.ascontiguousarray(problem.circles())
+        self.ws = ipm.make_workspace(n, model.nx, model.nu, model.n_links, self.circles,
+                                     model.packed(), problem.x0, problem.x_goal, self.u_max,
+                                     max_iter)
+        fs, it = self.ws.fscal, self.ws.iscal
+        it[ipm.I_N] = n
+        it[ipm.I_METHOD] = problem.integrator_id
+        it[ipm.I_MAX_ITER] = max_iter
+        fs[ipm.F_TOL] = TOL
+        fs[ipm.F_CONSTR_TOL] = CONSTR_TOL
+        fs[ipm.F_MU_MIN] = MU_MIN
+        fs[ipm.F_RHO] = RHO_TERMINAL
+        fs[ipm.F_T_LOW] = T_LOW
+        fs[ipm.F_T_REF] = max(problem.t_f0, 1e-3)
+        fs[ipm.F_ELASTIC] = ELASTIC_WEIGHT
+        fs[ipm.F_T_HIGH] = T_HIGH_FACTOR * max(problem.t_f0, 1.0)
 
-    def value_gradient(self, z):
-        """Sub-problem objective and gradient at z (also refreshes cons)."""
-        ws = self.ws
-        self.evaluations += 1
-        value = alm_value_gradient(z, self.x0, self.x_goal, self.u_max, self.p, self.method,
-                                   self.circles, self.lam, self.rho, self.mu, ws.states,
-                                   ws.jac_x, ws.jac_u, ws.jac_tau, ws.grad_x, ws.grad_u,
-                                   ws.out_grad_u, self.grad_z, self.cons)
-        return value, self.grad_z.copy()
-
-    def violation(self):
-        """(terminal error norm, worst obstacle deficit) at the last evaluation."""
-        term = float(np.linalg.norm(self.cons[:4]))
-        deficit = float(max(0.0, -np.min(self.cons[4:]))) if self.n_cons > 4 else 0.0
-        return term, deficit
-
-    def controls(self, z=None):
-        """Return the controls u (N x 2) of z (default: the current iterate)."""
-        z = self.z if z is None else z
-        return z[:2 * self.n].reshape(self.n, 2) * self.u_max[None, :]
-
-    def solve_subproblem(self, max_iter, callback, chunk=100, gtol=1e-10):
+    # Starting points ---------------------------------------------------------------------
+    def start(self, states, controls, t_f, mu, duals=None, push=BOUND_PUSH):
         """
-        Minimise L for fixed multipliers from the current z (projected L-BFGS, in chunks).
-
-        callback(iterations) runs between chunks (progress, cancel); returns the stop code.
+        Set the primal point (states (N+1, nx), controls (N, nu), t_f), pushed inside the
+        bounds by push, and the duals: given ones (a dict as from duals(), resampled) or
+        mu / slack.  With duals, each slack is at least mu / z (complementarity mu).
         """
         ws = self.ws
-        self.mem_info[:] = 0.0
-        done = 0
-        code = 0
-        while done < max_iter:
-            n_iter, code, _ = lbfgs_box(
-                self.z, self.lower, self.upper, min(chunk, max_iter - done), gtol,
-                self.mem_s, self.mem_y, self.mem_info, self.x0, self.x_goal, self.u_max, self.p,
-                self.method, self.circles, self.lam, self.rho, self.mu, ws.states, ws.jac_x,
-                ws.jac_u, ws.jac_tau, ws.grad_x, ws.grad_u, ws.out_grad_u, self.grad_z,
-                self.cons)
-            done += n_iter
-            self.iterations += n_iter
-            if callback is not None:
-                callback(n_iter)
-            if code != 0:
-                break
-        self.value_gradient(self.z)          # constraints at the accepted point
-        return code
+        fs = ws.fscal
+        t_f = float(np.clip(t_f, fs[ipm.F_T_LOW] * 10.0, fs[ipm.F_T_HIGH] / 10.0))
+        ws.x[:] = states
+        ws.x[0] = ws.x0
+        ws.v[:] = np.clip(np.asarray(controls) / self.u_max, -1.0 + push, 1.0 - push)
+        fs[ipm.F_T] = t_f
+        fs[ipm.F_MU] = mu
+        cons = self.constraint_values(ws.x)
+        rho = fs[ipm.F_ELASTIC]
+        # Obstacle constraints in elastic form c + e - s = 0: e absorbs what the start lacks.
+        ws.s[0] = ws.e[0] = 1.0
+        ws.z[0] = 0.5 * rho
+        e_push = push if duals is None else max(mu, 1e-8)
+        ws.e[1:] = np.maximum(e_push, e_push - cons)
+        if duals is None:
+            ws.s[1:] = np.maximum(cons + ws.e[1:], push)
+            ws.lam[:] = 0.0
+            ws.nu[:] = 0.0
+            ws.z[1:] = np.clip(mu / ws.s[1:], 1e-6 * rho, 0.5 * rho)
+        else:
+            # Active constraints of the guess (z > 0) get slack mu / z; the others keep c.
+            z = np.clip(duals['z'], mu, 0.5 * rho)
+            ws.s[1:] = np.maximum(cons + ws.e[1:], np.minimum(mu / z, push))
+            ws.z[1:] = np.clip(mu / ws.s[1:], 1e-6 * rho, 0.5 * rho)
+            ws.lam[:] = duals['lam']
+            ws.nu[:] = duals['nu']
+        ws.zl[:] = mu / (1.0 + ws.v)
+        ws.zu[:] = mu / (1.0 - ws.v)
+        fs[ipm.F_ZT_LOW] = mu / (t_f - fs[ipm.F_T_LOW])
+        fs[ipm.F_ZT_HIGH] = mu / (fs[ipm.F_T_HIGH] - t_f)
+        fs[ipm.F_DELTA] = 0.0
+        fs[ipm.F_THETA_MAX] = 0.0
+        ws.iscal[ipm.I_N_FILTER] = 0
+        ws.iscal[ipm.I_LS_FAILS] = 0
+        ws.iscal[ipm.I_ITER] = 0
 
-    def update_multipliers(self):
-        """First-order PHR multiplier update."""
-        self.lam += self.rho * self.cons[:4]
-        self.mu = np.maximum(0.0, self.mu - self.rho * self.cons[4:])
+    def constraint_values(self, states):
+        """Obstacle constraints c = (d^2 - R^2) / (2 R) at nodes 1..N, (N, L K)."""
+        if self.circles.shape[0] == 0:
+            return np.zeros((states.shape[0] - 1, 0))
+        seg = self.model.link_segments(self.model.positions(states[1:]))
+        return segment_clearance(seg, self.circles, squared=True)
+
+    def duals(self):
+        """Copy of the multipliers (for a warm start of another run)."""
+        ws = self.ws
+        return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy()}
+
+    # Results -----------------------------------------------------------------------------
+    @property
+    def t_f(self):
+        """Current final time [s]."""
+        return float(self.ws.fscal[ipm.F_T])
+
+    @property
+    def iterations(self):
+        """Iterations done on this grid."""
+        return int(self.ws.iscal[ipm.I_ITER])
+
+    def controls(self):
+        """Controls u (N, nu) of the current point."""
+        return self.ws.v * self.u_max[None, :]
+
+    def history(self):
+        """Rows (t_f, constraint violation) per iteration."""
+        k = min(self.iterations + 1, self.ws.hist.shape[0])
+        return self.ws.hist[:k, [ipm.H_T, ipm.H_THETA]]
+
+    # Driving -----------------------------------------------------------------------------
+    def run(self, check):
+        """
+        Iterate until a stop code; check() runs between chunks of ~20 ms (progress, cancel,
+        timeout: it raises Stop).  Returns the ipm code.
+        """
+        chunk = 1
+        while True:
+            check(self)
+            started = time.monotonic()
+            code = self.kernels.ipm_iterate(self.ws, chunk)
+            per_iteration = (time.monotonic() - started) / chunk
+            chunk = int(max(1, min(50, 0.02 / max(per_iteration, 1e-6))))
+            if code != ipm.CONTINUE:
+                check(self)
+                return code
 
 
-@njit(cache=True)
-def obstacle_constraints(states, a, circles, cons, d_q1, d_q2):
-    """Fill cons = (d^2 - R^2) / (2 R) ~ clearance [m] at nodes 0..N (N+1 x K), dc/dq1, dc/dq2."""
-    for i in range(states.shape[0]):
-        for k in range(circles.shape[0]):
-            radius = circles[k, 2]
-            d2, d2_q1, d2_q2 = segment_distance_sq(states[i, 0], states[i, 2], a,
-                                                   circles[k, 0], circles[k, 1])
-            cons[i, k] = (d2 - radius * radius) / (2.0 * radius)
-            d_q1[i, k] = d2_q1 / (2.0 * radius)
-            d_q2[i, k] = d2_q2 / (2.0 * radius)
-
-
-@njit(cache=True)
-def sensitivity_rows(jac_x, jac_u, jac_tau, u_max, nodes, seeds, rows):
+def interpolation_start(problem, n):
     """
-    Row m of rows (M x 2N+1) = d(seed_m . x(nodes[m])) / d(v, t_f), v = u / u_max.
-
-    One backward sweep of the BPTT recursion per row, started at its own node (eqs. 21-22);
-    the last column is the derivative wrt t_f = N tau.
+    The cold starting point for n intervals over t_f0: each joint moves from x0 to x_goal
+    along a cubic in time (positions and velocities match both ends), and the controls are
+    that motion's inverse dynamics clipped to the bounds (least squares through df/du; exact
+    for models affine in u).  The same point is handed to the reference solvers in benchmarks/
+    so that all start alike.
     """
-    n = jac_u.shape[0]
-    for m in range(nodes.shape[0]):
-        node = nodes[m]
-        l0, l1, l2, l3 = seeds[m, 0], seeds[m, 1], seeds[m, 2], seeds[m, 3]
-        for j in range(2 * n + 1):
-            rows[m, j] = 0.0
-        d_tau = 0.0
-        for j in range(node - 1, -1, -1):
-            d_tau += l0 * jac_tau[j, 0] + l1 * jac_tau[j, 1] + l2 * jac_tau[j, 2] \
-                + l3 * jac_tau[j, 3]
-            for k in range(2):
-                rows[m, 2 * j + k] = u_max[k] * (jac_u[j, 0, k] * l0 + jac_u[j, 1, k] * l1
-                                                 + jac_u[j, 2, k] * l2 + jac_u[j, 3, k] * l3)
-            n0 = jac_x[j, 0, 0] * l0 + jac_x[j, 1, 0] * l1 + jac_x[j, 2, 0] * l2 \
-                + jac_x[j, 3, 0] * l3
-            n1 = jac_x[j, 0, 1] * l0 + jac_x[j, 1, 1] * l1 + jac_x[j, 2, 1] * l2 \
-                + jac_x[j, 3, 1] * l3
-            n2 = jac_x[j, 0, 2] * l0 + jac_x[j, 1, 2] * l1 + jac_x[j, 2, 2] * l2 \
-                + jac_x[j, 3, 2] * l3
-            n3 = jac_x[j, 0, 3] * l0 + jac_x[j, 1, 3] * l1 + jac_x[j, 2, 3] * l2 \
-                + jac_x[j, 3, 3] * l3
-            l0, l1, l2, l3 = n0, n1, n2, n3
-        rows[m, 2 * n] = d_tau / n
+    model = problem.robot_model
+    t_f = float(problem.t_f0)
+    x0 = np.asarray(problem.x0, dtype=float)
+    xg = np.asarray(problem.x_goal, dtype=float)
+    q0, qg = model.positions(x0), model.positions(xg)
+    v0, vg = model.velocities(x0) * t_f, model.velocities(xg) * t_f
+    s = np.linspace(0.0, 1.0, n + 1)[:, None]
+    # Cubic Hermite basis on s in [0, 1] (positions, and velocities scaled by t_f).
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, \
+        s**3 - s**2
+    d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, \
+        3 * s**2 - 2 * s
+    q = h00 * q0 + h10 * v0 + h01 * qg + h11 * vg
+    dq = (d00 * q0 + d10 * v0 + d01 * qg + d11 * vg) / t_f
+    states = np.empty((n + 1, model.nx))
+    states[:, 0::2] = q
+    states[:, 1::2] = dq
+    controls = np.zeros((n, model.nu))
+    tau = t_f / n
+    k = model.kernels
+    p = model.packed()
+    f = np.zeros(model.nx)
+    fx = np.zeros((model.nx, model.nx))
+    fu = np.zeros((model.nx, model.nu))
+    zero = np.zeros(model.nu)
+    u_max = np.asarray(model.u_max, dtype=float)
+    for i in range(n):
+        k.rhs_jac(states[i], zero, p, f, fx, fu)
+        target = (states[i + 1] - states[i]) / tau - f
+        u = np.linalg.lstsq(fu, target, rcond=None)[0]
+        controls[i] = np.clip(u, -u_max, u_max)
+    return states, controls, t_f
 
 
-class FeasibilityProjector:
+def resample(states, controls, n):
     """
-    Gauss-Newton projection onto {x(N) = x_goal, clearance >= 0} at a fixed t_f.
-
-    Levenberg-Marquardt minimum-norm steps in the controls that are inside the box or would
-    leave their bound inwards; the rows are the terminal residuals and the violated obstacle
-    constraints.  Used to carry a coarse-grid optimum to a finer grid and to bracket t_f.
+    Carry a trajectory to n intervals: states linearly in time, controls piecewise constant
+    (the control of the old interval that contains the new interval's midpoint).
     """
+    m = controls.shape[0]
+    old = np.linspace(0.0, 1.0, m + 1)
+    new = np.linspace(0.0, 1.0, n + 1)
+    out_states = np.column_stack([np.interp(new, old, states[:, r])
+                                  for r in range(states.shape[1])])
+    mid = (np.arange(n) + 0.5) / n
+    idx = np.minimum((mid * m).astype(np.int64), m - 1)
+    return out_states, controls[idx].copy()
 
-    def __init__(self, run):
+
+def resample_duals(duals, m, n):
+    """Multipliers carried from m to n intervals (obstacle duals scale with tau)."""
+    old = np.linspace(0.0, 1.0, m + 1)
+    new = np.linspace(0.0, 1.0, n + 1)
+    lam = np.column_stack([np.interp(new, old, duals['lam'][:, r])
+                           for r in range(duals['lam'].shape[1])])
+    nodes_old = old[1:]
+    nodes_new = new[1:]
+    z = np.column_stack([np.interp(nodes_new, nodes_old, duals['z'][:, j])
+                         for j in range(duals['z'].shape[1])]) * (m / n) \
+        if duals['z'].shape[1] else np.zeros((n, 0))
+    return {'lam': lam, 'nu': duals['nu'].copy(), 'z': z}
+
+
+def warm_start_point(problem, guess, n):
+    """(states, controls, t_f, duals or None) from an initial guess for n intervals."""
+    if isinstance(guess, SolveResult):
+        controls = np.asarray(guess.controls, dtype=float)
+        t_f = float(guess.final_time)
+        states = np.asarray(guess.states, dtype=float)
+        duals = guess.solver_state.get('duals') if guess.solver_state else None
+    else:
+        controls, t_f = guess
+        controls = np.asarray(controls, dtype=float)
+        t_f = float(t_f)
+        states = None
+        duals = None
+    model = problem.robot_model
+    if controls.ndim != 2 or controls.shape[1] != model.nu or controls.shape[0] < 1:
+        raise ValueError(f'initial guess controls must be an M x {model.nu} array, got shape '
+                         f'{controls.shape}')
+    if not (np.all(np.isfinite(controls)) and math.isfinite(t_f) and t_f > 0.0):
+        raise ValueError('initial guess must have finite controls and a positive final time')
+    m = controls.shape[0]
+    if states is None or states.shape != (m + 1, model.nx) \
+            or not np.allclose(states[0], problem.x0, atol=1e-9, rtol=0.0):
+        # Roll the controls out from the problem's start: consistent states (zero defects).
+        states = np.empty((m + 1, model.nx))
+        model.kernels.rollout(np.asarray(problem.x0, dtype=float),
+                              np.ascontiguousarray(np.clip(controls, -model.u_max,
+                                                           model.u_max)),
+                              t_f / m, model.packed(), problem.integrator_id, states)
+        duals = None
+    if not np.all(np.isfinite(states)):
+        raise ValueError('initial guess controls make the state diverge')
+    if m != n:
+        if duals is not None and duals['z'].shape[1] == model.n_links * len(problem.obstacles):
+            duals = resample_duals(duals, m, n)
+        else:
+            duals = None
+        states, controls = resample(states, controls, n)
+    elif duals is not None and duals['z'].shape[1] != model.n_links * len(problem.obstacles):
+        duals = None
+    return states, controls, t_f, duals
+
+
+class FastSolve:
+    """Fast mode on one problem: coarse-to-fine cold start or warm start, then the result."""
+
+    def __init__(self, problem, options, clock, initial_guess=None):
+        self.problem = problem
+        self.options = options
+        self.clock = clock
+        self.initial_guess = initial_guess
+        self.limit = options.iteration_limit()
+        self.done = 0            # iterations on finished grids
+        self.history = []
+        self.run = None
+
+    def _check(self, run):
+        reason = self.clock.stop_reason()
+        if reason is not None:
+            raise Stop(reason)
+        from .result import Progress
+        fs = run.ws.fscal
+        self.clock.report(lambda: Progress(
+            self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
+            f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
+
+    def _solve_on(self, n, states, controls, t_f, mu, duals=None):
+        run = InteriorPointRun(self.problem, n, max(1, self.limit - self.done))
+        run.start(states, controls, t_f, mu, duals)
         self.run = run
-        n = run.n
-        k = run.circles.shape[0]
-        self.cons = np.zeros((n + 1, k))
-        self.d_q1 = np.zeros((n + 1, k))
-        self.d_q2 = np.zeros((n + 1, k))
+        try:
+            code = run.run(self._check)
+        finally:
+            self._record(run)
+        return run, code
 
-    def residuals(self, v, t_f):
-        """Rollout; returns (terminal residual (4), obstacle constraints (N+1 x K))."""
-        run = self.run
-        ws = run.ws
-        controls = v.reshape(run.n, 2) * run.u_max[None, :]
-        rollout_linearized(run.x0, controls, t_f / run.n, run.p, run.method, ws.states,
-                           ws.jac_x, ws.jac_u, ws.jac_tau)
-        if self.cons.shape[1]:
-            obstacle_constraints(ws.states, run.p[3], run.circles, self.cons, self.d_q1,
-                                 self.d_q2)
-        return ws.states[run.n] - run.x_goal, self.cons
+    def _record(self, run):
+        for t_f, theta in run.history():
+            self.history.append((len(self.history), t_f, t_f, theta))
+        self.done += run.iterations
 
-    def _merit(self, h, cons):
-        viol = np.minimum(cons, 0.0)
-        return float(h @ h + np.sum(viol * viol))
+    def solve(self):
+        problem = self.problem
+        n = problem.n_intervals
+        try:
+            if self.initial_guess is not None:
+                states, controls, t_f, duals = warm_start_point(problem, self.initial_guess, n)
+                run, code = self._solve_on(n, states, controls, t_f, MU_WARM / n, duals)
+                if code != ipm.CONVERGED:
+                    # A poor guess: solve from scratch rather than report the failure.
+                    self.initial_guess = None
+                    return self.solve()
+            elif n > 2 * COARSE_INTERVALS:
+                states, controls, t_f = interpolation_start(problem, COARSE_INTERVALS)
+                coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD)
+                if code == ipm.CONVERGED:
+                    states, controls = resample(coarse.ws.x, coarse.controls(), n)
+                    duals = resample_duals(coarse.duals(), COARSE_INTERVALS, n)
+                    run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n,
+                                               duals)
+                else:
+                    # The coarse grid failed: try the fine grid directly.
+                    states, controls, t_f = interpolation_start(problem, n)
+                    run, code = self._solve_on(n, states, controls, t_f, MU_COLD)
+            else:
+                states, controls, t_f = interpolation_start(problem, n)
+                run, code = self._solve_on(n, states, controls, t_f, MU_COLD)
+        except Stop as stop:
+            reason = stop.args[0]
+            run = self.run
+            if run is None or run.n != n:
+                return SolveResult(status=reason, iterations=self.done,
+                                   message=f'{reason.value.lower()} after {self.done} '
+                                   'iterations', history=self._history())
+            return self._result(run, reason, f'{reason.value.lower()} after {self.done} '
+                                'iterations')
+        status = CODE_STATUS[code]
+        messages = {ipm.ITERATION_LIMIT: f'iteration limit {self.limit} reached',
+                    ipm.LINE_SEARCH_FAILED: 'no acceptable step (line search failed '
+                                            'repeatedly): the problem may be infeasible',
+                    ipm.NUMERICAL_FAILURE: 'numerical failure (non-finite values or a '
+                                           'singular Newton system)'}
+        return self._result(run, status, messages.get(code, ''))
 
-    def _worst(self, h, cons):
-        return max(float(np.max(np.abs(h))), float(max(0.0, -cons.min())) if cons.size else 0.0)
+    def _history(self):
+        return np.array(self.history, dtype=float).reshape(-1, 4)
 
-    def project(self, v, t_f, tol=1e-11, max_iter=30, check=None):
-        """Return (ok, v) with v feasible to tol at t_f, or ok False (Levenberg-Marquardt)."""
-        run = self.run
-        ws = run.ws
-        v = v.copy()
-        damping = 1e-6
-        h, cons = self.residuals(v, t_f)
-        merit = self._merit(h, cons)
-        for _ in range(max_iter):
-            if check is not None:
-                check()
-            if self._worst(h, cons) <= tol:
-                return True, v
-            violated = np.argwhere(cons[1:] < 0.0) if cons.size else np.zeros((0, 2), int)
-            m = 4 + violated.shape[0]
-            nodes = np.empty(m, dtype=np.int64)
-            seeds = np.zeros((m, 4))
-            target = np.empty(m)
-            nodes[:4] = run.n
-            seeds[:4, :4] = np.eye(4)
-            target[:4] = -h
-            for row, (i, k) in enumerate(violated, start=4):
-                node = i + 1
-                nodes[row] = node
-                seeds[row, 0] = self.d_q1[node, k]
-                seeds[row, 2] = self.d_q2[node, k]
-                target[row] = -cons[node, k]
-            rows = np.empty((m, 2 * run.n + 1))
-            sensitivity_rows(ws.jac_x, ws.jac_u, ws.jac_tau, run.u_max, nodes, seeds, rows)
-            # Free variables: inside the box, or at a bound that the unconstrained minimum-norm
-            # step would leave inwards (so bang-bang arcs can give way where needed).
-            jall = rows[:, :-1]
-            gram = jall @ jall.T
-            scale = max(float(np.trace(gram)) / m, 1e-300)
-            try:
-                probe = jall.T @ np.linalg.solve(gram + damping * scale * np.eye(m), target)
-            except np.linalg.LinAlgError:
-                probe = np.zeros_like(v)
-            outward = (((v >= 1.0 - 1e-12) & (probe > 0.0))
-                       | ((v <= -1.0 + 1e-12) & (probe < 0.0)))
-            free = ~outward
-            jf = jall[:, free]
-            gram = jf @ jf.T
-            scale = max(float(np.trace(gram)) / m, 1e-300)
-            accepted = False
-            for _ in range(10):
-                try:
-                    step = jf.T @ np.linalg.solve(gram + damping * scale * np.eye(m), target)
-                except np.linalg.LinAlgError:
-                    damping *= 10.0
-                    continue
-                trial = v.copy()
-                trial[free] = np.clip(v[free] + step, -1.0, 1.0)
-                th, tc = self.residuals(trial, t_f)
-                t_merit = self._merit(th, tc)
-                if t_merit < merit:
-                    v, h, cons, merit = trial, th, tc, t_merit
-                    damping = max(damping * 0.1, 1e-12)
-                    accepted = True
-                    break
-                damping *= 10.0
-            if not accepted:
-                break
-        h, cons = self.residuals(v, t_f)
-        return self._worst(h, cons) <= tol, v
+    def _result(self, run, status, message):
+        from .problem import measure_violations
+        controls = run.controls()
+        states, violations = measure_violations(self.problem, controls, run.t_f)
+        result = SolveResult(status=status, message=message, final_time=run.t_f,
+                             states=states, controls=controls, iterations=self.done,
+                             history=self._history(), violations=violations, cost=run.t_f,
+                             solver_state={'duals': run.duals()})
+        if status is Status.SOLVED:
+            if violations.feasible():
+                result.message = f't_min = {run.t_f:.6f} s'
+            else:
+                result.status = Status.STALLED
+                result.message = ('converged, but the re-integrated trajectory misses the '
+                                  'tolerances')
+        return result

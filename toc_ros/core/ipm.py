@@ -77,7 +77,11 @@ F_PRIMAL_INF = 18
 F_COMPL = 19
 F_DT = 20            # last step in T
 F_ALPHA_DUAL = 21
-N_FSCAL = 22
+F_T_REF = 22          # the objective is T^2 / (2 T_ref): same minimiser as T, with curvature
+F_ELASTIC = 23       # l1 weight rho of the elastic variables of the obstacle constraints
+F_ELASTIC_MAX = 24   # largest elastic variable at the current point
+F_ERR_MU = 25        # optimality error of the barrier problem (E_mu)
+N_FSCAL = 26
 
 # iscal entries.
 I_N = 0              # intervals
@@ -106,12 +110,16 @@ MAX_FILTER = 200
 MAX_BACKTRACKS = 40
 MAX_LS_FAILS = 8
 KAPPA_SIGMA = 1e10
+# Monotone barrier update mu <- min(KAPPA_MU mu, mu^THETA_MU) once E_mu <= KAPPA_EPS mu.
+KAPPA_MU = 0.2
+THETA_MU = 1.5
+KAPPA_EPS = 10.0
 
 Workspace = namedtuple('Workspace', [
     # problem data
     'p', 'x0', 'x_goal', 'u_max', 'circles',
     # primal: states, scaled controls; duals: dynamics, terminal, obstacles, control bounds
-    'x', 'v', 'lam', 'nu', 's', 'z', 'zl', 'zu',
+    'x', 'v', 'lam', 'nu', 's', 'e', 'z', 'zl', 'zu',
     # derivatives at the current point
     'jac_x', 'jac_v', 'jac_t', 'defect', 'cons', 'cons_q',
     # stage blocks of the Newton system: Q (xi, xi), S (v, xi), R (v, v), q, r
@@ -119,9 +127,9 @@ Workspace = namedtuple('Workspace', [
     # Riccati sweep
     'pp', 'pc', 'gain', 'ff', 'chol',
     # step
-    'dx', 'dv', 'lam_new', 'nu_new', 'ds', 'dz', 'dzl', 'dzu',
+    'dx', 'dv', 'lam_new', 'nu_new', 'ds', 'de', 'dz', 'dzl', 'dzu',
     # trial point of the line search
-    'xt', 'vt', 'st', 'ct',
+    'xt', 'vt', 'st', 'et', 'ct',
     # filter, history, scalars
     'filt', 'hist', 'fscal', 'iscal',
 ])
@@ -139,6 +147,7 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
         x_goal=np.array(x_goal, dtype=float), u_max=np.array(u_max, dtype=float),
         circles=circles,
         x=z((n + 1, nx)), v=z((n, nu)), lam=z((n + 1, nx)), nu=z(nx), s=z((n + 1, nb)),
+        e=z((n + 1, nb)),
         z=z((n + 1, nb)), zl=z((n, nu)), zu=z((n, nu)),
         jac_x=z((n, nx, nx)), jac_v=z((n, nx, nu)), jac_t=z((n, nx)), defect=z((n, nx)),
         cons=z((n + 1, nb)), cons_q=z((n + 1, nb, nx // 2)),
@@ -147,8 +156,10 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
         pp=z((n + 1, nxi, nxi)), pc=z((n + 1, nxi, ncol)), gain=z((n, nu, nxi)),
         ff=z((n, nu, ncol)), chol=z((n, nu, nu)),
         dx=z((n + 1, nx)), dv=z((n, nu)), lam_new=z((n + 1, nx)), nu_new=z(nx),
-        ds=z((n + 1, nb)), dz=z((n + 1, nb)), dzl=z((n, nu)), dzu=z((n, nu)),
-        xt=z((n + 1, nx)), vt=z((n, nu)), st=z((n + 1, nb)), ct=z((n + 1, nb)),
+        ds=z((n + 1, nb)), de=z((n + 1, nb)), dz=z((n + 1, nb)), dzl=z((n, nu)),
+        dzu=z((n, nu)),
+        xt=z((n + 1, nx)), vt=z((n, nu)), st=z((n + 1, nb)), et=z((n + 1, nb)),
+        ct=z((n + 1, nb)),
         filt=z((MAX_FILTER, 2)), hist=np.full((max_iter, N_HIST), np.nan),
         fscal=z(N_FSCAL), iscal=np.zeros(N_ISCAL, dtype=np.int64))
 
@@ -221,10 +232,9 @@ def _segment_distance_sq(seg, cx, cy, g, h):
 
 
 @njit
-def obstacle_terms(segments, q, p, circles, cons, cons_q, z, s, hess_q, work, want_hess):
+def obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess_q, work):
     """
-    Obstacle constraints of one node: cons (L K), cons_q (L K, n); when want_hess, hess_q (n x n)
-    receives sum_j (z_j / s_j) grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block
+    Obstacle constraints of one node: cons (L K), cons_q (L K, n); hess_q (n x n) receives sum_j sigma_j grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block
     of the condensed Newton system).
     """
     seg, seg_q, seg_qq, ge, he = work
@@ -232,10 +242,9 @@ def obstacle_terms(segments, q, p, circles, cons, cons_q, z, s, hess_q, work, wa
     n_links = seg.shape[0]
     n_circles = circles.shape[0]
     segments(q, p, seg, seg_q, seg_qq)
-    if want_hess:
-        for a in range(n):
-            for b in range(n):
-                hess_q[a, b] = 0.0
+    for a in range(n):
+        for b in range(n):
+            hess_q[a, b] = 0.0
     for link in range(n_links):
         for k in range(n_circles):
             j = link * n_circles + k
@@ -248,20 +257,47 @@ def obstacle_terms(segments, q, p, circles, cons, cons_q, z, s, hess_q, work, wa
                 for r in range(4):
                     acc += ge[r] * seg_q[link, r, a]
                 cons_q[j, a] = acc * scale
-            if want_hess:
-                sigma = z[j] / s[j]
-                zj = z[j]
-                for a in range(n):
-                    for b in range(a, n):
-                        acc = 0.0
-                        for r in range(4):
-                            acc += ge[r] * seg_qq[link, r, a, b]
-                            for t in range(4):
-                                acc += seg_q[link, r, a] * he[r, t] * seg_q[link, t, b]
-                        val = sigma * cons_q[j, a] * cons_q[j, b] - zj * acc * scale
-                        hess_q[a, b] += val
-                        if b != a:
-                            hess_q[b, a] += val
+            sig = sigma[j]
+            zj = z[j]
+            for a in range(n):
+                for b in range(a, n):
+                    acc = 0.0
+                    for r in range(4):
+                        acc += ge[r] * seg_qq[link, r, a, b]
+                        for t in range(4):
+                            acc += seg_q[link, r, a] * he[r, t] * seg_q[link, t, b]
+                    val = sig * cons_q[j, a] * cons_q[j, b] - zj * acc * scale
+                    hess_q[a, b] += val
+                    if b != a:
+                        hess_q[b, a] += val
+
+
+@njit(inline='always')
+def _segment_distance_sq_value(seg, cx, cy):
+    """Squared distance from segment (ax, ay, bx, by) to (cx, cy) (no derivatives)."""
+    wx, wy = cx - seg[0], cy - seg[1]
+    vx, vy = seg[2] - seg[0], seg[3] - seg[1]
+    length_sq = vx * vx + vy * vy
+    proj = wx * vx + wy * vy
+    if length_sq <= 1e-300 or proj <= 0.0:
+        return wx * wx + wy * wy
+    if proj >= length_sq:
+        ex, ey = wx - vx, wy - vy
+        return ex * ex + ey * ey
+    return wx * wx + wy * wy - proj * proj / length_sq
+
+
+@njit
+def obstacle_values(segments, q, p, circles, cons, work):
+    """Obstacle constraints c = (d^2 - R^2) / (2 R) of one node (values only)."""
+    seg, seg_q, seg_qq = work[0], work[1], work[2]
+    n_circles = circles.shape[0]
+    segments(q, p, seg, seg_q, seg_qq)
+    for link in range(seg.shape[0]):
+        for k in range(n_circles):
+            radius = circles[k, 2]
+            d2 = _segment_distance_sq_value(seg[link], circles[k, 0], circles[k, 1])
+            cons[link * n_circles + k] = (d2 - radius * radius) * (0.5 / radius)
 
 
 @njit
@@ -284,9 +320,19 @@ def _controls(v, u_max, u):
 @njit
 def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
     """
-    Derivatives and the stage blocks of the Newton system at the current point; fills
-    fscal[F_THETA, F_PHI, F_ERR, F_DUAL_INF, F_PRIMAL_INF, F_COMPL].  Returns False when a value
-    is not finite.
+    Derivatives, the stage blocks of the Newton system and the residuals at the current point
+    (derivative_terms + barrier_terms).  Returns False when a value is not finite.
+    """
+    derivative_terms(rhs_jac, rhs_hess, segments, ws)
+    return barrier_terms(ws)
+
+
+@njit
+def derivative_terms(rhs_jac, rhs_hess, segments, ws):
+    """
+    The parts that do not depend on mu: step Jacobians, defects, the Hessian blocks qq, ss, rr
+    (Lagrangian curvature plus the condensed bound and obstacle terms), obstacle constraints
+    and their gradients, and the dual infeasibility fscal[F_DUAL_INF].
     """
     n = ws.iscal[I_N]
     method = ws.iscal[I_METHOD]
@@ -296,7 +342,6 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
     nb = ws.s.shape[1]
     fs = ws.fscal
     t_f = fs[F_T]
-    mu = fs[F_MU]
     tau = t_f / n
     p = ws.p
     u_max = ws.u_max
@@ -313,23 +358,15 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
     hut = np.zeros(nu)
     q = np.zeros(nq)
     hq = np.zeros((nq, nq))
+    sigma = np.zeros(max(nb, 1))
     nxi = nx + 1
-    qq, ss, rr, qv, rv = ws.qq, ws.ss, ws.rr, ws.qv, ws.rv
-    theta = 0.0
-    primal = 0.0
+    qq, ss, rr = ws.qq, ws.ss, ws.rr
+    rho_e = fs[F_ELASTIC]
     dual = 0.0
-    compl = 0.0
-    barrier = 0.0
-    mult_sum = 0.0
-    mult_cnt = 0
-    bound_sum = 0.0
-    bound_cnt = 0
     for i in range(n + 1):
         for a in range(nxi):
-            qv[i, a] = 0.0
             for b in range(nxi):
                 qq[i, a, b] = 0.0
-    # Shooting stages.
     for i in range(n):
         _controls(ws.v[i], u_max, u)
         step_jacobians(rhs_jac, ws.x[i], u, tau, p, method, nxt, ws.jac_x[i], jac_u,
@@ -339,12 +376,9 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
             ws.jac_t[i, r] /= n
             for c in range(nu):
                 ws.jac_v[i, r, c] = jac_u[r, c] * u_max[c]
-            d = abs(ws.defect[i, r])
-            theta += d
-            primal = max(primal, d)
         step_lagrangian_hessian(rhs_jac, rhs_hess, ws.x[i], u, tau, p, ws.lam[i + 1], hxx,
                                 hxu, huu, hxt, hut, work, hwork)
-        # Stage blocks (dT = d tau * N: the tau-derivatives are divided by N).
+        # Stage blocks in (xi, v) with xi = (x, T): tau-derivatives divided by N, u = u_max v.
         for a in range(nx):
             for b in range(nx):
                 qq[i, a, b] += hxx[a, b]
@@ -356,68 +390,37 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
             ss[i, c, nx] = hut[c] * u_max[c] / n
             for d2 in range(nu):
                 rr[i, c, d2] = huu[c, d2] * u_max[c] * u_max[d2]
-            vc = ws.v[i, c]
-            sl = 1.0 + vc
-            su = 1.0 - vc
-            zl = ws.zl[i, c]
-            zu = ws.zu[i, c]
-            rr[i, c, c] += zl / sl + zu / su
-            rv[i, c] = mu / su - mu / sl
-            barrier -= math.log(sl) + math.log(su)
-            compl = max(compl, abs(sl * zl - mu), abs(su * zu - mu))
-            bound_sum += zl + zu
-            bound_cnt += 2
-        # Dual residual in v(i): B^T lam(i+1) - zl + zu.
-        for c in range(nu):
+            rr[i, c, c] += ws.zl[i, c] / (1.0 + ws.v[i, c]) + ws.zu[i, c] / (1.0 - ws.v[i, c])
+            # Dual residual in v(i): B^T lam(i+1) - zl + zu.
             acc = -ws.zl[i, c] + ws.zu[i, c]
             for r in range(nx):
                 acc += ws.jac_v[i, r, c] * ws.lam[i + 1, r]
             dual = max(dual, abs(acc))
-    # Obstacle constraints at the nodes 1..N.
+    # Obstacle constraints at the nodes 1..N, elastic form c + e - s = 0, s, e >= 0, with the
+    # l1 penalty rho e: the dual z of c lies in (0, rho) and the dual of e is rho - z, so the
+    # multipliers stay bounded while the start is inside an obstacle.  Per constraint, s, e and
+    # their duals are eliminated: D = s / z + e / (rho - z) and grad c grad c^T / D enters the
+    # Hessian.
     for i in range(1, n + 1):
         if nb == 0:
             break
         for a in range(nq):
             q[a] = ws.x[i, 2 * a]
-        obstacle_terms(segments, q, p, ws.circles, ws.cons[i], ws.cons_q[i], ws.z[i], ws.s[i],
-                       hq, owork, True)
+        for j in range(nb):
+            zj = ws.z[i, j]
+            sigma[j] = 1.0 / (ws.s[i, j] / zj + ws.e[i, j] / (rho_e - zj))
+        obstacle_terms(segments, q, p, ws.circles, ws.cons[i], ws.cons_q[i], ws.z[i], sigma,
+                       hq, owork)
         for a in range(nq):
             for b in range(nq):
                 qq[i, 2 * a, 2 * b] += hq[a, b]
-        for j in range(nb):
-            c = ws.cons[i, j]
-            sj = ws.s[i, j]
-            zj = ws.z[i, j]
-            res = c - sj
-            theta += abs(res)
-            primal = max(primal, abs(res))
-            coef = (zj / sj) * (sj - c) + mu / sj
-            for a in range(nq):
-                qv[i, 2 * a] -= ws.cons_q[i, j, a] * coef
-            barrier -= math.log(sj)
-            compl = max(compl, abs(sj * zj - mu))
-            bound_sum += zj
-            bound_cnt += 1
-    # Terminal condition and the T row.
-    rho = fs[F_RHO]
+    # Terminal augmentation, the objective's and the T bounds' curvature.
     for r in range(nx):
-        res = ws.x[n, r] - ws.x_goal[r]
-        theta += abs(res)
-        primal = max(primal, abs(res))
-        qq[n, r, r] += rho
-        qv[n, r] += rho * res
-    s_low = t_f - fs[F_T_LOW]
-    s_high = fs[F_T_HIGH] - t_f
-    z_low = fs[F_ZT_LOW]
-    z_high = fs[F_ZT_HIGH]
-    qq[n, nx, nx] += z_low / s_low + z_high / s_high
-    qv[n, nx] += 1.0 - mu / s_low + mu / s_high
-    barrier -= math.log(s_low) + math.log(s_high)
-    compl = max(compl, abs(s_low * z_low - mu), abs(s_high * z_high - mu))
-    bound_sum += z_low + z_high
-    bound_cnt += 2
+        qq[n, r, r] += fs[F_RHO]
+    qq[n, nx, nx] += 1.0 / fs[F_T_REF] + fs[F_ZT_LOW] / (t_f - fs[F_T_LOW]) \
+        + fs[F_ZT_HIGH] / (fs[F_T_HIGH] - t_f)
     # Dual residuals in x(i) (i = 1..N) and T.
-    grad_t = 1.0 - z_low + z_high
+    grad_t = t_f / fs[F_T_REF] - fs[F_ZT_LOW] + fs[F_ZT_HIGH]
     for i in range(1, n + 1):
         for a in range(nx):
             acc = -ws.lam[i, a]
@@ -433,70 +436,103 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
     for i in range(n):
         for r in range(nx):
             grad_t += ws.jac_t[i, r] * ws.lam[i + 1, r]
+    fs[F_DUAL_INF] = max(dual, abs(grad_t))
+
+
+@njit
+def barrier_terms(ws):
+    """
+    The parts that depend on mu, from the stored derivatives: the linear terms qv, rv, the
+    constraint violation theta, the barrier objective phi, complementarity, the scaled
+    optimality errors E_0 (fscal[F_ERR]) and the elastic maximum.
+    """
+    n = ws.iscal[I_N]
+    nx = ws.x.shape[1]
+    nu = ws.v.shape[1]
+    nq = nx // 2
+    nb = ws.s.shape[1]
+    fs = ws.fscal
+    t_f = fs[F_T]
+    mu = fs[F_MU]
+    rho_e = fs[F_ELASTIC]
+    qv, rv = ws.qv, ws.rv
+    theta = 0.0
+    primal = 0.0
+    compl = 0.0
+    compl0 = 0.0
+    barrier = 0.0
+    elastic_cost = 0.0
+    elastic_max = 0.0
+    mult_sum = 0.0
+    bound_sum = 0.0
+    mult_cnt = n * nx + nx
+    bound_cnt = 2 * n * nu + 2 * n * nb + 2
+    for i in range(n + 1):
+        for a in range(nx + 1):
+            qv[i, a] = 0.0
+    for i in range(n):
         for r in range(nx):
+            d = abs(ws.defect[i, r])
+            theta += d
+            primal = max(primal, d)
             mult_sum += abs(ws.lam[i + 1, r])
-            mult_cnt += 1
-    dual = max(dual, abs(grad_t))
+        for c in range(nu):
+            sl = 1.0 + ws.v[i, c]
+            su = 1.0 - ws.v[i, c]
+            zl = ws.zl[i, c]
+            zu = ws.zu[i, c]
+            rv[i, c] = mu / su - mu / sl
+            barrier -= math.log(sl) + math.log(su)
+            compl = max(compl, abs(sl * zl - mu), abs(su * zu - mu))
+            compl0 = max(compl0, sl * zl, su * zu)
+            bound_sum += zl + zu
+    for i in range(1, n + 1):
+        for j in range(nb):
+            c = ws.cons[i, j]
+            sj = ws.s[i, j]
+            ej = ws.e[i, j]
+            zj = ws.z[i, j]
+            ze = rho_e - zj
+            res = c + ej - sj
+            theta += abs(res)
+            primal = max(primal, abs(res))
+            coef = zj + (mu / zj - mu / ze - c) / (sj / zj + ej / ze)
+            for a in range(nq):
+                qv[i, 2 * a] -= ws.cons_q[i, j, a] * coef
+            barrier -= math.log(sj) + math.log(ej)
+            elastic_cost += rho_e * ej
+            elastic_max = max(elastic_max, ej)
+            compl = max(compl, abs(sj * zj - mu), abs(ej * ze - mu))
+            compl0 = max(compl0, sj * zj, ej * ze)
+            bound_sum += rho_e
+    # Terminal condition (with its augmentation) and the T row.
     for r in range(nx):
+        res = ws.x[n, r] - ws.x_goal[r]
+        theta += abs(res)
+        primal = max(primal, abs(res))
+        qv[n, r] += fs[F_RHO] * res
         mult_sum += abs(ws.nu[r])
-        mult_cnt += 1
+    s_low = t_f - fs[F_T_LOW]
+    s_high = fs[F_T_HIGH] - t_f
+    z_low = fs[F_ZT_LOW]
+    z_high = fs[F_ZT_HIGH]
+    qv[n, nx] += t_f / fs[F_T_REF] - mu / s_low + mu / s_high
+    barrier -= math.log(s_low) + math.log(s_high)
+    compl = max(compl, abs(s_low * z_low - mu), abs(s_high * z_high - mu))
+    compl0 = max(compl0, s_low * z_low, s_high * z_high)
+    bound_sum += z_low + z_high
     # IPOPT's scaled optimality error (s_max = 100).
     s_max = 100.0
     s_d = max(s_max, (mult_sum + bound_sum) / max(1, mult_cnt + bound_cnt)) / s_max
     s_c = max(s_max, bound_sum / max(1, bound_cnt)) / s_max
     fs[F_THETA] = theta
-    fs[F_PHI] = t_f + mu * barrier
-    fs[F_DUAL_INF] = dual
+    fs[F_PHI] = 0.5 * t_f * t_f / fs[F_T_REF] + mu * barrier + elastic_cost
     fs[F_PRIMAL_INF] = primal
     fs[F_COMPL] = compl
-    # E_0: the complementarity at mu = 0 is needed for the convergence test.
-    compl0 = _complementarity(ws, 0.0)
-    fs[F_ERR] = max(dual / s_d, primal, compl0 / s_c)
-    return math.isfinite(theta) and math.isfinite(dual) and math.isfinite(fs[F_PHI])
-
-
-@njit
-def _complementarity(ws, mu):
-    """max |s z - mu| over every bound and slack."""
-    n = ws.iscal[I_N]
-    out = 0.0
-    for i in range(n):
-        for c in range(ws.v.shape[1]):
-            out = max(out, abs((1.0 + ws.v[i, c]) * ws.zl[i, c] - mu),
-                      abs((1.0 - ws.v[i, c]) * ws.zu[i, c] - mu))
-    for i in range(1, n + 1):
-        for j in range(ws.s.shape[1]):
-            out = max(out, abs(ws.s[i, j] * ws.z[i, j] - mu))
-    fs = ws.fscal
-    out = max(out, abs((fs[F_T] - fs[F_T_LOW]) * fs[F_ZT_LOW] - mu),
-              abs((fs[F_T_HIGH] - fs[F_T]) * fs[F_ZT_HIGH] - mu))
-    return out
-
-
-@njit
-def _barrier_error(ws):
-    """E_mu (IPOPT's eq. 5 with the current mu)."""
-    fs = ws.fscal
-    n = ws.iscal[I_N]
-    bound_sum = 0.0
-    bound_cnt = 0
-    mult_sum = 0.0
-    mult_cnt = 0
-    for i in range(n):
-        for c in range(ws.v.shape[1]):
-            bound_sum += ws.zl[i, c] + ws.zu[i, c]
-            bound_cnt += 2
-        for r in range(ws.x.shape[1]):
-            mult_sum += abs(ws.lam[i + 1, r])
-            mult_cnt += 1
-    for i in range(1, n + 1):
-        for j in range(ws.s.shape[1]):
-            bound_sum += ws.z[i, j]
-            bound_cnt += 1
-    s_max = 100.0
-    s_d = max(s_max, (mult_sum + bound_sum) / max(1, mult_cnt + bound_cnt)) / s_max
-    s_c = max(s_max, bound_sum / max(1, bound_cnt)) / s_max
-    return max(fs[F_DUAL_INF] / s_d, fs[F_PRIMAL_INF], fs[F_COMPL] / s_c)
+    fs[F_ELASTIC_MAX] = elastic_max
+    fs[F_ERR] = max(fs[F_DUAL_INF] / s_d, primal, compl0 / s_c)
+    fs[F_ERR_MU] = max(fs[F_DUAL_INF] / s_d, primal, compl / s_c)
+    return math.isfinite(theta) and math.isfinite(fs[F_DUAL_INF]) and math.isfinite(fs[F_PHI])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -785,14 +821,18 @@ def recover_bound_steps(ws, dt):
             dvc = ws.dv[i, c]
             ws.dzl[i, c] = mu / sl - ws.zl[i, c] - ws.zl[i, c] / sl * dvc
             ws.dzu[i, c] = mu / su - ws.zu[i, c] + ws.zu[i, c] / su * dvc
+    rho_e = ws.fscal[F_ELASTIC]
     for i in range(1, n + 1):
         for j in range(nb):
-            acc = ws.cons[i, j] - ws.s[i, j]
+            lin = ws.cons[i, j]
             for a in range(nq):
-                acc += ws.cons_q[i, j, a] * ws.dx[i, 2 * a]
-            ws.ds[i, j] = acc
-            sj = ws.s[i, j]
-            ws.dz[i, j] = mu / sj - ws.z[i, j] - ws.z[i, j] / sj * acc
+                lin += ws.cons_q[i, j, a] * ws.dx[i, 2 * a]
+            sj, ej, zj = ws.s[i, j], ws.e[i, j], ws.z[i, j]
+            ze = rho_e - zj
+            dz = (mu / zj - mu / ze - lin) / (sj / zj + ej / ze)
+            ws.dz[i, j] = dz
+            ws.ds[i, j] = (mu - sj * zj - sj * dz) / zj
+            ws.de[i, j] = (mu - ej * ze + ej * dz) / ze
 
 
 @njit
@@ -820,10 +860,13 @@ def fraction_to_boundary(ws, dt, frac):
             ap = _max_step(1.0 - ws.v[i, c], -ws.dv[i, c], frac, ap)
             ad = _max_step(ws.zl[i, c], ws.dzl[i, c], frac, ad)
             ad = _max_step(ws.zu[i, c], ws.dzu[i, c], frac, ad)
+    rho_e = fs[F_ELASTIC]
     for i in range(1, n + 1):
         for j in range(nb):
             ap = _max_step(ws.s[i, j], ws.ds[i, j], frac, ap)
+            ap = _max_step(ws.e[i, j], ws.de[i, j], frac, ap)
             ad = _max_step(ws.z[i, j], ws.dz[i, j], frac, ad)
+            ad = _max_step(rho_e - ws.z[i, j], -ws.dz[i, j], frac, ad)
     ap = _max_step(fs[F_T] - fs[F_T_LOW], dt, frac, ap)
     ap = _max_step(fs[F_T_HIGH] - fs[F_T], -dt, frac, ap)
     return ap, ad
@@ -851,13 +894,12 @@ def trial_merit(rhs, segments, ws, alpha, dt):
     u = np.zeros(nu)
     nxt = np.zeros(nx)
     q = np.zeros(nq)
-    dummy_q = np.zeros((nq, nq))
-    cons_q = np.zeros((max(nb, 1), nq))
     for i in range(n + 1):
         for r in range(nx):
             ws.xt[i, r] = ws.x[i, r] + alpha * ws.dx[i, r]
     theta = 0.0
     barrier = 0.0
+    elastic_cost = 0.0
     for i in range(n):
         for c in range(nu):
             vc = ws.v[i, c] + alpha * ws.dv[i, c]
@@ -874,15 +916,17 @@ def trial_merit(rhs, segments, ws, alpha, dt):
             break
         for a in range(nq):
             q[a] = ws.xt[i, 2 * a]
-        obstacle_terms(segments, q, ws.p, ws.circles, ws.ct[i], cons_q, ws.z[i], ws.s[i],
-                       dummy_q, owork, False)
+        obstacle_values(segments, q, ws.p, ws.circles, ws.ct[i], owork)
         for j in range(nb):
             sj = ws.s[i, j] + alpha * ws.ds[i, j]
+            ej = ws.e[i, j] + alpha * ws.de[i, j]
             ws.st[i, j] = sj
-            theta += abs(ws.ct[i, j] - sj)
-            barrier -= math.log(sj)
+            ws.et[i, j] = ej
+            theta += abs(ws.ct[i, j] + ej - sj)
+            barrier -= math.log(sj) + math.log(ej)
+            elastic_cost += fs[F_ELASTIC] * ej
     barrier -= math.log(t_f - fs[F_T_LOW]) + math.log(fs[F_T_HIGH] - t_f)
-    return theta, t_f + mu * barrier
+    return theta, 0.5 * t_f * t_f / fs[F_T_REF] + mu * barrier + elastic_cost
 
 
 @njit
@@ -897,11 +941,13 @@ def barrier_slope(ws, dt):
     for i in range(n):
         for c in range(nu):
             acc += ws.dv[i, c] * (1.0 / (1.0 - ws.v[i, c]) - 1.0 / (1.0 + ws.v[i, c]))
+    elastic = 0.0
     for i in range(1, n + 1):
         for j in range(nb):
-            acc -= ws.ds[i, j] / ws.s[i, j]
+            acc -= ws.ds[i, j] / ws.s[i, j] + ws.de[i, j] / ws.e[i, j]
+            elastic += ws.de[i, j]
     acc -= dt / (fs[F_T] - fs[F_T_LOW]) - dt / (fs[F_T_HIGH] - fs[F_T])
-    return dt + mu * acc
+    return fs[F_T] / fs[F_T_REF] * dt + mu * acc + fs[F_ELASTIC] * elastic
 
 
 @njit
@@ -955,12 +1001,19 @@ def accept_trial(ws, alpha, alpha_dual, dt):
             su = 1.0 - ws.v[i, c]
             ws.zl[i, c] = min(max(zl, mu / (KAPPA_SIGMA * sl)), KAPPA_SIGMA * mu / sl)
             ws.zu[i, c] = min(max(zu, mu / (KAPPA_SIGMA * su)), KAPPA_SIGMA * mu / su)
+    rho_e = fs[F_ELASTIC]
     for i in range(1, n + 1):
         for j in range(nb):
             sj = ws.st[i, j]
+            ej = ws.et[i, j]
             ws.s[i, j] = sj
+            ws.e[i, j] = ej
             zj = ws.z[i, j] + alpha_dual * ws.dz[i, j]
-            ws.z[i, j] = min(max(zj, mu / (KAPPA_SIGMA * sj)), KAPPA_SIGMA * mu / sj)
+            zj = min(max(zj, mu / (KAPPA_SIGMA * sj)), KAPPA_SIGMA * mu / sj)
+            # ... and the elastic dual rho - z likewise (within (0, rho)).
+            ze = rho_e - zj
+            ze = min(max(ze, mu / (KAPPA_SIGMA * ej)), KAPPA_SIGMA * mu / ej)
+            ws.z[i, j] = min(max(rho_e - ze, 1e-300), rho_e * (1.0 - 1e-15))
     # T-bound duals: Newton step of (T - T_low) z = mu (and the upper one) from the old slack.
     s_low = fs[F_T] - fs[F_T_LOW]
     s_high = fs[F_T_HIGH] - fs[F_T]
@@ -992,19 +1045,78 @@ def _t_bound_dual_limit(ws, dt, frac, ad):
 
 @njit
 def _update_barrier(ws):
-    """Monotone barrier update while the barrier problem is solved to kappa_eps mu."""
+    """
+    Monotone barrier update while the barrier problem is solved to kappa_eps mu (IPOPT's
+    rule); refreshes the mu-dependent terms.  Returns True when mu changed.
+    """
     fs = ws.fscal
     changed = False
-    while True:
+    while fs[F_MU] > fs[F_MU_MIN] and fs[F_ERR_MU] <= KAPPA_EPS * fs[F_MU]:
         mu = fs[F_MU]
-        if mu <= fs[F_MU_MIN] or _barrier_error(ws) > 10.0 * mu:
-            break
-        fs[F_MU] = max(fs[F_MU_MIN], min(0.2 * mu, mu ** 1.5))
-        fs[F_COMPL] = _complementarity(ws, fs[F_MU])
+        fs[F_MU] = max(fs[F_MU_MIN], min(KAPPA_MU * mu, mu ** THETA_MU))
+        barrier_terms(ws)
         changed = True
     if changed:
         ws.iscal[I_N_FILTER] = 0
     return changed
+
+
+@njit
+def _regularized_step(ws):
+    """
+    Factorize with IPOPT's inertia correction (delta_w rules) and solve the Newton step.
+    Returns dT (nan when no shift up to 1e40 works); fscal[F_DELTA] holds the shift used.
+    """
+    fs = ws.fscal
+    delta = 0.0
+    last = fs[F_DELTA]
+    tries = 0
+    while True:
+        tries += 1
+        if factorize(ws, delta):
+            dt = newton_step(ws, delta)
+            if math.isfinite(dt):
+                break
+        if delta == 0.0:
+            delta = 1e-4 if last == 0.0 else max(1e-20, last / 3.0)
+        else:
+            delta *= 100.0 if last == 0.0 else 8.0
+        if delta > 1e40:
+            return np.nan
+    fs[F_DELTA] = delta
+    ws.iscal[I_REG_TRIES] = tries
+    recover_bound_steps(ws, dt)
+    return dt
+
+
+@njit
+def _line_search(rhs, segments, ws, dt, alpha_max):
+    """
+    IPOPT's filter line search from alpha_max (backtracking by halves).  Returns (alpha,
+    accepted, f_type).
+    """
+    fs = ws.fscal
+    theta0 = fs[F_THETA]
+    phi0 = fs[F_PHI]
+    slope = barrier_slope(ws, dt)
+    alpha = alpha_max
+    backtracks = 0
+    for _ls in range(MAX_BACKTRACKS):
+        backtracks += 1
+        theta, phi = trial_merit(rhs, segments, ws, alpha, dt)
+        ws.iscal[I_BACKTRACKS] = backtracks
+        if not (math.isfinite(theta) and math.isfinite(phi)) or theta > fs[F_THETA_MAX] \
+                or _in_filter(ws, theta, phi):
+            alpha *= 0.5
+            continue
+        switching = slope < 0.0 and alpha * (-slope) ** 2.3 > theta0 ** 1.1
+        if theta0 <= fs[F_THETA_MIN] and switching:
+            if phi <= phi0 + 1e-4 * alpha * slope:
+                return alpha, True, True
+        elif theta <= (1.0 - 1e-5) * theta0 or phi <= phi0 - 1e-8 * theta0:
+            return alpha, True, False
+        alpha *= 0.5
+    return alpha, False, False
 
 
 @njit
@@ -1016,7 +1128,8 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
     fs = ws.fscal
     it = ws.iscal
     for _ in range(n_iter):
-        if not evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
+        derivative_terms(rhs_jac, rhs_hess, segments, ws)
+        if not barrier_terms(ws):
             return NUMERICAL_FAILURE
         k = it[I_ITER]
         if k < ws.hist.shape[0]:
@@ -1024,70 +1137,27 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
             ws.hist[k, H_THETA] = fs[F_THETA]
             ws.hist[k, H_ERR] = fs[F_ERR]
             ws.hist[k, H_MU] = fs[F_MU]
-        if fs[F_ERR] <= fs[F_TOL] and fs[F_PRIMAL_INF] <= fs[F_CONSTR_TOL]:
+        if fs[F_ERR] <= fs[F_TOL] and fs[F_PRIMAL_INF] <= fs[F_CONSTR_TOL] \
+                and fs[F_ELASTIC_MAX] <= fs[F_CONSTR_TOL]:
             return CONVERGED
         if it[I_ITER] >= it[I_MAX_ITER]:
             return ITERATION_LIMIT
-        if _update_barrier(ws):
-            # The stage blocks depend on mu through the barrier terms: evaluate again.
-            if not evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
-                return NUMERICAL_FAILURE
         if it[I_ITER] == 0 or fs[F_THETA_MAX] <= 0.0:
             fs[F_THETA_MAX] = 1e4 * max(1.0, fs[F_THETA])
             fs[F_THETA_MIN] = 1e-4 * max(1.0, fs[F_THETA])
-        # Inertia correction (IPOPT's rules for delta_w).
-        delta = 0.0
-        last = fs[F_DELTA]
-        tries = 0
-        dt = np.nan
-        while True:
-            tries += 1
-            if factorize(ws, delta):
-                dt = newton_step(ws, delta)
-                if math.isfinite(dt):
-                    break
-            if delta == 0.0:
-                delta = 1e-4 if last == 0.0 else max(1e-20, last / 3.0)
-            else:
-                delta *= 100.0 if last == 0.0 else 8.0
-            if delta > 1e40:
-                return NUMERICAL_FAILURE
-        fs[F_DELTA] = delta
-        it[I_REG_TRIES] = tries
-        recover_bound_steps(ws, dt)
+        _update_barrier(ws)
+        dt = _regularized_step(ws)
+        if not math.isfinite(dt):
+            return NUMERICAL_FAILURE
         frac = max(0.99, 1.0 - fs[F_MU])
         alpha_max, alpha_dual = fraction_to_boundary(ws, dt, frac)
         alpha_dual = _t_bound_dual_limit(ws, dt, frac, alpha_dual)
         theta0 = fs[F_THETA]
         phi0 = fs[F_PHI]
-        slope = barrier_slope(ws, dt)
-        alpha = alpha_max
-        accepted = False
-        f_type = False
-        backtracks = 0
-        for _ls in range(MAX_BACKTRACKS):
-            backtracks += 1
-            theta, phi = trial_merit(rhs, segments, ws, alpha, dt)
-            if not (math.isfinite(theta) and math.isfinite(phi)):
-                alpha *= 0.5
-                continue
-            if theta > fs[F_THETA_MAX] or _in_filter(ws, theta, phi):
-                alpha *= 0.5
-                continue
-            switching = (slope < 0.0 and alpha * (-slope) ** 2.3 > theta0 ** 1.1)
-            if theta0 <= fs[F_THETA_MIN] and switching:
-                if phi <= phi0 + 1e-4 * alpha * slope:
-                    accepted = True
-                    f_type = True
-                    break
-            elif theta <= (1.0 - 1e-5) * theta0 or phi <= phi0 - 1e-8 * theta0:
-                accepted = True
-                break
-            alpha *= 0.5
-        it[I_BACKTRACKS] = backtracks
+        alpha, accepted, f_type = _line_search(rhs, segments, ws, dt, alpha_max)
         if not accepted:
-            # No acceptable point: take the shortest trial that is at least finite, reset the
-            # filter and count the failure (IPOPT would enter feasibility restoration).
+            # No acceptable point: take the longest trial that does not blow theta up, reset
+            # the filter and count the failure (IPOPT would enter feasibility restoration).
             it[I_LS_FAILS] += 1
             if it[I_LS_FAILS] > MAX_LS_FAILS:
                 return LINE_SEARCH_FAILED
@@ -1108,6 +1178,17 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
         fs[F_DT] = dt
         if k < ws.hist.shape[0]:
             ws.hist[k, H_ALPHA] = alpha
-            ws.hist[k, H_DELTA] = delta
+            ws.hist[k, H_DELTA] = fs[F_DELTA]
         it[I_ITER] += 1
     return CONTINUE
+
+
+@njit(cache=True, nogil=True)
+def newton_direction(ws, delta):
+    """The Newton step at the evaluated point with shift delta: returns dT (nan if none)."""
+    if not factorize(ws, delta):
+        return np.nan
+    dt = newton_step(ws, delta)
+    if math.isfinite(dt):
+        recover_bound_steps(ws, dt)
+    return dt

@@ -145,3 +145,32 @@ def arm_clearance(states, a, circles):
         s = np.clip(e @ np.array([cx, cy]), 0.0, reach)
         out[:, k] = np.hypot(s * e[:, 0] - cx, s * e[:, 1] - cy) - radius
     return out
+
+
+def segment_clearance(segments, circles, squared=False):
+    """
+    Clearance of segments (..., L, 4) rows (ax, ay, bx, by) to circles (K, 3): (..., L K).
+
+    Column link * K + k.  squared=False: distance to the circle's edge d - R [m];
+    squared=True: (d^2 - R^2) / (2 R), the fast mode's constraint (same sign, ~ d - R).
+    Plain numpy, independent of the kernels.
+    """
+    seg = np.asarray(segments, dtype=float)
+    circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
+    a, b = seg[..., None, 0:2], seg[..., None, 2:4]          # (..., L, 1, 2)
+    c = circles[:, 0:2]                                       # (K, 2)
+    v = b - a
+    length_sq = np.sum(v * v, axis=-1)
+    t = np.sum((c - a) * v, axis=-1) / np.where(length_sq > 0.0, length_sq, 1.0)
+    t = np.clip(np.where(length_sq > 0.0, t, 0.0), 0.0, 1.0)
+    closest = a + t[..., None] * v
+    d_sq = np.sum((closest - c) ** 2, axis=-1)                # (..., L, K)
+    radius = circles[:, 2]
+    out = (d_sq - radius ** 2) / (2.0 * radius) if squared else np.sqrt(d_sq) - radius
+    return out.reshape(out.shape[:-2] + (-1,))
+
+
+def model_clearance(model, states, circles):
+    """Clearance d - R [m] of every link of model to every circle at each state: (M, L K)."""
+    states = np.atleast_2d(np.asarray(states, dtype=float))
+    return segment_clearance(model.link_segments(model.positions(states)), circles)

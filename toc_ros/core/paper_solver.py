@@ -112,6 +112,7 @@ class PaperRun:
         return self.problem.n_intervals * self.best_box[0]
 
     def history(self):
-        """Return the (iteration, t_f, J_T) rows."""
+        """Rows of result.HISTORY_COLUMNS: iteration, t_f, J_T, nan (no separate measure)."""
         it = np.arange(self.done, dtype=float)
-        return np.column_stack([it, self.hist_tf[:self.done], self.hist_j[:self.done]])
+        return np.column_stack([it, self.hist_tf[:self.done], self.hist_j[:self.done],
+                                np.full(self.done, np.nan)])

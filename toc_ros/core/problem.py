@@ -20,9 +20,11 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .integrators import integrator_id, rollout
+from .horizon import integrator_id
 from .model import RobotParams
-from .obstacles import arm_clearance, GRAD_EXACT, GRAD_SHORTCUT
+from .models.base import RobotModel
+from .models.cylindrical import CylindricalRobot
+from .obstacles import GRAD_EXACT, GRAD_SHORTCUT, model_clearance
 from .result import Violations
 from .settings import setting
 
@@ -31,8 +33,8 @@ PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
 MAX_INTERVALS = 200000
 MODES = ('fast', 'paper')
 # Iteration budgets: paper mode runs the paper's M = 30000 gradient iterations; fast mode counts
-# projected L-BFGS iterations of all its sub-problems (each far cheaper than a paper iteration).
-DEFAULT_ITERATIONS = {'paper': 30000, 'fast': 500000}
+# interior-point (Newton-type) iterations over all its grids.
+DEFAULT_ITERATIONS = {'paper': 30000, 'fast': 1000}
 
 
 class ProblemError(ValueError):
@@ -68,6 +70,18 @@ class Problem:
                               "'rk4'", choices=('euler', 'rk4'), ros_name='solver.integrator')
     t_f0: float = setting(2.5, 'initial guess of the final time (> 0)', unit='s', low=0.0,
                           high=1e4, ros_name='solver.t_f0')
+    # Another robot model (models/): None = the cylindrical robot of eq. (37) with `robot`.
+    model: Optional[RobotModel] = None
+
+    @property
+    def robot_model(self):
+        """The RobotModel solved for (models/base.py)."""
+        return CylindricalRobot(self.robot) if self.model is None else self.model
+
+    @property
+    def integrator_id(self):
+        """Kernel id of the integrator (ValueError when unknown)."""
+        return integrator_id(self.integrator)
 
     def circles(self):
         """Obstacles as a (K, 3) array with inflated radii R = R' + dR."""
@@ -87,11 +101,14 @@ class Problem:
         states=False skips the checks of x0 and x_goal against the arm length and the
         obstacles (a node checks those per request, against the measured start).
         """
-        if not isinstance(self.robot, RobotParams):
+        if self.model is None and not isinstance(self.robot, RobotParams):
             raise ProblemError('robot must be a toc_ros.core.RobotParams')
-        errors = list(self.robot.check())
-        x0 = _vector('x0', self.x0, 4, errors)
-        xg = _vector('x_goal', self.x_goal, 4, errors)
+        if self.model is not None and not isinstance(self.model, RobotModel):
+            raise ProblemError('model must be a toc_ros.core.models.RobotModel')
+        model = self.robot_model
+        errors = list(model.check())
+        x0 = _vector('x0', self.x0, model.nx, errors)
+        xg = _vector('x_goal', self.x_goal, model.nx, errors)
         if not isinstance(self.n_intervals, (int, np.integer)) or isinstance(
                 self.n_intervals, bool) or not 2 <= self.n_intervals <= MAX_INTERVALS:
             errors.append(f'N must be an integer in [2, {MAX_INTERVALS}], '
@@ -119,16 +136,17 @@ class Problem:
                     errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
                                   f'{radius + self.margin} contains the robot base')
         if not errors and states:
-            a = self.robot.a
             for name, x in (('start', x0), ('goal', xg)):
-                if a + x[2] <= 0.0:
-                    errors.append(f'{name} arm length a + q2 = {a + x[2]:.6g} m must be > 0')
+                errors += model.check_state(x, name)
             if not errors and len(circles):
+                n_circles = len(circles)
                 for name, x in (('start', x0), ('goal', xg)):
-                    gaps = arm_clearance(x[None, :], a, self.circles())[0]
-                    for k in np.flatnonzero(gaps < 0.0):
-                        errors.append(f'{name} state puts the arm inside obstacle {k} '
-                                      f'(inflated by the margin): clearance {gaps[k]:.6g} m')
+                    gaps = model_clearance(model, x[None, :], self.circles())[0]
+                    for j in np.flatnonzero(gaps < 0.0):
+                        link, k = divmod(int(j), n_circles)
+                        where = f' (link {link})' if model.n_links > 1 else ''
+                        errors.append(f'{name} state puts the arm{where} inside obstacle {k} '
+                                      f'(inflated by the margin): clearance {gaps[j]:.6g} m')
         if errors:
             raise ProblemError('; '.join(errors))
 
@@ -166,7 +184,7 @@ class SolverOptions:
     # None: the mode's default (DEFAULT_ITERATIONS)
     max_iterations: Optional[int] = setting(
         None, "iteration limit of one solve; 0 = the mode's default (paper: M = 30000 gradient "
-        'steps, fast: 500000 L-BFGS steps)', low=0, high=1_000_000_000, none_value=0)
+        'steps, fast: 1000 interior-point iterations)', low=0, high=1_000_000_000, none_value=0)
     # [s] wall clock; None = no limit (the nodes and the scenario file default to 60 s)
     timeout: Optional[float] = setting(None, 'wall-clock limit of one solve; 0 = none',
                                        unit='s', low=0.0, high=86400.0, none_value=0.0,
@@ -207,14 +225,15 @@ class SolverOptions:
 
 def measure_violations(problem, controls, final_time):
     """Re-integrate controls over final_time and measure bounds, terminal error, clearance."""
+    model = problem.robot_model
     controls = np.ascontiguousarray(controls, dtype=float)
     n = controls.shape[0]
-    states = np.empty((n + 1, 4))
-    rollout(np.asarray(problem.x0, float), controls, final_time / n, problem.robot.packed(),
-            integrator_id(problem.integrator), states)
-    excess = np.max(np.abs(controls) - problem.robot.u_max[None, :])
+    states = np.empty((n + 1, model.nx))
+    model.kernels.rollout(np.asarray(problem.x0, float), controls, final_time / n,
+                          model.packed(), problem.integrator_id, states)
+    excess = np.max(np.abs(controls) - np.asarray(model.u_max)[None, :])
     circles = problem.circles()
-    clearance = (float(np.min(arm_clearance(states, problem.robot.a, circles)))
+    clearance = (float(np.min(model_clearance(model, states, circles)))
                  if len(circles) else math.inf)
     return states, Violations(
         max_control_excess=max(float(excess), 0.0),
@@ -234,7 +253,8 @@ def _vector(name, value, size, errors):
         errors.append(f'{name} must be {size} numbers')
         return np.full(size, np.nan)
     if arr.shape != (size,):
-        errors.append(f'{name} must have {size} entries [q1, dq1, q2, dq2], got {arr.shape[0]}')
+        errors.append(f'{name} must have {size} entries [q1, dq1, q2, dq2, ...], got '
+                      f'{arr.shape[0]}')
         return np.full(size, np.nan)
     if not np.all(np.isfinite(arr)):
         errors.append(f'{name} contains NaN or inf: {arr.tolist()}')

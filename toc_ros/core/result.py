@@ -27,6 +27,9 @@ TERMINAL_TOL = 1e-6
 CLEARANCE_TOL = 1e-6
 
 
+HISTORY_COLUMNS = ('iteration', 't_f', 'cost', 'infeasibility')
+
+
 class Status(enum.Enum):
     """Outcome of a solve; exit codes of toc-solve follow exit_code()."""
 
@@ -76,6 +79,7 @@ class Progress:
     elapsed_s: float
     phase: str = ''
     violations: Optional[Violations] = None
+    infeasibility: float = math.nan   # constraint violation of the iterate (fast: l1 norm)
 
 
 @dataclass
@@ -93,8 +97,14 @@ class SolveResult:
     controls: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     iterations: int = 0
     wall_time_s: float = 0.0
-    history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # iter, t_f, J
+    # One row per iteration, HISTORY_COLUMNS: iteration, t_f [s], cost (the objective the mode
+    # minimises: J_T in paper mode, t_f in fast mode), infeasibility (fast mode: l1 norm of
+    # the constraint violation of the iterate; paper mode: nan, its penalties are the cost).
+    history: np.ndarray = field(default_factory=lambda: np.zeros((0, len(HISTORY_COLUMNS))))
     violations: Violations = field(default_factory=Violations)
+    cost: float = math.nan            # objective at the returned point (paper J_T, fast t_f)
+    # Solver internals for a warm start (fast mode: the multipliers); not part of --json.
+    solver_state: Optional[dict] = None
 
     @property
     def success(self):
@@ -120,8 +130,10 @@ class SolveResult:
             'time_grid': self.time_grid.tolist(),
             'states': self.states.tolist(),
             'controls': self.controls.tolist(),
+            'cost': _num(self.cost),
             'violations': {k: _num(v) for k, v in self.violations.as_dict().items()},
-            'history': self.history.tolist(),
+            'history_columns': list(HISTORY_COLUMNS),
+            'history': [[_num(v) for v in row] for row in self.history.tolist()],
         }
 
 
