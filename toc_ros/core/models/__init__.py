@@ -12,11 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Robot models behind one interface (base.py): the paper's cylindrical robot, ... ."""
+"""Robot models behind one interface (base.py): the paper's cylindrical robot, planar_2r."""
 
 from .base import ModelError, RobotModel
 from .cylindrical import CylindricalRobot
+from .planar_2r import Planar2R, Planar2RParams
 
-MODELS = {'cylindrical': CylindricalRobot}
+MODELS = {'cylindrical': CylindricalRobot, 'planar_2r': Planar2R}
 
-__all__ = ['CylindricalRobot', 'ModelError', 'MODELS', 'RobotModel']
+__all__ = ['CylindricalRobot', 'ModelError', 'MODELS', 'Planar2R', 'Planar2RParams',
+           'RobotModel']
