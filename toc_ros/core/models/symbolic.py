@@ -484,10 +484,12 @@ class _NumpyPrinter(_PrinterMixin, NumPyPrinter if sp else object):
 class _Block:
     """Straight-line code: definitions (symbol = expression [+ check lines]) and outputs."""
 
-    def __init__(self):
+    def __init__(self, after=None, temps='t'):
         self.defs = []            # (symbol, expr, extra lines, symbols they need)
         self.outputs = []         # (targets, expr)
-        self.count = 0
+        self.required = []        # symbols later blocks use
+        self.count = after.count if after is not None else 0
+        self.temps = temps
 
     def define(self, prefix, expr, extra=()):
         """New symbol for expr (or expr itself when it is a number or a symbol)."""
@@ -499,21 +501,21 @@ class _Block:
         self.defs.append((symbol, expr, tuple(extra), ()))
         return symbol
 
+    def require(self, symbols):
+        """Emit the definitions of symbols even if no output of this block needs them."""
+        self.required.extend(s for s in symbols if isinstance(s, sp.Symbol))
+
     def output(self, targets, expr):
         """Write expr to the target(s), e.g. 'f[1]' or ('hxx[0, 1]', 'hxx[1, 0]')."""
         if isinstance(targets, str):
             targets = (targets,)
         self.outputs.append((tuple(targets), sp.sympify(expr)))
 
-    def code(self, printer, read, indent='    '):
-        """
-        Source lines: input reads, common sub-expressions and definitions, outputs.
-
-        read(name) gives the source of an input symbol's value (e.g. 'x[2]' for x_2).
-        """
+    def code(self, printer):
+        """Source lines: common sub-expressions and definitions, outputs."""
         exprs = [d[1] for d in self.defs] + [e for _, e in self.outputs]
-        temps, reduced = sp.cse(exprs, symbols=sp.numbered_symbols('t_', real=True),
-                                order='none')
+        temps, reduced = sp.cse(exprs, symbols=sp.numbered_symbols(f'{self.temps}_',
+                                                                   real=True), order='none')
         nodes = {}
         for sym, expr in temps:
             nodes[sym] = (expr, ())
@@ -551,11 +553,26 @@ class _Block:
                 if s in nodes:
                     emit(s)
             lines.append(f'{" = ".join(targets)} = {printer.doprint(expr)}')
-        used = set()
-        for line in lines:
-            used.update(re.findall(r'\b(?:x|u|p|lam)_[0-9]+\b', line))
-        reads = [f'{name} = {read(name)}' for name in sorted(used, key=_name_key)]
-        return [indent + line for line in reads + lines]
+        for s in self.required:
+            if s in nodes:
+                emit(s)
+        return lines
+
+
+def _kernel_code(printer, read, blocks, indent='    '):
+    """
+    Input reads and the code of the blocks in order (each its own common sub-expressions).
+
+    read(name) gives the source of an input symbol's value (e.g. 'x[2]' for x_2).
+    """
+    lines = []
+    for block in blocks:
+        lines.extend(block.code(printer))
+    used = set()
+    for line in lines:
+        used.update(re.findall(r'\b(?:x|u|p|lam)_[0-9]+\b', line))
+    reads = [f'{name} = {read(name)}' for name in sorted(used, key=_name_key)]
+    return [indent + line for line in reads + lines]
 
 
 def _name_key(name):
@@ -675,41 +692,49 @@ class _Generator:
         return partials
 
     # Kernels ------------------------------------------------------------------------------
-    def rhs(self):
-        """Body of rhs(x, u, p, f)."""
-        block = _Block()
+    def _f_block(self, write_f=True):
+        """
+        The block that evaluates f: the same code in rhs, rhs_jac and rhs_hess, so that the
+        kernels agree bit for bit.  Returns (block, factor, w) (factor and w: Lagrangian).
+        """
+        block = _Block(temps='t')
         if self.spec.kind == 'explicit':
             for i, e in enumerate(self.spec.f):
                 block.output(f'f[{i}]', self.hoist(e))
-        else:
-            _, w = self._accelerations(block)
+            return block, None, None
+        factor, w = self._accelerations(block)
+        low, inv = factor
+        block.require(list(w) + list(low.values()) + list(inv))
+        if write_f:
             for j in range(self.n):
                 block.output(f'f[{2 * j}]', self.sym.dq[j])
                 block.output(f'f[{2 * j + 1}]', w[j])
-        return block.code(self.math, self._read)
+        return block, factor, w
+
+    def rhs(self):
+        """Body of rhs(x, u, p, f)."""
+        block, _, _ = self._f_block()
+        return _kernel_code(self.math, self._read, [block])
 
     def rhs_jac(self):
         """Body of rhs_jac(x, u, p, f, fx, fu)."""
-        block = _Block()
+        first, factor, w = self._f_block()
+        block = _Block(first, temps='v')
         nx = 2 * self.n
         if self.spec.kind == 'explicit':
             for i, e in enumerate(self.spec.f):
-                block.output(f'f[{i}]', self.hoist(e))
                 for c, z in enumerate(self.vars):
                     target = f'fx[{i}, {c}]' if c < nx else f'fu[{i}, {c - nx}]'
                     block.output(target, self.hoist(sp.diff(e, z)))
-            return block.code(self.math, self._read)
-        factor, w = self._accelerations(block)
+            return _kernel_code(self.math, self._read, [first, block])
         partials = self._acceleration_partials(block, factor, w)
         for j in range(self.n):
-            block.output(f'f[{2 * j}]', self.sym.dq[j])
-            block.output(f'f[{2 * j + 1}]', w[j])
             for c in range(len(self.vars)):
                 row = f'fx[{2 * j}, {c}]' if c < nx else f'fu[{2 * j}, {c - nx}]'
                 block.output(row, 1 if c == 2 * j + 1 else 0)
                 row = f'fx[{2 * j + 1}, {c}]' if c < nx else f'fu[{2 * j + 1}, {c - nx}]'
                 block.output(row, partials[c][j])
-        return block.code(self.math, self._read)
+        return _kernel_code(self.math, self._read, [first, block])
 
     def _hess_target(self, a, b):
         nx = 2 * self.n
@@ -722,18 +747,19 @@ class _Generator:
 
     def rhs_hess(self):
         """Body of rhs_hess(x, u, p, lam, hxx, hxu, huu)."""
-        block = _Block()
         nv = len(self.vars)
         lam = self.sym.lam
         if self.spec.kind == 'explicit':
+            block = _Block(temps='t')
             for a in range(nv):
                 for b in range(a, nv):
                     expr = sum((lam[i] * self.hoist(sp.diff(e, self.vars[a], self.vars[b]))
                                 for i, e in enumerate(self.spec.f)), sp.Integer(0))
                     block.output(self._hess_target(a, b), expr)
-            return block.code(self.math, self._read)
+            return _kernel_code(self.math, self._read, [block])
         n = self.n
-        factor, w = self._accelerations(block)
+        first, factor, w = self._f_block(write_f=False)
+        block = _Block(first, temps='v')
         partials = self._acceleration_partials(block, factor, w)
         nu = self._solve(block, factor, [lam[2 * i + 1] for i in range(n)], 'nu')
         q = set(self.sym.q)
@@ -753,7 +779,7 @@ class _Generator:
                             acc -= self.hoist(self._mass_entry(i, j, za, zb)) * w[j]
                     terms.append(nu[i] * acc)
                 block.output(self._hess_target(a, b), sp.Add(*terms))
-        return block.code(self.math, self._read)
+        return _kernel_code(self.math, self._read, [first, block])
 
     def segments(self):
         """Body of segments(q, p, seg, seg_q, seg_qq)."""
@@ -769,7 +795,7 @@ class _Generator:
                         targets = (f'seg_qq[{k}, {r}, {j}, {i}]',) if i == j else (
                             f'seg_qq[{k}, {r}, {j}, {i}]', f'seg_qq[{k}, {r}, {i}, {j}]')
                         block.output(targets, self.hoist(sp.diff(d, q[i])))
-        return block.code(self.math, self._read_q)
+        return _kernel_code(self.math, self._read_q, [block])
 
     def mass_matrix(self):
         """Body of mass_matrix(x, p, m)."""
@@ -778,7 +804,7 @@ class _Generator:
             for j in range(i, self.n):
                 targets = (f'm[{i}, {j}]',) if i == j else (f'm[{i}, {j}]', f'm[{j}, {i}]')
                 block.output(targets, self.hoist(self.spec.mass[i, j]))
-        return block.code(self.math, self._read)
+        return _kernel_code(self.math, self._read, [block])
 
     def link_segments(self):
         """Body of the numpy link_segments(q, p) (vectorised over leading axes)."""
@@ -786,7 +812,7 @@ class _Generator:
         for k, link in enumerate(self.spec.links):
             for r, e in enumerate(link):
                 block.output(f'seg[..., {k}, {r}]', self.hoist(e))
-        return block.code(self.numpy, self._read_numpy)
+        return _kernel_code(self.numpy, self._read_numpy, [block])
 
     # Module -------------------------------------------------------------------------------
     def source(self):
@@ -804,7 +830,7 @@ class _Generator:
         u_max = _Block()
         for i, e in enumerate(spec.u_max):
             u_max.output(f'out[{i}]', self.hoist(e))
-        u_max_lines = u_max.code(self.math, self._read)
+        u_max_lines = _kernel_code(self.math, self._read, [u_max])
         n_params = len(spec.param_names)
         derived = [f'    p_{i} = p[{i}]' for i in range(n_params)]
         derived.append(f'    out = [0.0] * {len(self.hoist.derived)}')
@@ -814,7 +840,7 @@ class _Generator:
             f'"""Kernels of the robot model {spec.name!r} generated by '
             f'toc_ros.core.models.symbolic (do not edit)."""',
             '',
-            '# Source: ' + spec.source.replace('\n', ' '),
+            '# A function of the model file\'s content only (cache key MODEL_HASH).',
             '# flake8: noqa',
             '',
             'import math',
