@@ -422,7 +422,7 @@ class _Hoister:
 
     def __call__(self, expr):
         """Expression with every parameter-only part replaced by a derived symbol."""
-        expr = sp.expand(sp.sympify(expr))
+        expr = sp.sympify(expr)
         if self._is_const(expr):
             return self._const(expr)
         groups = {}
