@@ -100,7 +100,7 @@ def _median_ns(call, calls_per_run, repeat):
 
 
 def time_model(model, repeat, reps=200):
-    """ns per kernel call and us per rollout (Euler, RK4; N = 1000) of a model."""
+    """Time the kernels (ns per call) and the rollouts (us; Euler, RK4, N = 1000)."""
     rng = np.random.default_rng(0)
     nx, nu, nl, n = model.nx, model.nu, model.n_links, model.n_joints
     xs = rng.uniform(-1.0, 1.0, size=(BATCH, nx))
@@ -135,7 +135,7 @@ def time_model(model, repeat, reps=200):
     return out
 
 
-_COLD = r'''
+_COLD = r"""
 import json, sys, time
 import numpy as np
 t0 = time.perf_counter()
@@ -159,11 +159,11 @@ model.kernels.rollout(x, np.zeros((10, nu)), 1e-3, p, horizon.EULER, np.zeros((1
 t4 = time.perf_counter()
 print(json.dumps({'import_s': t1 - t0, 'generate_s': t2 - t1, 'load_s': t3 - t2,
                   'compile_s': t4 - t3}))
-'''
+"""
 
 
 def cold_start(path):
-    """Generation and compile times of a model file in a fresh process with empty caches."""
+    """Measure generation and compile times of a model file in fresh processes."""
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=ROOT)
         runs = []

@@ -77,7 +77,7 @@ def _cylindrical(params):
     big_m, small_m, inertia, a = v['hand_mass'], v['link_mass'], v['inertia'], v['a']
     a1, a2, a3 = inertia + big_m * a * a, 2.0 * big_m * a, small_m + big_m
     x, u = ca.SX.sym('x', 4), ca.SX.sym('u', 2)
-    q1, dq1, q2, dq2 = x[0], x[1], x[2], x[3]
+    dq1, q2, dq2 = x[1], x[2], x[3]
     den = a1 + a2 * q2 + a3 * q2 ** 2
     xdot = ca.vertcat(dq1, (u[0] - (a2 + 2.0 * a3 * q2) * dq1 * dq2) / den, dq2,
                       (q2 + sign * a2 / (2.0 * a3)) * dq1 ** 2 + u[1] / a3)
@@ -88,7 +88,7 @@ def _cylindrical(params):
 
 
 def _euler_lagrange(x, u, kinetic, potential, forces):
-    """xdot of a Lagrangian model by CasADi AD (x interleaved (q1, dq1, ...))."""
+    """Return dx/dt of a Lagrangian model by CasADi AD (x interleaved (q1, dq1, ...))."""
     n = x.shape[0] // 2
     q = ca.vertcat(*[x[2 * j] for j in range(n)])
     dq = ca.vertcat(*[x[2 * j + 1] for j in range(n)])
@@ -168,8 +168,10 @@ def _from_file(path, params):
 
 def casadi_model(name, params=None):
     """
-    (f, segments, u_max) of a model: f(x, u) -> dx/dt and segments(q) -> (L, 4) as casadi
-    Functions, u_max a numpy array.  name: 'cylindrical', 'planar_2r' or a model file path;
+    Return (f, segments, u_max) of a model.
+
+    f(x, u) -> dx/dt and segments(q) -> (L, 4) are casadi Functions, u_max a numpy array.
+    name: 'cylindrical', 'planar_2r' or a model file path;
     params: parameter overrides ({'model_variant': 'eq36'}, {'g': 9.81, 'l1': 0.9}, ...).
     """
     if ca is None:

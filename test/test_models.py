@@ -13,8 +13,10 @@
 # limitations under the License.
 
 """
-Robot models (core/models): kernels against finite differences, generated against built-in
-models, planar_2r against an independent Euler-Lagrange evaluation, IK, model-file errors.
+Robot models (core/models).
+
+Kernels against finite differences, generated against built-in models, planar_2r against an
+independent Euler-Lagrange evaluation, IK, model-file errors.
 """
 
 import math
@@ -259,8 +261,10 @@ _GAUSS_S, _GAUSS_W = np.polynomial.legendre.leggauss(4)
 
 def _lagrangian_2r(q, dq, prm):
     """
-    L = T - V of the planar 2R arm from the points of the rods (Gauss quadrature along each
-    rod: exact for the quadratic integrands), not from inertia formulas.
+    Return L = T - V of the planar 2R arm.
+
+    Computed from the points of the rods (Gauss quadrature along each rod: exact for the
+    quadratic integrands), not from inertia formulas.
     """
     l1, l2, m1, m2, mp, g = (prm[k] for k in ('l1', 'l2', 'm1', 'm2', 'm_p', 'g'))
     kinetic = potential = 0.0
@@ -282,7 +286,7 @@ def _lagrangian_2r(q, dq, prm):
 
 
 def _euler_lagrange_torques(q, dq, ddq, prm, h=1e-4):
-    """u = d/dt dL/d dq - dL/dq by central differences of the Lagrangian."""
+    """Return u = d/dt dL/d dq - dL/dq by central differences of the Lagrangian."""
     def lag(qq, vv):
         return _lagrangian_2r(qq, vv, prm)
 
@@ -432,7 +436,7 @@ def _planar_text():
 
 
 def _head():
-    """The planar file up to (without) its lagrangian section."""
+    """Return the planar file up to (without) its lagrangian section."""
     return _planar_text().split('lagrangian:')[0]
 
 

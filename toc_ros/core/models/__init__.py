@@ -52,7 +52,7 @@ def _builtin(name, params):
 
 def load_model(name_or_path, **params):
     """
-    A robot model by built-in name (MODELS) or from a model file (.yaml, see symbolic.py).
+    Return a robot model by built-in name (MODELS) or from a model file (symbolic.py).
 
     params override the model's parameters (numbers, or strings that parse as numbers);
     raises ModelError for an unknown name, a missing or invalid file or invalid parameters.

@@ -51,8 +51,8 @@ import sys
 from numba import njit
 import numpy as np
 
-from .. import horizon, ipm
 from .base import ModelError, RobotModel
+from .. import horizon, ipm
 
 N_JOINTS = 2
 N_LINKS = 2
@@ -334,7 +334,7 @@ class Planar2R(RobotModel):
 
     @property
     def kernels(self):
-        """The kernel module (this one)."""
+        """Return the kernel module (this one)."""
         return this
 
     def packed(self):
