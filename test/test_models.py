@@ -39,6 +39,47 @@ CYLINDRICAL_FILE = os.path.join(ROOT, 'config', 'models', 'cylindrical_eq37.yaml
 PLANAR_OTHER = {'l1': 0.9, 'l2': 0.6, 'm1': 10.0, 'm2': 5.0, 'm_p': 3.0, 'g': 9.81}
 CYLINDRICAL_OTHER = {'hand_mass': 20.0, 'link_mass': 40.0, 'inertia': 80.0, 'a': 0.7}
 
+# A three-link planar arm with a damped elbow (n = 3: the generator is not specialised to 2).
+PLANAR_3R = """
+name: planar_3r
+joints:
+  - {name: j1, kind: revolute}
+  - {name: j2, kind: revolute}
+  - {name: j3, kind: revolute}
+parameters: {l1: 1.0, l2: 0.7, l3: 0.4, m1: 5.0, m2: 3.0, m3: 1.0, g: 9.81, damping: 0.5}
+positive: [l1, l2, l3, m1, m2, m3]
+u_max: [100, 60, 20]
+definitions:
+  x1: l1*cos(q1)
+  y1: l1*sin(q1)
+  x2: x1 + l2*cos(q1 + q2)
+  y2: y1 + l2*sin(q1 + q2)
+  x3: x2 + l3*cos(q1 + q2 + q3)
+  y3: y2 + l3*sin(q1 + q2 + q3)
+links: [[0, 0, x1, y1], [x1, y1, x2, y2], [x2, y2, x3, y3]]
+lagrangian:
+  kinetic: >-
+    m1/2*(ddt(x1/2)^2 + ddt(y1/2)^2) + m1*l1^2/24*dq1^2
+    + m2/2*(ddt((x1 + x2)/2)^2 + ddt((y1 + y2)/2)^2) + m2*l2^2/24*(dq1 + dq2)^2
+    + m3/2*(ddt((x2 + x3)/2)^2 + ddt((y2 + y3)/2)^2) + m3*l3^2/24*(dq1 + dq2 + dq3)^2
+  potential: g*(m1*y1/2 + m2*(y1 + y2)/2 + m3*(y2 + y3)/2)
+  forces: [u1, u2 - damping*dq2, u3]
+"""
+
+# The cylindrical robot from its Lagrangian T = (D(q2) dq1^2 + A3 dq2^2) / 2: the Euler-Lagrange
+# equations give the centrifugal sign of eq. (36) (the built-in 'eq36' variant).
+CYLINDRICAL_LAGRANGIAN = """
+name: cylindrical_lagrangian
+joints: [{name: rotation_joint, kind: revolute}, {name: extension_joint, kind: prismatic}]
+parameters: {hand_mass: 20.0, link_mass: 40.0, inertia: 80.0, a: 0.7}
+u_max: [600, 500]
+links: [[0, 0, (a + q2)*cos(q1), (a + q2)*sin(q1)]]
+lagrangian:
+  kinetic: >-
+    (inertia + hand_mass*(a + q2)^2 + link_mass*q2^2)*dq1^2/2
+    + (link_mass + hand_mass)*dq2^2/2
+"""
+
 # (id, loader) of every model the kernel checks run on.
 MODEL_CASES = [
     ('cylindrical-eq37', lambda: load_model('cylindrical')),
@@ -49,6 +90,9 @@ MODEL_CASES = [
     ('planar_2r-file', lambda: load_model(PLANAR_FILE, **PLANAR_OTHER)),
     ('cylindrical-file-eq36', lambda: load_model(CYLINDRICAL_FILE, sign=1.0,
                                                  **CYLINDRICAL_OTHER)),
+    ('planar_3r-text', lambda: symbolic.model_from_text(PLANAR_3R, 'planar_3r.yaml')),
+    ('cylindrical-lagrangian-text', lambda: symbolic.model_from_text(
+        CYLINDRICAL_LAGRANGIAN, 'cylindrical_lagrangian.yaml')),
 ]
 
 
@@ -226,6 +270,29 @@ def test_generated_explicit_cylindrical_agrees_with_the_built_in(variant, sign):
         for a, b in zip(_jac(gen, xi, ui) + _hess(gen, xi, ui, li) + _seg(gen, xi[0::2]),
                         _jac(ref, xi, ui) + _hess(ref, xi, ui, li) + _seg(ref, xi[0::2])):
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_cylindrical_from_its_lagrangian_is_the_eq36_variant():
+    gen = symbolic.model_from_text(CYLINDRICAL_LAGRANGIAN, 'cylindrical_lagrangian.yaml')
+    ref = load_model('cylindrical', model_variant='eq36', **CYLINDRICAL_OTHER)
+    x, u, lam = _points(ref, np.random.default_rng(9), 200)
+    for xi, ui, li in zip(x, u, lam):
+        for a, b in zip(_jac(gen, xi, ui) + _hess(gen, xi, ui, li),
+                        _jac(ref, xi, ui) + _hess(ref, xi, ui, li)):
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_three_link_model_sizes_and_damping():
+    model = symbolic.model_from_text(PLANAR_3R, 'planar_3r.yaml')
+    assert (model.n_joints, model.nx, model.nu, model.n_links) == (3, 6, 3, 3)
+    assert model.default_joint_names == ('j1', 'j2', 'j3')
+    # The damping force enters as -damping dq2 in the generalised forces: with u = 0 it acts
+    # like an elbow torque -0.5 dq2.
+    x = model.state([0.2, 0.4, -0.3], [0.1, 2.0, -0.5])
+    moved = _rhs(model, x, np.array([0.0, -1.0, 0.0]))
+    np.testing.assert_allclose(_rhs(symbolic.model_from_text(PLANAR_3R, 'planar_3r.yaml',
+                                                             damping=0.0),
+                                    x, np.array([0.0, -2.0, 0.0])), moved, rtol=1e-12)
 
 
 def test_generation_is_deterministic_and_cached(tmp_path):
