@@ -18,9 +18,10 @@ Kernel times of the generated robot models against the hand-written ones (issue 
 For each pair (built-in model, the same robot from its model file in config/models) the
 pointwise kernels rhs, rhs_jac, rhs_hess and segments are timed inside a compiled loop over a
 batch of random states (nanoseconds per call), plus the rollout wrapper (Euler and RK4,
-N = 1000); the two models are timed interleaved and the fastest of the repeats is kept.  Target: generated within 1.5x of hand-written.  The generation
-(SymPy derivation + code printing) and the first-use compile time of a model file are measured
-in a fresh process with an empty cache.
+N = 1000); the two models are timed interleaved and the fastest of the repeats is kept.
+Target: generated within 1.5x of hand-written.  The generation (SymPy derivation + code
+printing) and the first-use compile time of a model file are measured in a fresh process with
+an empty cache.
 
     PYTHONPATH=. python benchmarks/bench_models.py [--json PATH] [--repeat 15]
 """
