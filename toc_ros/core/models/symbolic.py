@@ -27,6 +27,7 @@ models.  The module is written into a cache directory keyed by a hash of the fil
 File format (every expression is a SymPy expression string; `^` means power):
 
     name: my_arm                       # identifier of the model
+    description: ...                   # optional free text
     joints:                            # n joints; symbols q1..qn, dq1..dqn, u1..un
       - {name: shoulder_joint, kind: revolute}     # kind: revolute (rad) | prismatic (m)
       - {name: elbow_joint, kind: revolute}
@@ -58,7 +59,10 @@ raises ModelError from the kernel (never an inf; NaN inputs propagate as NaN); c
 reports it for a given state, and a mass matrix singular at every pose tried is refused at load.
 
 Parameter-only sub-expressions are moved out of the kernels into the packed parameter vector
-(computed once per model instance), as the hand-written models do.
+(the parameter values, then the derived constants; see packed()), as the hand-written models
+do.  Generated modules live in <NUMBA_CACHE_DIR>/toc_ros-models/<hash>/model_<hash>.py, or
+without NUMBA_CACHE_DIR in <XDG_CACHE_HOME or ~/.cache>/toc_ros/models/<hash>/; their numba
+machine code is cached with the core's (toc_ros/core/_numba_cache.py).
 """
 
 from dataclasses import dataclass
