@@ -12,11 +12,62 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Robot models behind one interface (base.py): the paper's cylindrical robot, ... ."""
+"""Robot models behind one interface (base.py): the paper's cylindrical robot, planar_2r."""
+
+import dataclasses
+import os
 
 from .base import ModelError, RobotModel
 from .cylindrical import CylindricalRobot
+from .planar_2r import Planar2R, Planar2RParams
 
-MODELS = {'cylindrical': CylindricalRobot}
+MODELS = {'cylindrical': CylindricalRobot, 'planar_2r': Planar2R}
+MODEL_FILE_SUFFIXES = ('.yaml', '.yml')
 
-__all__ = ['CylindricalRobot', 'ModelError', 'MODELS', 'RobotModel']
+
+def _builtin(name, params):
+    cls = MODELS[name]
+    defaults = cls().params
+    fields = {f.name: f for f in dataclasses.fields(defaults)}
+    unknown = sorted(set(params) - set(fields))
+    if unknown:
+        raise ModelError(f'model {name!r} has no parameter(s) {", ".join(unknown)} '
+                         f'(known: {", ".join(fields)})')
+    values = {}
+    for key, value in params.items():
+        default = getattr(defaults, key)
+        if isinstance(value, str) and isinstance(default, float):
+            try:
+                value = float(value)
+            except ValueError:
+                raise ModelError(f'model {name!r}: parameter {key} must be a number, got '
+                                 f'{value!r}') from None
+        values[key] = value
+    model = cls(dataclasses.replace(defaults, **values))
+    problems = model.check()
+    if problems:
+        raise ModelError(f'model {name!r}: ' + '; '.join(problems))
+    return model
+
+
+def load_model(name_or_path, **params):
+    """
+    Return a robot model by built-in name (MODELS) or from a model file (symbolic.py).
+
+    params override the model's parameters (numbers, or strings that parse as numbers);
+    raises ModelError for an unknown name, a missing or invalid file or invalid parameters.
+    """
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise ModelError(f'model must be a name or a file path, got {name_or_path!r}')
+    key = os.fspath(name_or_path)
+    if key in MODELS:
+        return _builtin(key, params)
+    if key.lower().endswith(MODEL_FILE_SUFFIXES) or os.sep in key or os.path.exists(key):
+        from .symbolic import load_model_file   # SymPy is needed for model files only
+        return load_model_file(key, **params)
+    raise ModelError(f'unknown model {key!r}: the built-in models are '
+                     f'{", ".join(sorted(MODELS))}, or give the path of a model file (.yaml)')
+
+
+__all__ = ['CylindricalRobot', 'load_model', 'ModelError', 'MODELS', 'Planar2R',
+           'Planar2RParams', 'RobotModel']
