@@ -323,8 +323,9 @@ class FastSolve:
             self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
             f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
 
-    def _solve_on(self, n, states, controls, t_f, mu, duals=None):
-        run = InteriorPointRun(self.problem, n, max(1, self.limit - self.done))
+    def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None):
+        left = max(1, self.limit - self.done)
+        run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left))
         run.start(states, controls, t_f, mu, duals)
         self.run = run
         try:
@@ -351,14 +352,15 @@ class FastSolve:
                     return self.solve()
             elif n > 2 * COARSE_INTERVALS:
                 states, controls, t_f = interpolation_start(problem, COARSE_INTERVALS)
-                coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD)
+                coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD,
+                                              budget=self.limit // 2)
                 if code == ipm.CONVERGED:
                     states, controls = resample(coarse.ws.x, coarse.controls(), n)
                     duals = resample_duals(coarse.duals(), COARSE_INTERVALS, n)
                     run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n,
                                                duals)
-                else:
-                    # The coarse grid failed: try the fine grid directly.
+                if code != ipm.CONVERGED:
+                    # The coarse grid or the step to the fine one failed: the fine grid alone.
                     states, controls, t_f = interpolation_start(problem, n)
                     run, code = self._solve_on(n, states, controls, t_f, MU_COLD)
             else:

@@ -114,6 +114,8 @@ KAPPA_SIGMA = 1e10
 KAPPA_MU = 0.2
 THETA_MU = 1.5
 KAPPA_EPS = 10.0
+# Upper limit of the elastic weight rho.
+ELASTIC_MAX = 1e8
 
 Workspace = namedtuple('Workspace', [
     # problem data
@@ -1090,6 +1092,25 @@ def _regularized_step(ws):
 
 
 @njit
+def _raise_elastic_weight(ws):
+    """
+    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho): the l1 penalty is
+    then binding and would accept a violated constraint.  Returns True when rho changed.
+    """
+    fs = ws.fscal
+    rho_e = fs[F_ELASTIC]
+    z_max = 0.0
+    for i in range(1, ws.iscal[I_N] + 1):
+        for j in range(ws.s.shape[1]):
+            z_max = max(z_max, ws.z[i, j])
+    if z_max <= 0.9 * rho_e or rho_e >= ELASTIC_MAX:
+        return False
+    fs[F_ELASTIC] = 10.0 * rho_e
+    ws.iscal[I_N_FILTER] = 0
+    return True
+
+
+@njit
 def _line_search(rhs, segments, ws, dt, alpha_max):
     """
     IPOPT's filter line search from alpha_max (backtracking by halves).  Returns (alpha,
@@ -1145,6 +1166,9 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
         if it[I_ITER] == 0 or fs[F_THETA_MAX] <= 0.0:
             fs[F_THETA_MAX] = 1e4 * max(1.0, fs[F_THETA])
             fs[F_THETA_MIN] = 1e-4 * max(1.0, fs[F_THETA])
+        if _raise_elastic_weight(ws):
+            derivative_terms(rhs_jac, rhs_hess, segments, ws)
+            barrier_terms(ws)
         _update_barrier(ws)
         dt = _regularized_step(ws)
         if not math.isfinite(dt):

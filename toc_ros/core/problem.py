@@ -34,7 +34,7 @@ MAX_INTERVALS = 200000
 MODES = ('fast', 'paper')
 # Iteration budgets: paper mode runs the paper's M = 30000 gradient iterations; fast mode counts
 # interior-point (Newton-type) iterations over all its grids.
-DEFAULT_ITERATIONS = {'paper': 30000, 'fast': 1000}
+DEFAULT_ITERATIONS = {'paper': 30000, 'fast': 2000}
 
 
 class ProblemError(ValueError):
@@ -184,7 +184,7 @@ class SolverOptions:
     # None: the mode's default (DEFAULT_ITERATIONS)
     max_iterations: Optional[int] = setting(
         None, "iteration limit of one solve; 0 = the mode's default (paper: M = 30000 gradient "
-        'steps, fast: 1000 interior-point iterations)', low=0, high=1_000_000_000, none_value=0)
+        'steps, fast: 2000 interior-point iterations)', low=0, high=1_000_000_000, none_value=0)
     # [s] wall clock; None = no limit (the nodes and the scenario file default to 60 s)
     timeout: Optional[float] = setting(None, 'wall-clock limit of one solve; 0 = none',
                                        unit='s', low=0.0, high=86400.0, none_value=0.0,
