@@ -17,7 +17,8 @@ setup(
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in a plain venv,
     # from the PyPI wheels named in the 'ros' extra.
-    install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib'],
+    install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib',
+                      'dask[distributed]', 'pyarrow'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         'test': ['pytest', 'psutil', 'mcap-ros2-support', 'rosbags',
@@ -41,6 +42,7 @@ setup(
             'toc-solve = toc_ros.solve:main',
             'toc-demo = toc_ros.demo:main',
             'toc-analyze = toc_ros.analysis.cli:main',
+            'toc-sweep = toc_ros.sweep.cli:main',
         ],
     },
 )
