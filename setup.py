@@ -43,6 +43,7 @@ setup(
             'toc-demo = toc_ros.demo:main',
             'toc-analyze = toc_ros.analysis.cli:main',
             'toc-sweep = toc_ros.sweep.cli:main',
+            'toc-bag = toc_ros.recording.bag_tool:main',
         ],
     },
 )

@@ -342,4 +342,8 @@ def test_full_disk_is_a_clear_error(tmp_path):
     lines = result.stdout.splitlines()
     assert lines[0].startswith('WRITE writing ') and 'File too large' in lines[0], lines
     assert lines[1].startswith('CLOSE bag ') and 'incomplete' in lines[1], lines
-    assert not (tmp_path / 'bag' / 'metadata.yaml').exists()
+    # metadata.yaml is the one of the last flush (written at create, then while recording)
+    info = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    info = info['rosbag2_bagfile_information']
+    assert [t['topic_metadata']['name'] for t in info['topics_with_message_count']] == ['/big']
+    assert info['message_count'] < 200
