@@ -109,7 +109,7 @@ def _stop(proc):
 
 @pytest.fixture(scope='module')
 def serial():
-    """Serial solves by toc-solve's code path (parse_args + build_problem + core solve)."""
+    """Solve serially by the code path of toc-solve (parse_args, build_problem, core solve)."""
     from toc_ros.core import solve
     from toc_ros.solve import build_problem, parse_args
     cache = {}
