@@ -110,7 +110,7 @@ def main():
     with tempfile.TemporaryDirectory(prefix='toc_bench_', dir=args.dir) as directory:
         for size, count in SIZES:
             print(f'\nburst: {count} messages of {size} B')
-            print(f'| policy | msg/s | MB/s | file MB | chunks | longest write() [ms] |')
+            print('| policy | msg/s | MB/s | file MB | chunks | longest write() [ms] |')
             print('|---|---|---|---|---|---|')
             for name, period, fsync in POLICIES:
                 runs = [burst(directory, period, fsync, size, count)
