@@ -304,7 +304,8 @@ class _McapFile:
     def _open_summary(self):
         try:
             self._stream = open(self.path, 'rb')
-            self._reader = SeekingReader(self._stream)
+            # No record is longer than the file: a damaged length fails, not a MemoryError.
+            self._reader = SeekingReader(self._stream, record_size_limit=self.size)
             summary = self._reader.get_summary()
         except _DAMAGE:
             summary = None

@@ -120,6 +120,37 @@ def qos_profile_to_dict(profile) -> dict:
     }
 
 
+_QOS_POLICIES = ('history', 'reliability', 'durability', 'liveliness')
+_QOS_DURATIONS = ('deadline', 'lifespan', 'liveliness_lease_duration')
+
+
+def complete_qos_profile(profile: Mapping) -> dict:
+    """
+    Fill what a QoS mapping lacks (e.g. one copied from another writer's bag) with 'unknown'.
+
+    rosbag2 and rosbags expect every key of the version-9 mapping; a missing one makes the
+    whole bag unreadable for them. Durations may also be given in nanoseconds.
+    """
+    result = {}
+    for key in ('history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
+                'liveliness', 'liveliness_lease_duration', 'avoid_ros_namespace_conventions'):
+        value = profile.get(key)
+        if key in _QOS_POLICIES:
+            result[key] = _policy_name(value) if value is not None else 'unknown'
+        elif key in _QOS_DURATIONS:
+            if isinstance(value, Mapping):
+                try:
+                    value = int(value.get('sec', 0)) * 1_000_000_000 + int(value.get('nsec', 0))
+                except (TypeError, ValueError):
+                    value = 0
+            result[key] = _rmw_time(value if isinstance(value, int) and value >= 0 else 0)
+        elif key == 'depth':
+            result[key] = value if isinstance(value, int) and value >= 0 else 0
+        else:
+            result[key] = bool(value)
+    return result
+
+
 class _IndentedDumper(yaml.SafeDumper):
     """Indents sequences under their key, as yaml-cpp (and so rosbag2) does."""
 
@@ -293,7 +324,7 @@ class BagWriter:
             definition = full_definition(type_name)
         if type_hash is None:
             type_hash = type_description_hash(type_name)
-        profiles = [dict(p) for p in qos_profiles]
+        profiles = [complete_qos_profile(p) for p in qos_profiles]
         with self._lock:
             self._check_writable()
             if name in self._topics:
