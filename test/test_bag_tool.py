@@ -63,7 +63,7 @@ def test_info_and_recover_of_a_complete_bag(tmp_path, capsys):
 
 
 def test_recover_a_cut_off_bare_mcap_with_a_foreign_channel(tmp_path, capsys):
-    """zstd chunks as ros2 bag record writes them, plus a JSON channel, cut in the middle."""
+    """Zstd chunks as `ros2 bag record` writes them, plus a JSON channel, cut in the middle."""
     path = tmp_path / 'rec.mcap'
     definition = full_definition('std_msgs/msg/String')
     sent = strings(400)
