@@ -84,7 +84,7 @@ def test_recover_a_cut_off_bare_mcap_with_a_foreign_channel(tmp_path, capsys):
     path.write_bytes(data[:len(data) // 2])
     assert main(['info', str(path)]) == 1
     captured = capsys.readouterr()
-    assert 'NOT COMPLETE: the file is cut off after' in captured.out
+    assert 'NOT COMPLETE: the file is cut off inside a record' in captured.out
     assert 'toc-bag recover' in captured.out
     assert main(['recover', str(path)]) == 0
     captured = capsys.readouterr()

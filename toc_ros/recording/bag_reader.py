@@ -224,10 +224,13 @@ class _Scan:
                 # padding); anything else is damage in the middle.
                 self.cut_off = (isinstance(error, (EndOfFile, RecordLengthLimitExceeded))
                                 or stream.tell() >= size)
-                if self.cut_off:
-                    self.problem = (f'the file is cut off after {self.good_bytes} of {size} '
-                                    'bytes (not closed: recorder killed, power loss or disk '
-                                    'full?)')
+                why = 'not closed: recorder killed, power loss or disk full?'
+                if self.cut_off and self.good_bytes >= size:
+                    self.problem = (f'the file is cut off after its last complete record, at '
+                                    f'byte {size}, without summary and footer ({why})')
+                elif self.cut_off:
+                    self.problem = (f'the file is cut off inside a record: {self.good_bytes} '
+                                    f'of {size} bytes readable ({why})')
                 else:
                     self.problem = (f'damaged record after byte {self.good_bytes} of {size}: '
                                     f'{error or type(error).__name__}')
