@@ -96,6 +96,7 @@ def solve_case(case_id, argv, values, params, worker='local'):
 def solve_batch(batch, params):
     """Dask task: solve [(case_id, argv, values)]; rows plus the task's timing."""
     start = time.perf_counter()
+    cpu = time.process_time()
     started_at = time.time()
     worker = _worker_name()
     warm_up_once()          # a no-op after the plugin; covers workers without it
@@ -103,4 +104,4 @@ def solve_batch(batch, params):
     rows = [solve_case(case_id, argv, values, params, worker)
             for case_id, argv, values in batch]
     return {'rows': rows, 'worker': worker, 'task_s': time.perf_counter() - start - warm,
-            'warm_s': warm, 'started_at': started_at, 'finished_at': time.time()}
+            'cpu_s': time.process_time() - cpu, 'warm_s': warm, 'started_at': started_at, 'finished_at': time.time()}
