@@ -104,4 +104,5 @@ def solve_batch(batch, params):
     rows = [solve_case(case_id, argv, values, params, worker)
             for case_id, argv, values in batch]
     return {'rows': rows, 'worker': worker, 'task_s': time.perf_counter() - start - warm,
-            'cpu_s': time.process_time() - cpu, 'warm_s': warm, 'started_at': started_at, 'finished_at': time.time()}
+            'cpu_s': time.process_time() - cpu, 'warm_s': warm, 'started_at': started_at,
+            'finished_at': time.time()}
