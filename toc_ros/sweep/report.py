@@ -135,7 +135,7 @@ def markdown(summary, plots=()):
     run = summary.get('run')
     if run:
         lines += ['', f'This run: {run["done"]} cases in {run["wall_s"]:.1f} s on '
-                  f'{run["worker_threads"]} worker thread(s) ({_fmt(run["cases_per_s"])} '
+                  f'{run["worker_threads"]} worker thread(s) ({run["cases_per_s"] or 0:.1f} '
                   f'cases/s, {run["tasks"]} tasks), solver time {run["solve_s"]:.1f} s, '
                   f'scheduling + serialisation + idle {_share(run["overhead_share"])} of it; '
                   f'cluster start and warm-up {run["startup_s"]:.1f} s'
