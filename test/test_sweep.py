@@ -249,6 +249,21 @@ def test_random_samples_are_seeded():
     assert first != list(parse_spec(doc).cases())
 
 
+def test_an_output_directory_in_use_is_refused(tmp_path, capsys):
+    from toc_ros.sweep import cli
+    from toc_ros.sweep.dataset import Dataset, schema_for
+    from toc_ros.sweep.spec import load_spec
+    spec = _write_spec(tmp_path, LOCAL_SPEC)
+    holder = Dataset(tmp_path / 'out', schema_for(load_spec(spec)))
+    holder.prepare(False)          # this (live) process holds OUT/.lock
+    try:
+        assert cli.main([spec, '--out', str(tmp_path / 'out'), '--resume', '--quiet']) == 2
+        assert 'is in use by another toc-sweep' in capsys.readouterr().err
+    finally:
+        holder.close()
+    assert not (tmp_path / 'out' / '.lock').exists()
+
+
 # -- a real LocalCluster (the default of toc-sweep) ------------------------------------------
 
 def test_local_cluster_rows_equal_serial_solves(tmp_path, serial):

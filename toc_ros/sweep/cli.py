@@ -144,6 +144,13 @@ def _run(args):
     except DatasetError as exc:
         print(f'toc-sweep: {exc}', file=sys.stderr)
         return EXIT_USAGE
+    try:
+        return _sweep(args, sweep, builder, cases, dataset, done_ids)
+    finally:
+        dataset.close()
+
+
+def _sweep(args, sweep, builder, cases, dataset, done_ids):
     pending = [c for c in cases if c[0] not in done_ids]
     _say(args, f'toc-sweep: {len(cases)} case(s) in {args.spec}, '
                f'{len(cases) - len(pending)} already in {dataset.out}, solving {len(pending)}')

@@ -25,6 +25,7 @@ import datetime
 import json
 import os
 import re
+import socket
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -64,6 +65,8 @@ class Dataset:
         self.dir = os.path.join(self.out, 'results')
         self.schema = schema
         self.meta_path = os.path.join(self.out, 'sweep.json')
+        self.lock_path = os.path.join(self.out, '.lock')
+        self.locked = False
         self.next_part = 1
 
     def files(self):
@@ -92,6 +95,7 @@ class Dataset:
                     f'({", ".join(f.name for f in self.schema)}): use another --out')
         try:
             os.makedirs(self.dir, exist_ok=True)
+            self._lock()
             for name in os.listdir(self.dir):     # leftovers of a crash while writing
                 if name.startswith('.part-'):
                     os.remove(os.path.join(self.dir, name))
@@ -104,6 +108,39 @@ class Dataset:
         indices = [int(_PART.match(os.path.basename(f)).group(1)) for f in files]
         self.next_part = max(indices, default=0) + 1
         return self.case_ids()
+
+    def _lock(self):
+        """Take OUT/.lock (pid@host); a lock of a process that is gone is taken over."""
+        me = f'{os.getpid()}@{socket.gethostname()}'
+        for _ in range(2):
+            try:
+                fd = os.open(self.lock_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                try:
+                    with open(self.lock_path) as stream:
+                        owner = stream.read().strip()
+                except OSError:
+                    owner = ''
+                pid, _, host = owner.partition('@')
+                if host == socket.gethostname() and pid.isdigit() and not _alive(int(pid)):
+                    os.remove(self.lock_path)        # stale: its process is gone
+                    continue
+                raise DatasetError(f'{self.out} is in use by another toc-sweep ({owner or "?"}; '
+                                   f'remove {self.lock_path} if that is wrong)')
+            with os.fdopen(fd, 'w') as stream:
+                stream.write(me + '\n')
+            self.locked = True
+            return
+        raise DatasetError(f'cannot take {self.lock_path}')
+
+    def close(self):
+        """Release OUT/.lock."""
+        if self.locked:
+            self.locked = False
+            try:
+                os.remove(self.lock_path)
+            except FileNotFoundError:
+                pass
 
     def case_ids(self):
         """Case ids in the dataset."""
@@ -144,3 +181,13 @@ class Dataset:
             json.dump(doc, stream, indent=1)
             stream.write('\n')
         os.replace(tmp, path)
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
