@@ -30,6 +30,7 @@ import logging
 import math
 import os
 import time
+import uuid
 
 TARGET_TASK_S = 1.0          # aimed-for duration of one task
 FIRST_BATCH = 1              # cases per task until solve times have been measured
@@ -137,7 +138,14 @@ def connect(scheduler=None, workers=None, log=print):
         link = None
     log(f'toc-sweep: {what}; dashboard: '
         + (link or 'not available (install bokeh for the Dask dashboard)'))
-    client.register_plugin(WarmUpPlugin())
+    try:
+        client.register_plugin(WarmUpPlugin())
+    except Exception as exc:      # noqa: B902 - whatever the workers raised
+        client.close()
+        if cluster is not None:
+            cluster.close()
+        raise ConnectionError(f'the Dask workers could not load toc_ros (install the same '
+                              f'toc_ros on every worker): {exc!r}')
     return client, cluster, what
 
 
@@ -169,6 +177,7 @@ def run_cases(client, cases, params, dataset, batch_size=None, on_progress=None,
     batcher = Batcher(batch_size, target_task_s)
     batches = {}
     stream = as_completed()
+    run_id = uuid.uuid4().hex[:12]      # keys unique across runs sharing a scheduler
     start = time.perf_counter()
 
     def submit():
@@ -178,7 +187,7 @@ def run_cases(client, cases, params, dataset, batch_size=None, on_progress=None,
             n = batcher.size(len(pending), threads)
             batch = [pending.popleft() for _ in range(n)]
             future = client.submit(solve_batch, batch, params, pure=False,
-                                   key=f'toc-sweep-{stats.tasks}-{batch[0][0]}')
+                                   key=f'toc-sweep-{run_id}-{stats.tasks}')
             stats.tasks += 1
             batches[future.key] = batch
             stream.add(future)
