@@ -132,7 +132,7 @@ class Execution:
 
 
 @dataclass
-class Run:
+class RecordedRun:
     """Everything read from a recording, decoded, by role."""
 
     topics: Dict[str, Optional[str]]
@@ -141,7 +141,7 @@ class Run:
     params: dict
 
 
-def load_run(recording, params, warn=None) -> Run:
+def load_run(recording, params, warn=None) -> RecordedRun:
     """Decode the messages of every role from a toc_ros.recording.bag_reader.Recording."""
     readable = recording.readable_topics()
     topics = find_topics(readable, warn)
@@ -153,7 +153,7 @@ def load_run(recording, params, warn=None) -> Run:
     start_ns = min(firsts) if firsts else 0
     messages = {role: [((t - start_ns) * 1e-9, m) for t, m in sorted(items, key=lambda x: x[0])]
                 for role, items in raw.items()}
-    return Run(topics, messages, start_ns, dict(params))
+    return RecordedRun(topics, messages, start_ns, dict(params))
 
 
 # -- solves, plans, executions --------------------------------------------------------------
@@ -473,7 +473,7 @@ def execution_numbers(execution: Execution, plan: Plan, a: float, u_max: np.ndar
 class Report:
     """A run's numbers (summary, JSON-ready) and the arrays the plots draw."""
 
-    run: Run
+    run: RecordedRun
     solves: List[Solve]
     plans: List[Plan]
     executions: List[Execution]
@@ -496,7 +496,7 @@ def missing_roles(run, goal_needed=True) -> List[str]:
     return missing
 
 
-def analyse(run: Run, recording_info: dict, warn) -> Report:
+def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
     """Plans, executions and the summary of a loaded run."""
     robot = robot_from_parameters(run.params)
     a, u_max = robot.a, robot.u_max

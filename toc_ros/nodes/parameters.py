@@ -32,6 +32,10 @@ from toc_ros.config import SCENARIO_TABLE
 from toc_ros.core.settings import parameter_table, setting
 
 
+class ParameterError(ValueError):
+    """Invalid node parameters at start-up (the on-set callbacks guard later changes)."""
+
+
 @dataclass(frozen=True)
 class SolverNodeSettings:
     """solver_node's own parameters (beyond the scenario's)."""

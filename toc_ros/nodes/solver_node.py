@@ -94,10 +94,6 @@ SERVICE_QOS = QoSProfile(depth=100)
 EXECUTION_SLACK_S = 0.5
 
 
-class ParameterError(ValueError):
-    """Invalid parameters at start-up (before the on-set callback guards changes)."""
-
-
 def parameter_errors(params):
     """
     Everything wrong with a candidate set of solver_node parameters (empty: valid).
@@ -306,7 +302,7 @@ class SolverNode(Node):
         self._params = parameters.values(self, PARAMETER_NAMES)
         errors = parameter_errors(self._params)
         if errors:
-            raise ParameterError('; '.join(errors))
+            raise parameters.ParameterError('; '.join(errors))
         self._name = self.get_fully_qualified_name()
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest state from joint_states
@@ -758,7 +754,7 @@ class SolverNode(Node):
 def main(args=None):
     """Run solver_node until shutdown; exit code 2 for invalid parameters."""
     return run_node('solver_node', SolverNode, lambda: MultiThreadedExecutor(num_threads=4),
-                    args=args, errors=(ParameterError, InvalidParameterValueException,
+                    args=args, errors=(parameters.ParameterError, InvalidParameterValueException,
                                        InvalidParameterTypeException),
                     error_prefix='invalid parameters: ')
 
