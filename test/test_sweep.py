@@ -264,6 +264,37 @@ def test_an_output_directory_in_use_is_refused(tmp_path, capsys):
     assert not (tmp_path / 'out' / '.lock').exists()
 
 
+def test_summary_and_heat_map_of_random_samples(tmp_path):
+    import pyarrow as pa
+    from toc_ros.sweep.dataset import schema_for
+    from toc_ros.sweep.report import write_report
+    from toc_ros.sweep.spec import parse_spec
+    doc = {'random': {'n': 40, 'seed': 3, 'ranges': {'goal.x': [0.5, 2.0],
+                                                     'goal.y': [-1.0, 1.0]}},
+           'grid': {'robot.hand_mass': [50.0, 80.0]}}
+    sweep = parse_spec(doc, path=str(tmp_path / 'random.yaml'))
+    rows = []
+    for k, case in enumerate(sweep.cases()):
+        status = ('SOLVED', 'SOLVED', 'STALLED', 'INVALID_INPUT')[k % 4]
+        t = 1.0 + case['goal.x'] if status == 'SOLVED' else math.nan
+        rows.append(dict(case, case_id=f'{k:016x}', status=status, final_time=t,
+                         iterations=k, wall_time_s=0.01, max_control_excess=0.0,
+                         terminal_error=0.0, min_clearance=0.1, worker='w', message='m',
+                         args='toc-solve --obstacle 1 1 0.2'))
+    table = pa.Table.from_pylist(rows, schema=schema_for(sweep))
+    summary = write_report(table, sweep, str(tmp_path), n_cases=82)
+    assert summary['rows'] == 80 and summary['missing'] == 2
+    assert summary['by_status'] == {'INVALID_INPUT': 20, 'SOLVED': 40, 'STALLED': 20}
+    solved = sorted(r['final_time'] for r in rows if r['status'] == 'SOLVED')
+    assert summary['t_min_solved']['count'] == 40
+    assert summary['t_min_solved']['max'] == solved[-1]
+    assert summary['longest'][0]['final_time'] == solved[-1]
+    assert summary['failures'][0]['status'] == 'STALLED'     # solver failures before invalid
+    assert (tmp_path / 'heatmap.png').stat().st_size > 10000
+    text = (tmp_path / 'summary.md').read_text()
+    assert '| STALLED | 20 |' in text and '(2 missing)' in text
+
+
 # -- a real LocalCluster (the default of toc-sweep) ------------------------------------------
 
 def test_local_cluster_rows_equal_serial_solves(tmp_path, serial):

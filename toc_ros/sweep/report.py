@@ -198,7 +198,9 @@ def heatmap(table, sweep, path, a=1.1):
     for k, (title, mask) in enumerate(panels):
         ax = grid[k // ncol][k % ncol]
         xs, ys = np.unique(x[mask]), np.unique(y[mask])
-        if len(xs) <= GRID_MAX_VALUES and len(ys) <= GRID_MAX_VALUES:
+        cells = len(set(zip(x[mask].tolist(), y[mask].tolist())))
+        if (len(xs) <= GRID_MAX_VALUES and len(ys) <= GRID_MAX_VALUES
+                and cells >= 0.5 * len(xs) * len(ys)):      # a grid: cells, else points
             value = np.full((len(ys), len(xs)), np.nan)
             ix, iy = np.searchsorted(xs, x), np.searchsorted(ys, y)
             for i in np.flatnonzero(mask & ok):
