@@ -23,7 +23,7 @@ The sweep spec (YAML): base scenario, axes to vary, limit; parsing, checks and c
       - {obstacles.0.x: [1.0, -1.0], obstacles.0.y: [1.0, 1.2]}
     random: {n: 0, seed: 1, ranges: {goal.q1: [0.5, 1.5]}}   # n samples, uniform in ranges
     limit: 100000                                   # more cases than this: refused
-    plot: {x: goal.x, y: goal.y}                    # heat-map axes (default: first two)
+    plot: {x: goal.x, y: goal.y}        # heat-map axes (default: goal.x/y, goal.q1/q2, ...)
 
 Cases are the cross product of the grid axes, each zip group (one axis) and the random
 samples (one axis), in that order, the last varying fastest.  Only the structure is checked
@@ -41,6 +41,8 @@ import yaml
 
 TOP_LEVEL = ('base', 'grid', 'zip', 'random', 'limit', 'plot')
 DEFAULT_LIMIT = 100000
+PLOT_PAIRS = (('goal.x', 'goal.y'), ('goal.q1', 'goal.q2'), ('start.x', 'start.y'),
+              ('start.q1', 'start.q2'))
 
 
 class SpecError(ValueError):
@@ -85,10 +87,13 @@ class Sweep:
             yield dict(zip(names, itertools.chain.from_iterable(combo)))
 
     def plot_axes(self):
-        """Return the heat map's (x, y) names: plot.x/y, else the first two numeric names."""
+        """Return the heat map's (x, y): plot.x/y, else a goal/start pair, else the first two."""
         if self.plot:
             return self.plot
         numeric = [n for n in self.names if self.column_types[n] != 'string']
+        for pair in PLOT_PAIRS:
+            if set(pair) <= set(numeric):
+                return pair
         return tuple(numeric[:2]) if len(numeric) >= 2 else None
 
 
