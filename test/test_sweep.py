@@ -405,7 +405,16 @@ def test_external_scheduler_interrupted_sweep_resumes_missing_cases_only(
     assert len(new) == n - len(first)
     assert {r['worker'] for r in rows} <= set(cluster['workers'].values())
     _assert_rows_equal_serial(rows, serial)
-    assert json.loads((out / 'summary.json').read_text())['run']['done'] == n - len(first)
+    run = json.loads((out / 'summary.json').read_text())['run']
+    assert run['done'] == n - len(first)
+    assert run['task_warm_up_s'] < 0.05          # the plugin warmed the workers, not the tasks
+    # Two sweeps registered the warm-up plugin; each worker process warmed up once.
+    from distributed import Client
+    with Client(cluster['address'], timeout=10) as client:
+        events = [event for _, event in client.get_events('toc_ros')]
+    warmed = sorted(e['worker'] for e in events if e['now'])
+    assert warmed == sorted(cluster['workers'].values()), events
+    assert len(events) >= 2 * len(warmed)
 
 
 def test_external_scheduler_worker_killed_mid_sweep_loses_no_case(tmp_path, cluster, serial):

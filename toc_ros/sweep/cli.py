@@ -61,10 +61,14 @@ def build_parser():
 
 
 class ProgressBar:
-    """Cases done / failed and ETA on a carriage-return line (terminal only)."""
+    """Cases done / not solved and ETA: a redrawn line on a terminal, else a line every 30 s."""
 
-    def __init__(self, stream, total, done):
+    LOG_PERIOD_S = 30.0
+
+    def __init__(self, stream, total, done, terminal=True):
         self.stream = stream
+        self.terminal = terminal
+        self.last_log = time.monotonic()
         self.total = total
         self.start_done = done
         self.done = done
@@ -84,12 +88,17 @@ class ProgressBar:
         rate = (self.done - self.start_done) / elapsed if elapsed > 0 else 0.0
         left = self.total - self.done - self.lost
         eta = f'ETA {left / rate:.0f} s' if rate > 0 and left > 0 else ''
-        line = (f'[{"#" * filled}{"-" * (BAR_WIDTH - filled)}] {self.done}/{self.total} cases, '
+        bar = f'[{"#" * filled}{"-" * (BAR_WIDTH - filled)}] ' if self.terminal else ''
+        line = (f'{bar}{self.done}/{self.total} cases, '
                 f'{self.failed} not solved' + (f', {self.lost} lost' if self.lost else '')
                 + f', {rate:.1f} cases/s {eta}')
-        self.stream.write('\r' + line.ljust(self.width))
+        if self.terminal:
+            self.stream.write('\r' + line.ljust(self.width))
+            self.width = len(line)
+        elif time.monotonic() - self.last_log >= self.LOG_PERIOD_S:
+            self.last_log = time.monotonic()
+            self.stream.write(f'toc-sweep: {line}\n')
         self.stream.flush()
-        self.width = len(line)
 
     def clear(self):
         """Erase the line."""
@@ -188,8 +197,8 @@ def _solve(args, builder, pending, dataset, total):
         print(f'toc-sweep: {exc}', file=sys.stderr)
         return None, EXIT_CONNECT
     stats = RunStats(warm_s=time.perf_counter() - started)
-    show = not args.quiet and sys.stderr.isatty()
-    bar = ProgressBar(sys.stderr, total, total - len(pending)) if show else None
+    bar = None if args.quiet else ProgressBar(sys.stderr, total, total - len(pending),
+                                              terminal=sys.stderr.isatty())
     try:
         run_cases(client, pending, builder.params, dataset, batch_size=args.batch_size,
                   on_progress=bar, stats=stats)

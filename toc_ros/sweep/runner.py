@@ -57,6 +57,7 @@ class RunStats:
     wall_s: float = 0.0            # first submission to last result
     task_s: float = 0.0            # sum of the tasks' compute time on the workers
     cpu_s: float = 0.0             # sum of the worker processes' CPU time in the tasks
+    task_warm_s: float = 0.0       # warm-up time spent inside tasks (0 with the plugin)
     solve_s: float = 0.0           # sum of the solvers' wall_time_s
     threads: int = 0               # worker threads (max seen during the run)
     workers: set = field(default_factory=set)
@@ -73,7 +74,8 @@ class RunStats:
         """JSON-ready dict."""
         return {'cases': self.cases, 'done': self.done, 'lost': len(self.lost),
                 'tasks': self.tasks, 'wall_s': self.wall_s, 'task_s': self.task_s,
-                'solve_s': self.solve_s, 'cpu_s': self.cpu_s, 'worker_threads': self.threads,
+                'solve_s': self.solve_s, 'cpu_s': self.cpu_s,
+                'task_warm_up_s': self.task_warm_s, 'worker_threads': self.threads,
                 'workers': sorted(self.workers), 'startup_s': self.warm_s,
                 'overhead_share': self.overhead_share(),
                 'cases_per_s': self.done / self.wall_s if self.wall_s > 0 else math.nan}
@@ -203,6 +205,7 @@ def run_cases(client, cases, params, dataset, batch_size=None, on_progress=None,
                 stats.done += len(out['rows'])
                 stats.task_s += out['task_s']
                 stats.cpu_s += out.get('cpu_s', 0.0)
+                stats.task_warm_s += out.get('warm_s', 0.0)
                 stats.solve_s += sum(r['wall_time_s'] for r in out['rows'])
                 stats.workers.add(out['worker'])
                 batcher.record(len(batch), out['task_s'])

@@ -33,13 +33,14 @@ _STATE = {'warm_s': None, 'parser': None}
 
 
 def warm_up_once():
-    """Compile or load the numba kernels once per process; return the seconds it took."""
+    """Compile or load the numba kernels once per process; return (seconds, warmed now)."""
     if _STATE['warm_s'] is None:
         start = time.perf_counter()
         from toc_ros.core import warm_up
         warm_up()
         _STATE['warm_s'] = time.perf_counter() - start
-    return _STATE['warm_s']
+        return _STATE['warm_s'], True
+    return _STATE['warm_s'], False
 
 
 class WarmUpPlugin(WorkerPlugin):
@@ -49,8 +50,10 @@ class WarmUpPlugin(WorkerPlugin):
 
     async def setup(self, worker):
         """Run the warm-up off the worker's event loop (heartbeats go on meanwhile)."""
-        seconds = await asyncio.get_running_loop().run_in_executor(None, warm_up_once)
-        worker.log_event('toc_ros', {'action': 'warm-up', 'seconds': seconds})
+        seconds, now = await asyncio.get_running_loop().run_in_executor(None, warm_up_once)
+        # Visible to clients: client.get_events('toc_ros').
+        worker.log_event('toc_ros', {'action': 'warm-up', 'seconds': seconds, 'now': now,
+                                     'worker': worker.address})
 
 
 def _worker_name():
@@ -99,7 +102,7 @@ def solve_batch(batch, params):
     cpu = time.process_time()
     started_at = time.time()
     worker = _worker_name()
-    warm_up_once()          # a no-op after the plugin; covers workers without it
+    warm_up_once()          # a no-op after the plugin; covers a worker that missed it
     warm = time.perf_counter() - start
     rows = [solve_case(case_id, argv, values, params, worker)
             for case_id, argv, values in batch]
