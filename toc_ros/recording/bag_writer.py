@@ -234,6 +234,9 @@ class BagWriter:
         self._flush_lock = threading.Lock()
         self._unflushed = 0               # messages accepted since the last flush
         self._metadata_written = 0.0      # time.monotonic() of the last metadata.yaml
+        self._metadata_lock = threading.Lock()
+        self._metadata_generation = 0
+        self._metadata_generation_written = 0
         self._flusher: Optional[threading.Thread] = None
         self._stop_flusher = threading.Event()
         self.flush_count = 0              # flushes that wrote data (for tests and benchmarks)
@@ -263,7 +266,7 @@ class BagWriter:
                                       compression=CompressionType.NONE)
                 self._writer.start(profile='ros2', library=_library_string())
                 self._stream.flush()
-                self._write_metadata_yaml(self._metadata())
+                self._write_metadata_yaml(self._metadata_snapshot())
             except OSError as error:
                 self._abandon()
                 raise RecordingError(
@@ -345,7 +348,7 @@ class BagWriter:
             self._topics[name] = _Topic(name, type_name, profiles, type_hash, channel_id)
             # At once, so a bag that is never closed still lists every topic (rare: cheap).
             try:
-                self._write_metadata_yaml(self._metadata())
+                self._write_metadata_yaml(self._metadata_snapshot())
             except OSError as error:
                 raise self._fail(error) from error
             self._metadata_written = time.monotonic()
@@ -413,7 +416,7 @@ class BagWriter:
                 metadata = None
                 now = time.monotonic()
                 if wrote and now - self._metadata_written >= self._metadata_period:
-                    metadata = self._metadata()
+                    metadata = self._metadata_snapshot()
                     self._metadata_written = now
             # Outside _lock: writers go on while the disk syncs; close() waits on _flush_lock.
             try:
@@ -470,7 +473,7 @@ class BagWriter:
                 self._abandon()
             if failure is None:
                 try:
-                    self._write_metadata_yaml(self._metadata())
+                    self._write_metadata_yaml(self._metadata_snapshot())
                 except OSError as error:
                     failure = error
             if failure is not None:
@@ -526,7 +529,20 @@ class BagWriter:
             'ros_distro': self._ros_distro,
         }
 
-    def _write_metadata_yaml(self, metadata: dict):
+    def _metadata_snapshot(self):
+        """Numbered metadata (call under _lock): a later one is never replaced by an earlier."""
+        self._metadata_generation += 1
+        return self._metadata_generation, self._metadata()
+
+    def _write_metadata_yaml(self, snapshot):
+        generation, metadata = snapshot
+        with self._metadata_lock:  # the flush thread writes outside _lock
+            if generation <= self._metadata_generation_written:
+                return
+            self._write_metadata_file(metadata)
+            self._metadata_generation_written = generation
+
+    def _write_metadata_file(self, metadata: dict):
         text = dump_yaml({'rosbag2_bagfile_information': metadata})
         final = os.path.join(self.path, 'metadata.yaml')
         temporary = final + '.tmp'
