@@ -30,6 +30,7 @@ LocalCluster; the clock runs from the first submission to the last result.  Repo
   shared with other processes, which slows every solve and caps the speed-up).
 
     PYTHONPATH=. python benchmarks/bench_sweep.py [--N 1000] [--cases 200] [--json PATH]
+        [--max-iterations 300]    # ~3 ms solves (N = 60), a stand-in for a millisecond solver
 """
 
 import argparse
@@ -46,15 +47,18 @@ from toc_ros.sweep.runner import connect, run_cases, RunStats
 from toc_ros.sweep.spec import parse_spec
 
 
-def paper_like_spec(n_intervals, n_cases):
+def paper_like_spec(n_intervals, n_cases, max_iterations=None):
     """Spec of n_cases goals around the paper's (n_cases = 20 x k)."""
     n_q2 = max(1, n_cases // 20)
-    return {'base': {'mode': 'fast', 'integrator': 'euler', 'N': n_intervals},
+    base = {'mode': 'fast', 'integrator': 'euler', 'N': n_intervals}
+    if max_iterations:
+        base['max-iterations'] = max_iterations
+    return {'base': base,
             'grid': {'goal.q1': {'linspace': [1.0, 1.6, 20]},
                      'goal.q2': {'linspace': [0.8, 1.2, n_q2]}}}
 
 
-def run(workers, sweep, cases, params, folder):
+def run(workers, sweep, cases, folder):
     """Run every case on a new LocalCluster of `workers` processes; return RunStats."""
     started = time.perf_counter()
     client, cluster, _ = connect(None, workers, log=lambda *a: None)
@@ -62,7 +66,7 @@ def run(workers, sweep, cases, params, folder):
     try:
         dataset = Dataset(os.path.join(folder, f'w{workers}'), schema_for(sweep))
         dataset.prepare(False)
-        run_cases(client, cases, params, dataset, stats=stats)
+        run_cases(client, cases, dataset, stats=stats)
     finally:
         client.close()
         cluster.close()
@@ -74,18 +78,24 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--N', type=int, default=1000, help='intervals per solve (1000)')
     parser.add_argument('--cases', type=int, default=200, help='cases (multiple of 20; 200)')
+    parser.add_argument('--max-iterations', type=int, metavar='M',
+                        help='stop every solve after M iterations (status MAX_ITERATIONS): '
+                             'millisecond solves, a stand-in for a faster solver')
     parser.add_argument('--json', metavar='PATH', help='write the numbers as JSON')
     args = parser.parse_args(argv)
-    sweep = parse_spec(paper_like_spec(args.N, args.cases), path='bench_sweep')
+    sweep = parse_spec(paper_like_spec(args.N, args.cases, args.max_iterations),
+                       path='bench_sweep')
     builder = CaseBuilder(sweep)
     cases = builder.cases()
     load = os.getloadavg()
-    print(f'bench_sweep: {len(cases)} cases, fast mode, N = {args.N}, {os.cpu_count()} cores, '
-          f'load average {load[0]:.2f} at start, {platform.python_version()}')
+    limit = f', max_iterations {args.max_iterations}' if args.max_iterations else ''
+    print(f'bench_sweep: {len(cases)} cases, fast mode, N = {args.N}{limit}, '
+          f'{os.cpu_count()} cores, load average {load[0]:.2f} at start, '
+          f'{platform.python_version()}')
     results = {}
     with tempfile.TemporaryDirectory(prefix='bench_sweep-') as folder:
         for workers in (1, 2):
-            stats = run(workers, sweep, cases, builder.params, folder)
+            stats = run(workers, sweep, cases, folder)
             if stats.lost or stats.done != len(cases):
                 print(f'bench_sweep: {workers} worker(s): only {stats.done} of {len(cases)} '
                       'cases done', file=sys.stderr)
@@ -107,6 +117,7 @@ def main(argv=None):
     if args.json:
         with open(args.json, 'w') as stream:
             json.dump({'N': args.N, 'cases': len(cases), 'speedup': speedup,
+                       'max_iterations': args.max_iterations,
                        'load_average_start': load[0],
                        'runs': {str(w): s.as_dict() for w, s in results.items()}}, stream,
                       indent=1)

@@ -208,14 +208,14 @@ def test_unreadable_and_non_yaml_specs(tmp_path, capsys):
 
 
 def test_cases_become_toc_solve_arguments(tmp_path):
-    from toc_ros.solve import parse_args
+    from toc_ros.solve import build_problem, parse_args
     from toc_ros.sweep.cases import CaseBuilder, format_number
     from toc_ros.sweep.spec import parse_spec
     doc = {'base': {'N': 80, 'obstacle': [[1.0, 1.0, 0.2]]},
            'grid': {'goal.x': [1.0], 'goal.y': [-1.0e-5], 'robot.u_max.1': [450.0],
                     'obstacles.1.x': [-1.0], 'obstacles.1.y': [0.5], 'obstacles.1.radius': [0.1]}}
     builder = CaseBuilder(parse_spec(doc, path=str(tmp_path / 's.yaml')))
-    (case_id, argv, values), = builder.cases()
+    (case_id, argv, values, problem, options), = builder.cases()
     args = parse_args(argv)
     assert args.N == 80
     assert args.obstacle == [[1.0, 1.0, 0.2], [-1.0, 0.5, 0.1]]
@@ -223,6 +223,8 @@ def test_cases_become_toc_solve_arguments(tmp_path):
     assert argv[argv.index('--robot.u_max') + 1:][:2] == ['600.0', '450.0']
     assert values == {'goal.x': 1.0, 'goal.y': -1e-5, 'robot.u_max.1': 450.0,
                       'obstacles.1.x': -1.0, 'obstacles.1.y': 0.5, 'obstacles.1.radius': 0.1}
+    assert (problem.n_intervals, problem.robot.u2_max, len(problem.obstacles)) == (80, 450.0, 2)
+    assert (problem, options) == build_problem(args)      # as toc-solve builds it from the file
     for value in (-1e-05, 1.0 / 3.0, -123456.789e10, 5e-324, 2.0 ** 60):
         assert float(format_number(value)) == value
     # Same case, other spec and other config path with the same content: same hash.
@@ -232,10 +234,10 @@ def test_cases_become_toc_solve_arguments(tmp_path):
             'zip': [{'goal.x': [1.0], 'goal.y': [-1.0e-5]}],
             'grid': {'robot.u_max.1': [450.0], 'obstacles.1.x': [-1.0],
                      'obstacles.1.y': [0.5], 'obstacles.1.radius': [0.1]}}
-    (other_id, _, _), = CaseBuilder(parse_spec(doc2, path=str(tmp_path / 's.yaml'))).cases()
+    (other_id, *_), = CaseBuilder(parse_spec(doc2, path=str(tmp_path / 's.yaml'))).cases()
     assert other_id == case_id
     doc2['grid']['robot.u_max.1'] = [451.0]
-    (third_id, _, _), = CaseBuilder(parse_spec(doc2, path=str(tmp_path / 's.yaml'))).cases()
+    (third_id, *_), = CaseBuilder(parse_spec(doc2, path=str(tmp_path / 's.yaml'))).cases()
     assert third_id != case_id
 
 

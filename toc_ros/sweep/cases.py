@@ -18,7 +18,8 @@ Cases -> toc-solve arguments -> Problem/SolverOptions, by the code path of toc-s
 Every case becomes the argument list toc-solve would be given (base options, then the varied
 values: start.*/goal.* as --start/--goal, obstacles.K.* as --obstacle rows, NAME.K as element K
 of the array option --NAME, any other name as --NAME); toc_ros.solve parses it and builds the
-Problem from the scenario file read once.  A case is keyed by a hash of its arguments (without
+Problem from the scenario file read once, here on the client while the spec is checked: the
+tasks carry the built Problem/SolverOptions, the workers only solve.  A case is keyed by a hash of its arguments (without
 the --config path) and the scenario parameters, so --resume recognises it whatever the spec.
 """
 
@@ -289,7 +290,11 @@ class CaseBuilder:
         return argv
 
     def cases(self):
-        """Check every case; return [(case_id, argv, values)] (SpecError before any solve)."""
+        """Check and build every case: [(case_id, argv, values, problem, options)].
+
+        SpecError, before anything is solved, for arguments toc-solve refuses, options that do
+        not validate, duplicate cases, or when every case is an invalid problem.
+        """
         from toc_ros.core import ProblemError
         from toc_ros.solve import build_problem, parse_args
         out = []
@@ -317,7 +322,7 @@ class CaseBuilder:
             if case_id in seen:
                 self._error(f'{where} is the same case as case {seen[case_id]}')
             seen[case_id] = index
-            out.append((case_id, argv, values))
+            out.append((case_id, argv, values, problem, options))
         if out and n_invalid == len(out):
             self._error(f'every case is an invalid problem, e.g. {first_invalid}')
         return out

@@ -200,7 +200,7 @@ def _solve(args, builder, pending, dataset, total):
     bar = None if args.quiet else ProgressBar(sys.stderr, total, total - len(pending),
                                               terminal=sys.stderr.isatty())
     try:
-        run_cases(client, pending, builder.params, dataset, batch_size=args.batch_size,
+        run_cases(client, pending, dataset, batch_size=args.batch_size,
                   on_progress=bar, stats=stats)
     finally:
         if bar:

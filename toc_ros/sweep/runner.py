@@ -159,10 +159,10 @@ def _threads(client):
     return sum(w.get('nthreads', 1) for w in info.get('workers', {}).values())
 
 
-def run_cases(client, cases, params, dataset, batch_size=None, on_progress=None,
+def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
               target_task_s=TARGET_TASK_S, stats=None):
     """
-    Solve [(case_id, argv, values)] on the client's cluster, writing rows as tasks finish.
+    Solve cases (CaseBuilder.cases()) on the client's cluster, writing rows as tasks finish.
 
     on_progress(rows, n_lost) is called for every finished task.  Returns RunStats;
     cases whose task failed (e.g. too many workers died running it) are in stats.lost.
@@ -188,7 +188,7 @@ def run_cases(client, cases, params, dataset, batch_size=None, on_progress=None,
         while pending and len(batches) < TASKS_PER_WORKER * threads:
             n = batcher.size(len(pending), threads)
             batch = [pending.popleft() for _ in range(n)]
-            future = client.submit(solve_batch, batch, params, pure=False,
+            future = client.submit(solve_batch, batch, pure=False,
                                    key=f'toc-sweep-{run_id}-{stats.tasks}')
             stats.tasks += 1
             batches[future.key] = batch

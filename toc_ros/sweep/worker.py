@@ -26,10 +26,10 @@ import traceback
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from .cases import command_line, toc_solve_parser
+from .cases import command_line
 
 PLUGIN_NAME = 'toc_ros-warm-up'
-_STATE = {'warm_s': None, 'parser': None}
+_STATE = {'warm_s': None}
 
 
 def warm_up_once():
@@ -64,26 +64,16 @@ def _worker_name():
         return 'local'
 
 
-def solve_case(case_id, argv, values, params, worker='local'):
-    """Solve one case by toc-solve's code path; return its result row."""
-    from toc_ros.core import ProblemError, solve, SolveResult, Status
-    from toc_ros.solve import build_problem, parse_args
-    if _STATE['parser'] is None:
-        _STATE['parser'] = toc_solve_parser()
+def solve_case(case, worker='local'):
+    """Solve one case (case_id, argv, values, problem, options); return its result row."""
+    from toc_ros.core import solve, SolveResult, Status
+    case_id, argv, values, problem, options = case
     try:
-        args = parse_args(argv, _STATE['parser'])
-        problem, options = build_problem(args, params)
-    except ProblemError as exc:
-        result = SolveResult(status=Status.INVALID_INPUT, message=str(exc))
+        result = solve(problem, options)
         status = result.status.value
-    else:
-        try:
-            result = solve(problem, options)
-            status = result.status.value
-        except Exception:       # noqa: B902 - a bug must not take the batch down
-            result = SolveResult(status=Status.INVALID_INPUT,
-                                 message=traceback.format_exc(limit=3))
-            status = 'ERROR'
+    except Exception:       # noqa: B902 - a bug must not take the batch down
+        result = SolveResult(status=Status.INVALID_INPUT, message=traceback.format_exc(limit=3))
+        status = 'ERROR'
     v = result.violations
     row = {'case_id': case_id}
     row.update(values)
@@ -96,16 +86,15 @@ def solve_case(case_id, argv, values, params, worker='local'):
     return row
 
 
-def solve_batch(batch, params):
-    """Dask task: solve [(case_id, argv, values)]; rows plus the task's timing."""
+def solve_batch(batch):
+    """Dask task: solve a list of cases; their rows plus the task's timing."""
     start = time.perf_counter()
     cpu = time.process_time()
     started_at = time.time()
     worker = _worker_name()
     warm_up_once()          # a no-op after the plugin; covers a worker that missed it
     warm = time.perf_counter() - start
-    rows = [solve_case(case_id, argv, values, params, worker)
-            for case_id, argv, values in batch]
+    rows = [solve_case(case, worker) for case in batch]
     return {'rows': rows, 'worker': worker, 'task_s': time.perf_counter() - start - warm,
             'cpu_s': time.process_time() - cpu, 'warm_s': warm, 'started_at': started_at,
             'finished_at': time.time()}
