@@ -19,8 +19,9 @@ Every case becomes the argument list toc-solve would be given (base options, the
 values: start.*/goal.* as --start/--goal, obstacles.K.* as --obstacle rows, NAME.K as element K
 of the array option --NAME, any other name as --NAME); toc_ros.solve parses it and builds the
 Problem from the scenario file read once, here on the client while the spec is checked: the
-tasks carry the built Problem/SolverOptions, the workers only solve.  A case is keyed by a hash of its arguments (without
-the --config path) and the scenario parameters, so --resume recognises it whatever the spec.
+tasks carry the built Problem/SolverOptions, the workers only solve.  A case is keyed by a
+hash of its arguments (without the --config path) and the scenario parameters, so --resume
+recognises it whatever the spec.
 """
 
 import hashlib
@@ -290,7 +291,8 @@ class CaseBuilder:
         return argv
 
     def cases(self):
-        """Check and build every case: [(case_id, argv, values, problem, options)].
+        """
+        Check and build every case: [(case_id, argv, values, problem, options)].
 
         SpecError, before anything is solved, for arguments toc-solve refuses, options that do
         not validate, duplicate cases, or when every case is an invalid problem.

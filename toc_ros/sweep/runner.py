@@ -33,6 +33,7 @@ import time
 import uuid
 
 TARGET_TASK_S = 1.0          # aimed-for duration of one task
+MIN_TASK_S = 0.05            # tasks at the end are not made shorter than this
 FIRST_BATCH = 1              # cases per task until solve times have been measured
 MAX_BATCH = 2000
 TASKS_PER_WORKER = 3         # tasks in flight per worker thread
@@ -103,7 +104,7 @@ class Batcher:
             return max(1, min(FIRST_BATCH, remaining))
         per_case = max(self.seconds / self.cases, 1e-6)
         size = int(self.target_s / per_case)
-        tail = math.ceil(remaining / (2 * max(threads, 1)))
+        tail = max(math.ceil(remaining / (2 * max(threads, 1))), int(MIN_TASK_S / per_case))
         return max(1, min(size, tail, MAX_BATCH, remaining))
 
 
@@ -159,6 +160,24 @@ def _threads(client):
     return sum(w.get('nthreads', 1) for w in info.get('workers', {}).values())
 
 
+class _Threads:
+    """Worker threads of the cluster, asked of the scheduler at most once a second."""
+
+    def __init__(self, client, stats):
+        self.client = client
+        self.stats = stats
+        self.value = 0
+        self.when = -math.inf
+
+    def __call__(self):
+        now = time.monotonic()
+        if now - self.when >= 1.0:
+            self.value = max(_threads(self.client), 1)
+            self.when = now
+            self.stats.threads = max(self.stats.threads, self.value)
+        return self.value
+
+
 def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
               target_task_s=TARGET_TASK_S, stats=None):
     """
@@ -182,11 +201,14 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
     run_id = uuid.uuid4().hex[:12]      # keys unique across runs sharing a scheduler
     start = time.perf_counter()
 
+    threads = _Threads(client, stats)
+
     def submit():
-        threads = max(_threads(client), 1)
-        stats.threads = max(stats.threads, threads)
-        while pending and len(batches) < TASKS_PER_WORKER * threads:
-            n = batcher.size(len(pending), threads)
+        # Until a first task has been timed, two single-case tasks per thread (a case may take
+        # minutes); then TASKS_PER_WORKER per thread, so that none waits for the client.
+        window = (TASKS_PER_WORKER if batcher.cases else 2) * threads()
+        while pending and len(batches) < window:
+            n = batcher.size(len(pending), threads())
             batch = [pending.popleft() for _ in range(n)]
             future = client.submit(solve_batch, batch, pure=False,
                                    key=f'toc-sweep-{run_id}-{stats.tasks}')
@@ -200,6 +222,8 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
             batch = batches.pop(future.key)
             if future.status == 'finished':
                 out = future.result()
+                batcher.record(len(batch), out['task_s'])
+                submit()            # refill first: the workers go on while the rows are written
                 dataset.write(out['rows'])
                 stats.files += 1
                 stats.done += len(out['rows'])
@@ -208,7 +232,6 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
                 stats.task_warm_s += out.get('warm_s', 0.0)
                 stats.solve_s += sum(r['wall_time_s'] for r in out['rows'])
                 stats.workers.add(out['worker'])
-                batcher.record(len(batch), out['task_s'])
                 if on_progress:
                     on_progress(out['rows'], 0)
             else:
