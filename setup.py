@@ -18,7 +18,8 @@ setup(
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in a plain venv,
     # from the PyPI wheels named in the 'ros' extra.
-    install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib'],
+    install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib',
+                      'dask[distributed]', 'pyarrow'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         # Robot models from model files (toc_ros.core.models.symbolic).
@@ -44,6 +45,8 @@ setup(
             'toc-solve = toc_ros.solve:main',
             'toc-demo = toc_ros.demo:main',
             'toc-analyze = toc_ros.analysis.cli:main',
+            'toc-sweep = toc_ros.sweep.cli:main',
+            'toc-bag = toc_ros.recording.bag_tool:main',
         ],
     },
 )

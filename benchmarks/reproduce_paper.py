@@ -54,6 +54,9 @@ from toc_ros.core import (  # noqa: E402
     SolverOptions, Status, warm_up)
 
 PAPER_CLAIM = 1.71          # [s] t_min of section 4 (Figs. 5-7)
+# The section-4 scenario as the core defines it: every number of the report's text about the
+# scenario (bounds, circle, margin, robot data) is read from here or from the runs.
+BASE = Problem()
 CONTACT = 1e-4              # [m] 'touching' the inflated circle, for the Fig. 7 comparison
 REPORT_NAME = 'paper_reproduction.md'
 FIGURE_DIR = 'figures'
@@ -83,7 +86,7 @@ QUICK = Config(n=200, paper_n=1000, paper_iterations=2000, rk4_n=50, sweep_n=100
 
 
 @dataclass
-class Run:
+class SolveRecord:
     """One solve, its violations measured on the core's yardstick (measure_violations)."""
 
     label: str
@@ -111,12 +114,13 @@ class Run:
 # problems and solvers
 # ------------------------------------------------------------------------------------------
 
-def paper_problem(n, integrator='euler', variant='eq37', obstacles=True, u1_max=600.0,
-                  u2_max=500.0):
-    """Return the section-4 scenario with the given changes."""
-    base = Problem()
-    robot = replace(base.robot, model_variant=variant, u1_max=float(u1_max),
-                    u2_max=float(u2_max))
+def paper_problem(n, integrator='euler', variant='eq37', obstacles=True, u1_max=None,
+                  u2_max=None):
+    """Return the section-4 scenario with the given changes (bounds: the paper's if None)."""
+    base = BASE
+    robot = replace(base.robot, model_variant=variant,
+                    u1_max=float(base.robot.u1_max if u1_max is None else u1_max),
+                    u2_max=float(base.robot.u2_max if u2_max is None else u2_max))
     return replace(base, n_intervals=n, integrator=integrator, robot=robot,
                    obstacles=base.obstacles if obstacles else ())
 
@@ -137,11 +141,12 @@ def run_core(label, problem, mode, iterations=None):
     result = solve(problem, SolverOptions(mode=mode, max_iterations=iterations))
     ok = result.status is Status.SOLVED or (
         mode == 'paper' and result.status is Status.SOLVED_INACCURATE)
-    return Run(label=label, solver=mode, problem=problem, status=result.status.value, ok=ok,
-               t_f=result.final_time, states=result.states, controls=result.controls,
-               violations=result.violations, iterations=result.iterations,
-               wall_s=result.wall_time_s, note=result.message, history=result.history,
-               obstacle_mode='arm' if problem.obstacles else 'none')
+    return SolveRecord(
+        label=label, solver=mode, problem=problem, status=result.status.value, ok=ok,
+        t_f=result.final_time, states=result.states, controls=result.controls,
+        violations=result.violations, iterations=result.iterations,
+        wall_s=result.wall_time_s, note=result.message, history=result.history,
+        obstacle_mode='arm' if problem.obstacles else 'none')
 
 
 def run_reference(ref, label, problem, obstacle_mode='arm'):
@@ -154,13 +159,14 @@ def run_reference(ref, label, problem, obstacle_mode='arm'):
         robot={'hand_mass': robot.hand_mass, 'link_mass': robot.link_mass,
                'inertia': robot.inertia, 'a': robot.a})
     states, violations = measure_violations(problem, res['controls'], res['t_f'])
-    return Run(label=label, solver='ipopt', problem=problem, status=res['status'],
-               ok=bool(res['success']), t_f=float(res['t_f']), states=states,
-               controls=np.asarray(res['controls']), violations=violations,
-               iterations=int(res['iterations']),
-               wall_s=float(res['wall_time_s'] + res['setup_time_s']),
-               note=f'best of {len(res["attempts"])} initial guesses ({res["guess"]})',
-               obstacle_mode=obstacle_mode)
+    return SolveRecord(
+        label=label, solver='ipopt', problem=problem, status=res['status'],
+        ok=bool(res['success']), t_f=float(res['t_f']), states=states,
+        controls=np.asarray(res['controls']), violations=violations,
+        iterations=int(res['iterations']),
+        wall_s=float(res['wall_time_s'] + res['setup_time_s']),
+        note=f'best of {len(res["attempts"])} initial guesses ({res["guess"]})',
+        obstacle_mode=obstacle_mode)
 
 
 def _log(msg):
@@ -356,7 +362,8 @@ def run_all(cfg, use_reference=True):
         out['both_scale'] = scale
         out['both_scaled'] = _done(run_core(
             f'fast N={n} u_max x {scale:.4f}',
-            paper_problem(n, u1_max=600.0 * scale, u2_max=500.0 * scale), 'fast'))
+            paper_problem(n, u1_max=BASE.robot.u1_max * scale,
+                          u2_max=BASE.robot.u2_max * scale), 'fast'))
     out['total_s'] = time.monotonic() - started
     out['machine']['load_after'] = os.getloadavg() if hasattr(os, 'getloadavg') else None
     return out
@@ -465,14 +472,15 @@ def plot_sweep(sweep, path):
     pts = sorted((u2, run.t_f) for u2, run in sweep['steps'] if run.ok)
     if pts:
         ax.plot(*zip(*pts), 'o-', label='whole-arm t_min (fast mode)')
-    ax.axhline(PAPER_CLAIM, color='r', linestyle='--', label='paper: 1.71 s')
-    ax.axvline(500.0, color='0.4', linestyle=':', label="paper's u2_max = 500 N")
+    ax.axhline(PAPER_CLAIM, color='r', linestyle='--', label=f'paper: {PAPER_CLAIM:g} s')
+    ax.axvline(BASE.robot.u2_max, color='0.4', linestyle=':',
+               label=f"paper's u2_max = {BASE.robot.u2_max:g} N")
     ax.set_xlabel('u2_max [N]')
     ax.set_ylabel('t_min [s]')
     ax.grid(True, alpha=0.3)
     ax.legend()
     n = sweep['steps'][0][1].problem.n_intervals
-    ax.set_title(f'Minimum time vs u2_max (u1_max = 600 N m, N = {n})')
+    ax.set_title(f'Minimum time vs u2_max (u1_max = {BASE.robot.u1_max:g} N m, N = {n})')
     fig.savefig(path)
 
 
@@ -577,14 +585,15 @@ def _sweep_text(res):
     if not sweep['bracketed']:
         why = (f'a solve failed at u2_max = {sweep["failed_at"]:.2f} N'
                if 'failed_at' in sweep else
-               f'1.71 s is not between t_min({cfg.sweep_bracket[0]:g} N) and '
+               f'{PAPER_CLAIM:g} s is not between t_min({cfg.sweep_bracket[0]:g} N) and '
                f't_min({cfg.sweep_bracket[1]:g} N)')
         return f'The bisection stopped: {why}.\n\n{table}\n'
     lo, hi = sweep['lo'], sweep['hi']
     text = (f'Bisection on u2_max (fast mode, Euler, N = {cfg.sweep_n}, whole-arm obstacle, '
-            f'u1_max = 600 N m) down to a bracket of {cfg.sweep_tol:g} N: the whole-arm t_min '
-            f'reaches 1.71 s for **u2_max ≈ {hi:.0f} N** (between {lo:.1f} and {hi:.1f} N, '
-            f"i.e. {hi / 500.0:.2f}× the paper's 500 N).")
+            f'u1_max = {BASE.robot.u1_max:g} N m) down to a bracket of {cfg.sweep_tol:g} N: the '
+            f'whole-arm t_min reaches {PAPER_CLAIM:g} s for **u2_max ≈ {hi:.0f} N** (between '
+            f"{lo:.1f} and {hi:.1f} N, i.e. {hi / BASE.robot.u2_max:.2f}× the paper's "
+            f'{BASE.robot.u2_max:g} N).')
     confirm = sweep.get('confirm_fast')
     if confirm is not None:
         text += (f' Confirmed at N = {cfg.n}: fast mode gives t_min = {_t(confirm)} s '
@@ -602,10 +611,13 @@ def _limits_text(res):
     text = [_sweep_text(res)]
     ipopt = res.get('u1_alone_ipopt')
     text.append(
-        f"*u1_max alone*: with u1_max = {cfg.u1_large:g} N m (10× the paper's) and "
-        f'u2_max = 500 N the whole-arm t_min is {_t(u1)} s in fast mode ({u1.status})'
+        f'*u1_max alone*: with u1_max = {cfg.u1_large:g} N m '
+        f"({cfg.u1_large / BASE.robot.u1_max:g}× the paper's) and "
+        f'u2_max = {BASE.robot.u2_max:g} N the whole-arm t_min is {_t(u1)} s in fast mode '
+        f'({u1.status})'
         + (f' and {_t(ipopt)} s with IPOPT ({ipopt.status})' if ipopt is not None else '')
-        + f' at N = {cfg.sweep_n}, against {base.t_f:.4f} s with 600 N m at N = {cfg.n}'
+        + f' at N = {cfg.sweep_n}, against {base.t_f:.4f} s with {BASE.robot.u1_max:g} N m '
+        f'at N = {cfg.n}'
         + _u1_remark(u1, ipopt) + '. '
         'A faster rotation does not remove the need to retract the arm under the circle and '
         'extend it again, which u2_max limits.')
@@ -615,9 +627,11 @@ def _limits_text(res):
         text.append(
             f'*Both limits scaled by s*: eq. (37) has no gravity or friction, so with t → t/k '
             f'and u → k²u the same path is followed k times faster (exactly, also for Euler and '
-            f'RK4 at fixed N); t_min scales as 1/√s. Reaching 1.71 s from {base.t_f:.4f} s needs '
-            f's = ({base.t_f:.4f}/1.71)² = {s:.4f}, i.e. u1_max = {600 * s:.0f} N m and '
-            f'u2_max = {500 * s:.0f} N; fast mode with these limits gives t_min = {_t(both)} s '
+            f'RK4 at fixed N); t_min scales as 1/√s. Reaching {PAPER_CLAIM:g} s from '
+            f'{base.t_f:.4f} s needs s = ({base.t_f:.4f}/{PAPER_CLAIM:g})² = {s:.4f}, i.e. '
+            f'u1_max = {BASE.robot.u1_max * s:.0f} N m and '
+            f'u2_max = {BASE.robot.u2_max * s:.0f} N; fast mode with these limits gives '
+            f't_min = {_t(both)} s '
             f'({both.status}), which checks the scaling law.')
     return '\n\n'.join(text)
 
@@ -637,6 +651,7 @@ def _paper_text(res):
     e = b['terminal']
     po = PaperOptions()
     n = run.problem.n_intervals
+    excess = _excess_text(b, run.problem.robot)
     return f"""\
 Paper mode returns t_min = **{run.t_f:.4f} s**: N τ at the last of the {b['accepted']} iterations
 (iteration {b['last_accepted']} of {run.iterations}) whose J_T fell below J_ε = {po.j_eps:g};
@@ -646,9 +661,9 @@ J_T is a penalty, so the accepted controls need not be feasible. Re-integrating 
 
 * terminal error x(N) − x_f = ({e[0]:+.2e} rad, {e[1]:+.2e} rad/s, {e[2] * 1e3:+.2f} mm,
   {e[3] * 1e3:+.2f} mm/s), norm {v.terminal_error:.2e}: J1 = {b['j1']:.2e};
-* control excess: {_excess_text(b)}: J2 = {b['j2']:.2e} (J2 weights the squared excess by
+* control excess: {excess}: J2 = {b['j2']:.2e} (J2 weights the squared excess by
   K̂_V = τ0 K_V = {b['tau0'] * po.k_v:.1e});
-* obstacle: {_obstacle_text(b, v)}: J3 = {b['j3']:.2e} with K̂_p = τ0 K_p.
+* obstacle: {_obstacle_text(b, v, run.problem)}: J3 = {b['j3']:.2e} with K̂_p = τ0 K_p.
 
 J1 + J2 + J3 = {b['j1'] + b['j2'] + b['j3']:.4e} recomputed here in numpy, against
 {b['j_accepted']:.4e} recorded by the solver at that iteration. J_ε = {po.j_eps:g} would
@@ -662,9 +677,10 @@ thin out: the last {min(5, len(b['gaps']))} gaps between them were {b['gaps_text
 (convergence figure)."""
 
 
-def _excess_text(b):
+def _excess_text(b, robot):
     parts = []
-    for k, (unit, bound) in enumerate((('N m', 600), ('N', 500))):
+    for k, (unit, bound) in enumerate((('N m', f'{robot.u1_max:g}'),
+                                       ('N', f'{robot.u2_max:g}'))):
         if b['excess_nodes'][k]:
             parts.append(f"u{k + 1} up to {b['excess_max'][k]:.3f} {unit} above {bound} {unit} "
                          f"at {b['excess_nodes'][k]} nodes")
@@ -673,14 +689,15 @@ def _excess_text(b):
     return ', '.join(parts)
 
 
-def _obstacle_text(b, v):
+def _obstacle_text(b, v, problem):
     if b['penetration_nodes'] == 0:
         return (f'the arm stays outside the inflated circle (eq. 41 holds at every node; '
                 f'whole-arm clearance {v.min_clearance * 1e3:+.3f} mm)')
     return (f"the arm enters the inflated circle by up to {b['penetration'] * 1e3:.3f} mm "
             f"(eq. 41 residual, {b['penetration_nodes']} nodes; whole-arm clearance "
-            f'{v.min_clearance * 1e3:+.3f} mm, still {(v.min_clearance + 0.01) * 1e3:.2f} mm '
-            "outside the real circle R' = 0.2 m)")
+            f'{v.min_clearance * 1e3:+.3f} mm, still '
+            f'{(v.min_clearance + problem.margin) * 1e3:.2f} mm '
+            f"outside the real circle R' = {problem.obstacles[0][2]:g} m)")
 
 
 def _explanation(res):
@@ -695,7 +712,9 @@ def _explanation(res):
              f'Euler, N = {res["config"].n}; t_min in seconds. The paper claims 1.71 s.\n',
              _variants_table(res), '',
              '¹ paper mode returns N τ of its last accepted iteration with residual violations '
-             '(see (e)); its t_f moves in steps of N Δτ = 0.01 s. ² the core has only the '
+             '(see (e)); its t_f moves in steps of N Δτ = '
+             f'{res["paper"].problem.n_intervals * PaperOptions().d_tau:.3g} s. ² the core '
+             'has only the '
              'whole-arm condition; the hand-only problem is solved by the reference.', '']
     parts.append(_verdict(res) + '\n')
     parts.append(f"""\
@@ -799,18 +818,39 @@ def _hand_clearance(run):
                      run.problem.circles()))
 
 
+def _state_text(x):
+    """Write a state as the report does: angles as multiples of π/12 when they are."""
+    def angle(value):
+        k = value / (math.pi / 12.0)
+        if abs(k - round(k)) > 1e-12:
+            return f'{value:g}'
+        k = int(round(k))
+        return '0' if k == 0 else ('π/12' if k == 1 else f'{k}π/12')
+    return f'({angle(x[0])}, {x[1]:g}, {x[2]:g}, {x[3]:g})'
+
+
+def _scenario_text(problem):
+    """Describe the section-4 scenario in words, from the Problem itself."""
+    (cx, cy, radius), = problem.obstacles
+    robot = problem.robot
+    return (f'x0 = {_state_text(problem.x0)} → x_f = {_state_text(problem.x_goal)}, the '
+            f"circle centred at ({cx:g}, {cy:g}) m with R' = {radius:g} m inflated by "
+            f'δR = {problem.margin:g} m to R = {radius + problem.margin:g} m, '
+            f'|u1| ≤ {robot.u1_max:g} N m, |u2| ≤ {robot.u2_max:g} N, the robot of eq. (37) '
+            f'(M = {robot.hand_mass:g} kg, m = {robot.link_mass:g} kg, I1 + I2 = '
+            f'{robot.inertia:g} kg m², a = {robot.a:g} m)')
+
+
 def _method(res):
     po = PaperOptions()
     return f"""\
 ## Method
 
-All runs solve the section-4 scenario: x0 = (π/12, 0, 1, 0) → x_f = (5π/12, 0, 1, 0), the
-circle centred at (1, 1) m with R' = 0.2 m inflated by δR = 0.01 m to R = 0.21 m, |u1| ≤ 600 N m,
-|u2| ≤ 500 N, the robot of eq. (37) (M = 50 kg, m = 97 kg, I1 + I2 = 193 kg m², a = 1.1 m),
+All runs solve the section-4 scenario: {_scenario_text(res['paper'].problem)},
 N intervals of τ = t_f / N with controls constant on each interval.
 
 * **Paper mode** (`SolverOptions(mode='paper')`, defaults = the paper's constants): u(0) = 0,
-  t_f0 = 2.5 s; gradient descent with constant η = {po.eta:g} (eq. 32) on
+  t_f0 = {res['paper'].problem.t_f0:g} s; gradient descent with constant η = {po.eta:g} (eq. 32) on
   J_T = J1 + J2 + J3 (eq. 33) with the BPTT gradient (eqs. 24–31); J1 = K_B |x(N) − x_f|²
   (eq. 7, K_B = {po.k_b:g}), J2 the control-bound penalty (eq. 8, K_V = {po.k_v:g}), J3 the
   obstacle penalty (eq. 42, K_p = {po.k_p:g}) with the eq. (46) shortcut gradient
@@ -861,6 +901,8 @@ def render_markdown(res, figures):
     after = res['machine'].get('load_after')
     load_after = ', '.join(f'{x:.1f}' for x in after) if after else 'n/a'
     versions = ', '.join(f'{k} {v}' for k, v in mach['versions'].items())
+    scenario = res['paper'].problem
+    r_inflated = scenario.obstacles[0][2] + scenario.margin
     quick = ('\n> **Quick configuration** (`--quick`, smoke test): N, M and the bisection are '
              'reduced; these numbers are not the reproduction.\n' if cfg.quick else '')
     ref_note = ('' if res['have_reference'] else
@@ -904,16 +946,15 @@ constants returns {res['paper'].t_f:.4f} s ({res['paper'].status}). {_verdict(re
 {_table(res)}
 
 Violations: control excess in N m (u1) / N (u2), terminal error |x(N) − x_f| (Euclidean
-over rad, rad/s, m, m/s), min clearance of the whole arm to the inflated circle R = 0.21 m
-(negative: inside). ¹ IPOPT wall time includes building the NLP; it solves from several
-initial guesses.
+over rad, rad/s, m, m/s), min clearance of the whole arm to the inflated circle
+R = {r_inflated:g} m (negative: inside). ¹ IPOPT wall time includes building the NLP; it solves
+from several initial guesses.
 
 Machine: {mach['cpu']}, {mach['cores']} cores, {mach['system']}; {versions}; commit
 {mach['commit']}. Load average {load} at the start and {load_after} at the end of the run:
-the machine is shared with other engineers' test runs, so **wall times are noisy** (fast mode
-has varied by several times between runs of the same problem); iteration counts and t_min
-are deterministic for a given commit. Numba warm-up {res['warm_up_s']:.1f} s, whole script
-{res['total_s']:.0f} s.
+the machine is shared with other engineers' test runs, so **wall times depend on that load**;
+iteration counts and t_min are deterministic for a given commit. Numba warm-up
+{res['warm_up_s']:.1f} s, whole script {res['total_s']:.0f} s.
 
 {_method(res)}
 ## Why not 1.71 s

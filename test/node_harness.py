@@ -21,33 +21,22 @@ and a random namespace, so concurrent test runs do not see each other.
 
 import contextlib
 import math
-import os
 from pathlib import Path
-import random
-import signal
-import subprocess
-import sys
-import threading
 import time
 from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from toc_ros import harness
+from toc_ros.harness import LATCHED  # noqa: F401 - the tests import it from here
+from toc_ros.progress import progress_from_msg
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'toc_ros.yaml'
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     reliability=ReliabilityPolicy.RELIABLE)
 PAPER_X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
 PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
 # A goal away from the paper's obstacle: a real plan that solves quicker than the paper's.
@@ -61,153 +50,14 @@ U_MAX = (600.0, 500.0)
 JOINTS = ['rotation_joint', 'extension_joint']
 
 
-def ros_value(value):
-    """Format a parameter value for --ros-args -p name:=value."""
-    if isinstance(value, (list, tuple)):
-        return '[' + ', '.join(ros_value(v) for v in value) + ']'
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, float):
-        return repr(value)
-    return str(value)
+class NodeProcess(harness.NodeProcess):
+    """A toc_ros node of the tests: the scenario file unless told otherwise."""
+
+    def __init__(self, module, namespace, log_dir, params=None, params_file=CONFIG, **kwargs):
+        super().__init__(module, namespace, log_dir, params, params_file, **kwargs)
 
 
-class NodeProcess:
-    """A toc_ros node started with python -m toc_ros.nodes.<module>, logging to a file."""
-
-    def __init__(self, module, namespace, log_dir, params=None, params_file=CONFIG):
-        self.log_path = Path(log_dir) / f'{module}.log'
-        command = [sys.executable, '-m', f'toc_ros.nodes.{module}', '--ros-args',
-                   '-r', f'__ns:={namespace}']
-        if params_file:
-            command += ['--params-file', str(params_file)]
-        for name, value in (params or {}).items():
-            command += ['-p', f'{name}:={ros_value(value)}']
-        env = dict(os.environ)
-        env['PYTHONPATH'] = os.pathsep.join(
-            [str(REPO)] + [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
-        env.setdefault('AMENT_PREFIX_PATH', str(Path(sys.prefix)))
-        env['ROS_LOG_DIR'] = str(Path(log_dir) / 'ros_log')
-        env['PYTHONUNBUFFERED'] = '1'
-        with open(self.log_path, 'w') as log:
-            self.process = subprocess.Popen(command, env=env, stdout=log,
-                                            stderr=subprocess.STDOUT)
-
-    def log(self):
-        """Return the output so far."""
-        return self.log_path.read_text()
-
-    def wait_for_log(self, text, timeout=60.0):
-        """Wait until text appears in the output (fails if the process exits)."""
-        deadline = time.monotonic() + timeout
-        while text not in self.log():
-            assert self.process.poll() is None, f'node exited early:\n{self.log()}'
-            assert time.monotonic() < deadline, f'no {text!r} in the log:\n{self.log()}'
-            time.sleep(0.05)
-
-    def stop(self, timeout=10.0):
-        """SIGINT, then SIGKILL if needed; return the exit code."""
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
-            try:
-                self.process.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-        return self.process.returncode
-
-
-class RosClient:
-    """A node in a private context, spun by a background thread; collects messages."""
-
-    def __init__(self, name='toc_test_client'):
-        self.saved_env = {k: os.environ.get(k) for k in
-                          ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
-        os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
-        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-        self.namespace = f'/toc_test_{os.getpid()}_{random.randint(0, 10 ** 6)}'
-        self.context = Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.lock = threading.Lock()
-        self.received = {}
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # noqa: B902 - shutting down
-                if not self.context.ok():
-                    return
-                raise
-
-    def name(self, relative):
-        """Absolute name of a topic/service of the nodes under test."""
-        return f'{self.namespace}/{relative}'
-
-    def collect(self, msg_type, relative, qos=10):
-        """Subscribe and store (receipt time, message) in received[relative]."""
-        self.received[relative] = []
-
-        def store(msg):
-            with self.lock:
-                self.received[relative].append((time.monotonic(), msg))
-        return self.node.create_subscription(msg_type, self.name(relative), store, qos)
-
-    def messages(self, relative, since=0.0):
-        """Messages of a collected topic received at or after monotonic time since."""
-        with self.lock:
-            return [m for t, m in self.received[relative] if t >= since]
-
-    def stamped(self, relative, since=0.0):
-        """(receipt time, message) pairs of a collected topic since a monotonic time."""
-        with self.lock:
-            return [(t, m) for t, m in self.received[relative] if t >= since]
-
-    def wait_for(self, predicate, timeout=30.0, what='condition'):
-        """Poll predicate() until it returns a truthy value; return it."""
-        deadline = time.monotonic() + timeout
-        while True:
-            value = predicate()
-            if value:
-                return value
-            assert time.monotonic() < deadline, f'timed out waiting for {what}'
-            time.sleep(0.01)
-
-    def call(self, client, request, timeout=60.0):
-        """Call a service and wait for the response."""
-        assert client.wait_for_service(timeout_sec=30.0), f'no service {client.srv_name}'
-        future = client.call_async(request)
-        done = threading.Event()
-        future.add_done_callback(lambda _f: done.set())
-        assert done.wait(timeout), f'{client.srv_name} did not answer in {timeout} s'
-        return future.result()
-
-    def set_parameters(self, node_name, values, timeout=10.0):
-        """Set parameters of a node under test one by one; return the SetParametersResults."""
-        from rcl_interfaces.srv import SetParameters
-        client = self.node.create_client(SetParameters, self.name(f'{node_name}/set_parameters'))
-        request = SetParameters.Request()
-        request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in
-                              values.items()]
-        response = self.call(client, request, timeout)
-        self.node.destroy_client(client)
-        return response.results
-
-    def close(self):
-        """Shut the context down and restore the environment."""
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-        self._thread.join(timeout=2.0)
-        for key, value in self.saved_env.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+RosClient = harness.RosClient
 
 
 def pose(x, y, frame='base_link'):
@@ -226,13 +76,18 @@ def pose_of(state):
 
 
 def values(status):
-    """Key/values of a DiagnosticStatus."""
+    """Key/values of a DiagnosticStatus (~/tracking; ~/progress is read with report())."""
     return {kv.key: kv.value for kv in status.values}
+
+
+def report(status):
+    """Return the ProgressReport of a ~/progress message."""
+    return progress_from_msg(status)
 
 
 def is_final(status):
     """Tell whether a ~/progress message ends a request (anything but a running solve)."""
-    return values(status).get('status') != 'SOLVING'
+    return progress_from_msg(status).final
 
 
 def level_name(status):

@@ -25,7 +25,7 @@ import json
 import math
 
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -35,7 +35,7 @@ import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
-from toc_ros import conversions
+from toc_ros import conversions, progress as schema
 from toc_ros.analysis.cli import main
 from toc_ros.core import Problem, RobotParams, solve
 from toc_ros.core.integrators import RK4, rollout
@@ -87,9 +87,8 @@ class Plant:
         return samples
 
 
-def progress(values, level=DiagnosticStatus.OK, message='solving'):
-    return DiagnosticStatus(level=level, name='solver_node', message=message,
-                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+def progress(report):
+    return schema.progress_msg('solver_node', report)
 
 
 def build_run(path, result):
@@ -112,28 +111,27 @@ def build_run(path, result):
     add(0.10, '/goal_pose', pose)
     history = result.history[np.linspace(0, len(result.history) - 1, 6).astype(int)]
     for k, (iteration, t_f, cost) in enumerate(history):
-        add(0.2 + 0.15 * k, '/solver_node/progress', progress(
-            {'status': 'SOLVING', 'iteration': int(iteration), 't_f': t_f, 'cost': cost,
-             'best_feasible_t_f': 'nan', 'elapsed_s': 0.1 + 0.15 * k}))
+        add(0.2 + 0.15 * k, '/solver_node/progress', progress(schema.ProgressReport(
+            iteration=int(iteration), t_f=t_f, cost=cost, best_feasible_t_f=math.nan,
+            elapsed_s=0.1 + 0.15 * k)))
     t1 = 1.1
     traj1 = conversions.trajectory_msg(result, NAMES, RobotParams(), stamp(t1))
     add(t1, '/trajectory', traj1)
     add(t1, '/planned_path', conversions.hand_path_msg(states, A, 'base_link', stamp(t1)))
     add(t1 + 0.001, '/markers', conversions.markers_msg(OBSTACLES_1, MARGIN, A, 'base_link',
                                                         stamp(t1), states))
-    add(t1 + 0.002, '/solver_node/progress', conversions.result_msg(
-        'solver_node', result, extra={'wall_clock_note': 'synthetic'}))
+    add(t1 + 0.002, '/solver_node/progress', progress(schema.result_report(result)))
     # a refused request between the plans
-    add(1.5, '/solver_node/progress', conversions.error_msg('solver_node', 'goal is NaN'))
+    add(1.5, '/solver_node/progress', progress(schema.refusal_report('goal is NaN')))
 
     # plan 2: back to the start (the time-reversed motion), new obstacles, the goal only in
     # the final progress (as for a ~/plan service request)
     t2 = t1 + t_min + 0.6
     add(t2 - 0.3, '/obstacles', Float64MultiArray(data=[v for row in OBSTACLES_2 for v in row]))
     for k in range(3):
-        add(t2 - 0.2 + 0.05 * k, '/solver_node/progress', progress(
-            {'status': 'SOLVING', 'iteration': 100 * (k + 1), 't_f': 2.5 - 0.1 * k,
-             'cost': 10.0 / (k + 1), 'elapsed_s': 0.05 * (k + 1)}))
+        add(t2 - 0.2 + 0.05 * k, '/solver_node/progress', progress(schema.ProgressReport(
+            iteration=100 * (k + 1), t_f=2.5 - 0.1 * k, cost=10.0 / (k + 1),
+            elapsed_s=0.05 * (k + 1))))
     reversed_result = type(result)(
         status=result.status, message='', final_time=t_min, time_grid=times,
         states=(states[::-1] * np.array([1.0, -1.0, 1.0, -1.0])),
@@ -141,8 +139,8 @@ def build_run(path, result):
         violations=result.violations)
     traj2 = conversions.trajectory_msg(reversed_result, NAMES, RobotParams(), stamp(t2))
     add(t2, '/trajectory', traj2)
-    add(t2 + 0.003, '/solver_node/progress', conversions.result_msg(
-        'solver_node', reversed_result, extra={'goal': str(states[0].tolist())}))
+    add(t2 + 0.003, '/solver_node/progress', progress(schema.result_report(
+        reversed_result, goal=tuple(states[0].tolist()))))
 
     # the plant: at rest until plan 1, tracks it, then plan 2
     rest = [(k * 0.01, states[0], np.zeros(2)) for k in range(int(t1 / 0.01))]
@@ -162,7 +160,8 @@ def build_run(path, result):
         add(t, '/joint_states', JointState(
             name=NAMES, position=[x[0], x[2]], velocity=[x[1], x[3]], effort=[u[0], u[1]]))
         if round(t * 100) % 10 == 0:
-            add(t + 0.0005, '/plant_node/tracking', progress({'position_error': 0.0}))
+            add(t + 0.0005, '/plant_node/tracking', conversions.diagnostic_msg(
+                'plant_node', DiagnosticStatus.OK, 'tracking', {'position_error': 0.0}))
 
     types = {'/obstacles': 'std_msgs/msg/Float64MultiArray',
              '/goal_pose': 'geometry_msgs/msg/PoseStamped',

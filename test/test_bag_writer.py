@@ -20,6 +20,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+import time
 
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point
@@ -33,6 +34,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import get_typestore, Stores
 from std_msgs.msg import String
+from toc_ros.recording.bag_reader import Recording
 from toc_ros.recording.bag_writer import BagWriter, qos_profile_to_dict, RecordingError
 from toc_ros.recording.msg_definitions import (
     full_definition, MessageDefinitionError, MessageDefinitionSource, type_description_hash)
@@ -315,6 +317,38 @@ def test_concurrent_writers_lose_nothing(tmp_path):
     assert got == {t: [f'{t} {k}' for k in range(2500)] for t in topics}
 
 
+def test_topics_added_while_the_flush_thread_rewrites_metadata(tmp_path):
+    """Each thread adds its topic mid-recording; metadata.yaml always parses, lists them all."""
+    writer = BagWriter(tmp_path / 'bag', flush_period=0.005, metadata_period=0.0).create()
+    topics = [f'/m{k}' for k in range(8)]
+
+    def produce(topic):
+        writer.add_topic(topic, 'std_msgs/msg/String')
+        for k in range(300):
+            writer.write(topic, string_cdr(f'{topic} {k}'), 10_000 + k)
+            if k % 50 == 0:
+                time.sleep(0.002)
+
+    def listed():
+        info = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+        info = info['rosbag2_bagfile_information']
+        return {t['topic_metadata']['name'] for t in info['topics_with_message_count']}
+
+    threads = [threading.Thread(target=produce, args=(t,)) for t in topics]
+    for thread in threads:
+        thread.start()
+    while any(thread.is_alive() for thread in threads):
+        assert listed() <= set(topics)
+    for thread in threads:
+        thread.join()
+    assert writer.error is None and listed() == set(topics)  # not yet closed
+    assert writer.flush_count > 0
+    writer.close()
+    assert listed() == set(topics)
+    with Recording(tmp_path / 'bag') as recording:
+        assert len(list(recording.messages())) == 8 * 300 and not recording.damaged
+
+
 def test_full_disk_is_a_clear_error(tmp_path):
     # RLIMIT_FSIZE makes writes fail with EFBIG past 200 kB, like a full disk.
     script = textwrap.dedent(f"""
@@ -342,4 +376,8 @@ def test_full_disk_is_a_clear_error(tmp_path):
     lines = result.stdout.splitlines()
     assert lines[0].startswith('WRITE writing ') and 'File too large' in lines[0], lines
     assert lines[1].startswith('CLOSE bag ') and 'incomplete' in lines[1], lines
-    assert not (tmp_path / 'bag' / 'metadata.yaml').exists()
+    # metadata.yaml is the one of the last flush (written at create, then while recording)
+    info = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    info = info['rosbag2_bagfile_information']
+    assert [t['topic_metadata']['name'] for t in info['topics_with_message_count']] == ['/big']
+    assert info['message_count'] < 200

@@ -17,7 +17,6 @@
 import math
 
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticStatus
 from node_harness import eq37, pose
 import numpy as np
 import pytest
@@ -25,7 +24,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from toc_ros import conversions
 from toc_ros.conversions import ConversionError
-from toc_ros.core import Progress, RobotParams, SolveResult, Status, Violations
+from toc_ros.core import RobotParams, SolveResult, Status, Violations
 from toc_ros.core.integrators import EULER, rollout
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker
@@ -130,38 +129,18 @@ def test_markers_show_obstacles_inflated_circles_path_and_arm(result):
     assert sorted(by_ns) == ['arm', 'inflated_obstacles', 'obstacles', 'planned_path']
     cylinders = by_ns['obstacles']
     assert [m.scale.x for m in cylinders] == pytest.approx([0.4, 0.6])
-    for ring, (cx, cy, r) in zip(by_ns['inflated_obstacles'], [(1.0, 1.0, 0.2),
-                                                               (-1.0, 0.5, 0.3)]):
-        radii = [math.hypot(p.x - cx, p.y - cy) for p in ring.points]
+    (rings,) = by_ns['inflated_obstacles']     # one line list for all circles
+    assert rings.type == Marker.LINE_LIST and len(rings.points) % 2 == 0
+    per_circle = len(rings.points) // 2
+    for k, (cx, cy, r) in enumerate([(1.0, 1.0, 0.2), (-1.0, 0.5, 0.3)]):
+        points = rings.points[k * per_circle:(k + 1) * per_circle]
+        radii = [math.hypot(p.x - cx, p.y - cy) for p in points]
         assert radii == pytest.approx([r + 0.01] * len(radii))
     arm = by_ns['arm'][0].points
     x0 = result.states[0]
     assert (arm[0].x, arm[0].y) == (0.0, 0.0)
     assert math.hypot(arm[1].x, arm[1].y) == pytest.approx(1.1 + x0[2])
     assert len(by_ns['planned_path'][0].points) == len(result.states)
-
-
-def test_progress_and_result_levels(result):
-    running = conversions.progress_msg('solver', Progress(12, 2.1, 0.5, math.nan, 0.3, 'fast'))
-    values = conversions.diagnostic_values(running)
-    assert running.level == DiagnosticStatus.OK and values['status'] == 'SOLVING'
-    assert values['iteration'] == '12' and float(values['t_f']) == 2.1
-    assert values['best_feasible_t_f'] == 'nan' and float(values['elapsed_s']) == 0.3
-    expected = {Status.SOLVED: DiagnosticStatus.OK, Status.SOLVED_INACCURATE:
-                DiagnosticStatus.WARN, Status.CANCELED: DiagnosticStatus.WARN,
-                Status.TIMEOUT: DiagnosticStatus.WARN, Status.STALLED: DiagnosticStatus.ERROR,
-                Status.MAX_ITERATIONS: DiagnosticStatus.ERROR,
-                Status.INVALID_INPUT: DiagnosticStatus.ERROR}
-    assert set(expected) == set(Status)
-    for status, level in expected.items():
-        result.status = status
-        msg = conversions.result_msg('solver', result, 'why', {'goal_source': 'test'})
-        values = conversions.diagnostic_values(msg)
-        assert (msg.level, msg.message, values['status']) == (level, 'why', status.value)
-        assert values['goal_source'] == 'test' and float(values['min_clearance']) == 0.05
-    result.status = Status.SOLVED
-    refusal = conversions.error_msg('solver', 'bad goal')
-    assert refusal.level == DiagnosticStatus.ERROR and refusal.message == 'bad goal'
 
 
 def test_pose_inverse_kinematics():

@@ -31,6 +31,8 @@ import sys
 from mcap_ros2.reader import read_ros2_messages
 import pytest
 from rosbags.highlevel import AnyReader
+from toc_ros.core import Status
+from toc_ros.progress import obstacles_hash, progress_from_msg
 
 REPO = Path(__file__).resolve().parents[1]
 JOINTS = ['rotation_joint', 'extension_joint']
@@ -85,14 +87,10 @@ def printed_tolerance(stdout):
     return float(found[0][0]), float(found[0][1])
 
 
-def values(status):
-    return {kv.key: kv.value for kv in status.values}
-
-
 def test_demo_succeeds_and_reports_each_plan(demo):
     proc, output, summary = demo
     assert summary['success'] is True
-    assert [p['status'] for p in summary['plans']] == ['SOLVED', 'SOLVED']
+    assert [p['status'] for p in summary['plans']] == [Status.SOLVED.value] * 2
     assert summary['plans'][1]['start_source'] == 'joint_states'
     for plan in summary['plans']:
         assert 0.5 < plan['t_min'] < 5.0 and plan['solve_wall_time_s'] > 0.0
@@ -130,11 +128,14 @@ def test_recording_holds_what_was_sent(demo, recorded):
         duration = end.time_from_start.sec + 1e-9 * end.time_from_start.nanosec
         assert duration == pytest.approx(plan['t_min'], rel=1e-6)
 
-    final = [values(m) for _, m in recorded['/solver_node/progress']
-             if values(m)['status'] != 'SOLVING']
-    assert [v['status'] for v in final] == ['SOLVED', 'SOLVED']
-    assert [float(v['t_f']) for v in final] == pytest.approx([p['t_min'] for p in plans])
-    assert sum(values(m)['status'] == 'SOLVING' for _, m in recorded['/solver_node/progress']) >= 2
+    reports = [progress_from_msg(m) for _, m in recorded['/solver_node/progress']]
+    final = [r for r in reports if r.final]
+    assert [r.status for r in final] == [Status.SOLVED] * 2
+    assert [r.t_f for r in final] == pytest.approx([p['t_min'] for p in plans])
+    assert sum(r.solving for r in reports) >= 2
+    # Each result names the obstacle set it was planned for.
+    assert [r.obstacles_hash for r in final] == [
+        obstacles_hash(p['obstacles'], 0.01) for p in plans]
     assert len(recorded['/planned_path']) == 2
 
     drawn = []   # obstacle sets drawn by the solver's markers, in order of change

@@ -17,16 +17,19 @@
 import time
 from types import SimpleNamespace
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from node_harness import (
-    handshake, is_final, JOINTS, NEAR_GOAL, NodeProcess, PAPER_X0, pose_of, RosClient,
-    SOLVE_TIMEOUT, TEST_PARAMS, values)
+    handshake, is_final, JOINTS, NEAR_GOAL, NodeProcess, PAPER_X0, pose_of, report,
+    RosClient, SOLVE_TIMEOUT, TEST_PARAMS, values)
 import numpy as np
 import pytest
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from toc_ros import conversions
+from toc_ros.core import Problem, solve, SolverOptions, Status
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 N = TEST_PARAMS['solver.N']
@@ -128,8 +131,8 @@ def test_closed_loop_plan_reaches_the_goal(plant, record_property):
     final = plant.client.wait_for(
         lambda: [m for m in plant.client.messages('solver_node/progress', since)
                  if is_final(m)], SOLVE_TIMEOUT, 'solve')[0]
-    assert values(final)['status'] == 'SOLVED', final.message
-    assert values(final)['start_source'] == 'joint_states'
+    assert report(final).status is Status.SOLVED, final.message
+    assert report(final).start_source == 'joint_states'
     trajectory = plant.client.wait_for(lambda: plant.client.messages('trajectory')[count:],
                                        10.0, 'trajectory')[-1]
     first = trajectory.points[0]
@@ -152,13 +155,19 @@ def test_closed_loop_plan_reaches_the_goal(plant, record_property):
     assert np.all(error[[0, 2]] < GOAL_TOLERANCE) and np.all(error[[1, 3]] < 1e-2)
     # Solver (Euler, tau = t_f / N) and plant (RK4, 1 kHz) differ only by discretisation.
     assert max_error < 0.05
-    plant.planned = trajectory
 
 
-def test_model_mismatch_needs_the_feedback(plant, record_property):
-    trajectory = getattr(plant, 'planned', None)
-    if trajectory is None:
-        pytest.skip('needs the plan of test_closed_loop_plan_reaches_the_goal')
+@pytest.fixture(scope='module')
+def planned():
+    """Solve the minimum-time plan to NEAR_GOAL from PAPER_X0 here (no test order needed)."""
+    problem = Problem(x0=PAPER_X0, x_goal=NEAR_GOAL, n_intervals=N)
+    result = solve(problem, SolverOptions(timeout=SOLVE_TIMEOUT))
+    assert result.status is Status.SOLVED, result.message
+    return conversions.trajectory_msg(result, JOINTS, problem.robot, Time())
+
+
+def test_model_mismatch_needs_the_feedback(plant, planned, record_property):
+    trajectory = planned
     reset(plant)
     _, matched = run_trajectory(plant, trajectory, settle=0.3)
     results = plant.client.set_parameters('plant_node', {'payload_mass_offset': 20.0})

@@ -21,6 +21,7 @@ on are re-checked with the plain-numpy model of test/numpy_model.py.
 """
 
 import copy
+from dataclasses import replace
 import importlib.util
 import math
 from pathlib import Path
@@ -173,6 +174,18 @@ def test_report_without_reference_says_so(quick, tmp_path):
 
 
 def _as_result(run):
-    """Adapt a reproduce_paper.Run to the SolveResult fields numpy_model.assert_feasible reads."""
+    """Adapt a reproduce_paper.SolveRecord to the SolveResult fields assert_feasible reads."""
     return type('R', (), {'controls': run.controls, 'states': run.states, 'final_time': run.t_f,
                           'time_grid': run.time_grid, 'violations': run.violations})()
+
+
+def test_report_numbers_come_from_the_data(quick):
+    """The scenario's numbers in the text are read from the Problem, not written by hand."""
+    res, _, text = quick
+    assert rp._scenario_text(res['paper'].problem) in text
+    changed = replace(rp.BASE, margin=0.03, robot=replace(rp.BASE.robot, u2_max=450.0))
+    described = rp._scenario_text(changed)
+    assert 'to R = 0.23 m' in described and '|u2| ≤ 450 N' in described
+    steps = res['paper'].problem.n_intervals * rp.PaperOptions().d_tau
+    assert f'N Δτ = {steps:.3g} s' in text
+    assert f'inflated circle\nR = {0.2 + res["paper"].problem.margin:g} m' in text

@@ -14,8 +14,11 @@
 
 """Timer callbacks racing shutdown (SIGINT after a SIGSTOP pause) end the node cleanly."""
 
+from pathlib import Path
 import random
 import signal
+import subprocess
+import sys
 import time
 
 from node_harness import NodeProcess
@@ -25,6 +28,8 @@ from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
 from rclpy.signals import SignalHandlerOptions
 from toc_ros.nodes.plant_node import PlantNode
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -82,3 +87,41 @@ def test_plant_sigint_after_a_sigstop_pause_exits_0(tmp_path, monkeypatch, pause
     log = plant.log()
     assert exit_code == 0, log
     assert 'Traceback' not in log and 'RCLError' not in log, log
+
+
+RUN_NODE_SCRIPT = """
+import sys
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import String
+from toc_ros.nodes.common import run_node
+
+
+class Racer(Node):
+    def __init__(self):
+        super().__init__('racer')
+        self.pub = self.create_publisher(String, 'race', 10)
+        self.create_timer(0.05, self.tick)
+
+    def tick(self):
+        if sys.argv[1] == 'shutdown':
+            rclpy.shutdown(context=self.context)  # as rclpy's SIGINT handler does
+        else:
+            self.pub.destroy()                    # a real bug: the context is still valid
+        self.pub.publish(String(data='late'))
+
+
+sys.exit(run_node('racer', Racer, SingleThreadedExecutor))
+"""
+
+
+@pytest.mark.parametrize('case, expected', [('shutdown', 0), ('bug', 1)])
+def test_run_node_ends_cleanly_on_a_publish_racing_shutdown_only(tmp_path, monkeypatch,
+                                                                 case, expected):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path))
+    result = subprocess.run([sys.executable, '-c', RUN_NODE_SCRIPT, case], capture_output=True,
+                            text=True, timeout=60, cwd=str(REPO))
+    assert result.returncode == expected, result.stderr
+    assert ('Traceback' in result.stderr) == (expected != 0), result.stderr

@@ -29,7 +29,7 @@ from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from std_msgs.msg import ColorRGBA
-from toc_ros.core import Problem, ProblemError, Status
+from toc_ros.core import Problem, ProblemError
 from toc_ros.core.model import dynamics
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
@@ -37,19 +37,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 # Goals closer than this to the base axis have no defined rotation q1 = atan2(y, x).
 MIN_AXIS_DISTANCE = 1e-6
 # Line segments of an inflated-obstacle circle marker.
-CIRCLE_SEGMENTS = 64
+CIRCLE_SEGMENTS = 32
 # Height [m] of the obstacle cylinders drawn in RViz (the model is planar).
 OBSTACLE_HEIGHT = 0.1
-
-LEVELS = {
-    Status.SOLVED: DiagnosticStatus.OK,
-    Status.SOLVED_INACCURATE: DiagnosticStatus.WARN,
-    Status.CANCELED: DiagnosticStatus.WARN,
-    Status.TIMEOUT: DiagnosticStatus.WARN,
-    Status.MAX_ITERATIONS: DiagnosticStatus.ERROR,
-    Status.STALLED: DiagnosticStatus.ERROR,
-    Status.INVALID_INPUT: DiagnosticStatus.ERROR,
-}
 
 TrajectoryArrays = namedtuple(
     'TrajectoryArrays', 'times positions velocities accelerations efforts')
@@ -163,13 +153,17 @@ def _marker(frame_id, stamp, ns, marker_id, marker_type, rgba):
     return marker
 
 
-def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_state=None):
+def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_state=None,
+                obstacles_info=None, plan_info=None):
     """
     Build the MarkerArray for RViz: DELETEALL, then obstacles, inflated circles, hand path, arm.
 
-    obstacles: rows (x, y, radius R'); the 'inflated' circles have radius R' + margin (what the
-    planner keeps the arm out of).  a [m]: hand offset of the robot.  path_states / arm_state:
-    rows (q1, dq1, q2, dq2) or None.
+    obstacles: rows (x, y, radius R'); the 'inflated_obstacles' marker (one LINE_LIST of all
+    circles) has radius R' + margin (what the planner keeps the arm out of).  a [m]: hand
+    offset of the robot.  path_states / arm_state: rows (q1, dq1, q2, dq2) or None.
+    obstacles_info / plan_info: (obstacles hash, data revision) of the current obstacle set and
+    of the set the path was planned for, drawn as text markers 'obstacles_info' / 'plan_info'.
+    Cost: one cylinder per obstacle plus one line list, so a large set stays cheap.
     """
     out = MarkerArray()
     clear = Marker()
@@ -177,21 +171,27 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
     clear.header.stamp = stamp
     clear.action = Marker.DELETEALL
     out.markers.append(clear)
-    angles = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
-    for k, (cx, cy, radius) in enumerate(obstacles):
+    rows = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+    for k, (cx, cy, radius) in enumerate(rows):
         body = _marker(frame_id, stamp, 'obstacles', k, Marker.CYLINDER, (0.5, 0.5, 0.5, 0.8))
         body.pose.position.x, body.pose.position.y = float(cx), float(cy)
         body.pose.position.z = 0.5 * OBSTACLE_HEIGHT
         body.scale.x = body.scale.y = 2.0 * float(radius)
         body.scale.z = OBSTACLE_HEIGHT
         out.markers.append(body)
-        ring = _marker(frame_id, stamp, 'inflated_obstacles', k, Marker.LINE_STRIP,
-                       (1.0, 0.5, 0.0, 1.0))
-        ring.scale.x = 0.01
-        inflated = float(radius) + float(margin)
-        ring.points = [Point(x=float(cx + inflated * math.cos(t)),
-                             y=float(cy + inflated * math.sin(t))) for t in angles]
-        out.markers.append(ring)
+    if len(rows):
+        rings = _marker(frame_id, stamp, 'inflated_obstacles', 0, Marker.LINE_LIST,
+                        (1.0, 0.5, 0.0, 1.0))
+        rings.scale.x = 0.01
+        angles = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
+        inflated = rows[:, 2:3] + float(margin)
+        xs = rows[:, 0:1] + inflated * np.cos(angles)[None, :]
+        ys = rows[:, 1:2] + inflated * np.sin(angles)[None, :]
+        # Segment i of every circle: points i and i + 1.
+        seg_x = np.stack([xs[:, :-1], xs[:, 1:]], axis=2).reshape(-1)
+        seg_y = np.stack([ys[:, :-1], ys[:, 1:]], axis=2).reshape(-1)
+        rings.points = [Point(x=x, y=y) for x, y in zip(seg_x.tolist(), seg_y.tolist())]
+        out.markers.append(rings)
     if path_states is not None and len(path_states):
         states = np.asarray(path_states, dtype=float).reshape(-1, 4)
         line = _marker(frame_id, stamp, 'planned_path', 0, Marker.LINE_STRIP,
@@ -207,6 +207,15 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
         arm.scale.x = 0.03
         arm.points = [Point(), Point(x=(a + q2) * math.cos(q1), y=(a + q2) * math.sin(q1))]
         out.markers.append(arm)
+    for ns, info, z, text in (('obstacles_info', obstacles_info, 0.3, 'obstacles'),
+                              ('plan_info', plan_info, 0.45, 'plan for obstacles')):
+        if info is None:
+            continue
+        label = _marker(frame_id, stamp, ns, 0, Marker.TEXT_VIEW_FACING, (1.0, 1.0, 1.0, 1.0))
+        label.pose.position.z = z
+        label.scale.z = 0.08
+        label.text = f'{text} {info[0]}, data revision {info[1]}'
+        out.markers.append(label)
     return out
 
 
@@ -222,56 +231,6 @@ def diagnostic_msg(name, level, message, values):
     """Build a DiagnosticStatus with values (a dict, order kept) as string key/values."""
     return DiagnosticStatus(level=level, name=name, message=message,
                             values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
-
-
-def progress_values(progress, status='SOLVING'):
-    """Key/values of a core Progress (violations 'nan' until the core measured them)."""
-    v = progress.violations
-    return {
-        'status': status,
-        'iteration': int(progress.iteration),
-        't_f': progress.t_f,
-        'cost': progress.cost,
-        'best_feasible_t_f': progress.best_feasible_t_f,
-        'max_control_excess': math.nan if v is None else v.max_control_excess,
-        'terminal_error': math.nan if v is None else v.terminal_error,
-        'min_clearance': math.nan if v is None else v.min_clearance,
-        'elapsed_s': progress.elapsed_s,
-        'phase': progress.phase,
-    }
-
-
-def progress_msg(name, progress, message='solving'):
-    """Level-OK DiagnosticStatus of a running solve."""
-    return diagnostic_msg(name, DiagnosticStatus.OK, message, progress_values(progress))
-
-
-def result_msg(name, result, message=None, extra=None):
-    """Build the final DiagnosticStatus of a solve: level by status (LEVELS), name, numbers."""
-    v = result.violations
-    values = {
-        'status': result.status.value,
-        'iteration': int(result.iterations),
-        't_f': result.final_time,
-        'cost': math.nan,
-        'best_feasible_t_f': result.final_time if result.success else math.nan,
-        'max_control_excess': v.max_control_excess,
-        'terminal_error': v.terminal_error,
-        'min_clearance': v.min_clearance,
-        'elapsed_s': result.wall_time_s,
-        'phase': 'done',
-        'mode': result.mode,
-        'integrator': result.integrator,
-        'N': int(result.n_intervals),
-    }
-    values.update(extra or {})
-    return diagnostic_msg(name, LEVELS[result.status],
-                          result.message if message is None else message, values)
-
-
-def error_msg(name, reason, status=Status.INVALID_INPUT.value):
-    """Level-ERROR DiagnosticStatus for a refused request."""
-    return diagnostic_msg(name, DiagnosticStatus.ERROR, reason, {'status': status})
 
 
 def diagnostic_values(msg):

@@ -31,9 +31,10 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from toc_ros.config import obstacle_rows, robot_from_parameters
-from toc_ros.conversions import (ConversionError, diagnostic_values, joint_state_arrays,
-                                 obstacle_rows_from_msg, pose_to_joint_goal, trajectory_arrays)
-from toc_ros.core import arm_clearance, hand_position
+from toc_ros.conversions import (ConversionError, joint_state_arrays, obstacle_rows_from_msg,
+                                 pose_to_joint_goal, trajectory_arrays)
+from toc_ros.core import arm_clearance, hand_position, Status
+from toc_ros.progress import progress_from_msg, ProgressReport
 
 # Role -> (last name token, type). Names are matched below any namespace.
 ROLES = {
@@ -53,7 +54,6 @@ NEEDED_FOR = {
     'obstacles': 'obstacles sent at run time (else markers or the parameter file are used)',
     'goal_pose': 'the goal of a plan the solver did not report (its terminal error)',
 }
-RUNNING = 'SOLVING'
 # A plan and the final progress of its solve are published within this time [s].
 PROGRESS_MATCH_S = 2.0
 # Markers up to this long after a plan still show the obstacles it was planned around [s].
@@ -97,7 +97,7 @@ class Solve:
     final_time: Optional[float] = None                  # [s] of the final progress message
     status: str = 'unfinished'
     message: str = ''
-    values: Dict[str, str] = field(default_factory=dict)
+    report: ProgressReport = field(default_factory=ProgressReport)   # the final message
 
 
 @dataclass
@@ -132,7 +132,7 @@ class Execution:
 
 
 @dataclass
-class Run:
+class RecordedRun:
     """Everything read from a recording, decoded, by role."""
 
     topics: Dict[str, Optional[str]]
@@ -141,7 +141,7 @@ class Run:
     params: dict
 
 
-def load_run(recording, params, warn=None) -> Run:
+def load_run(recording, params, warn=None) -> RecordedRun:
     """Decode the messages of every role from a toc_ros.recording.bag_reader.Recording."""
     readable = recording.readable_topics()
     topics = find_topics(readable, warn)
@@ -153,7 +153,7 @@ def load_run(recording, params, warn=None) -> Run:
     start_ns = min(firsts) if firsts else 0
     messages = {role: [((t - start_ns) * 1e-9, m) for t, m in sorted(items, key=lambda x: x[0])]
                 for role, items in raw.items()}
-    return Run(topics, messages, start_ns, dict(params))
+    return RecordedRun(topics, messages, start_ns, dict(params))
 
 
 # -- solves, plans, executions --------------------------------------------------------------
@@ -168,20 +168,20 @@ def solves_from_progress(progress) -> List[Solve]:
     solves = []
     running: Dict[str, Solve] = {}
     for time, msg in progress:
-        values = diagnostic_values(msg)
-        status = values.get('status', '')
-        if status == RUNNING or not status:
+        report = progress_from_msg(msg)
+        if report.solving:
             running.setdefault(msg.name, Solve()).points.append({
-                'time': time, 'iteration': _float(values.get('iteration')),
-                't_f': _float(values.get('t_f')), 'cost': _float(values.get('cost')),
-                'elapsed_s': _float(values.get('elapsed_s'))})
+                'time': time, 'iteration': _float(report.iteration), 't_f': _float(report.t_f),
+                'cost': _float(report.cost), 'elapsed_s': _float(report.elapsed_s)})
             continue
-        if 'iteration' in values:
+        if not report.final:       # a notice (ready, queued), not part of a solve
+            continue
+        if report.iteration is not None:
             solve = running.pop(msg.name, None) or Solve()
         else:
             solve = Solve()
-        solve.final_time, solve.status = time, status
-        solve.message, solve.values = msg.message, values
+        solve.final_time, solve.status = time, report.status.value
+        solve.message, solve.report = msg.message, report
         solves.append(solve)
     for solve in running.values():  # the recording ends during a solve
         solve.message = (f'the recording ends during this solve (last progress at '
@@ -191,12 +191,11 @@ def solves_from_progress(progress) -> List[Solve]:
     return solves
 
 
-def _vector(text, size=4):
-    """Parse a '[a, b, c, d]' string into an array of size finite numbers, or None."""
-    try:
-        values = np.array([float(v) for v in str(text).strip('[]() ').split(',')])
-    except ValueError:
+def _vector(values, size=4):
+    """Array of size finite numbers from a sequence (None when it is not one)."""
+    if values is None:
         return None
+    values = np.asarray(values, dtype=float)
     return values if values.shape == (size,) and np.all(np.isfinite(values)) else None
 
 
@@ -325,11 +324,11 @@ def build_plans(run, solves, warn) -> List[Plan]:
                     obstacles_source=source, margin=margin, margin_source=margin_source,
                     goal=goal, goal_source=goal_source)
         near = [s for s in free if abs(s.final_time - time) <= PROGRESS_MATCH_S
-                and s.status != 'INVALID_INPUT']
+                and s.status != Status.INVALID_INPUT.value]
         if near:
             plan.solve = min(near, key=lambda s: abs(s.final_time - time))
             free.remove(plan.solve)
-            reported = _vector(plan.solve.values.get('goal'))
+            reported = _vector(plan.solve.report.goal)
             if reported is not None:  # the goal the solver used (covers ~/plan requests)
                 plan.goal, plan.goal_source = reported, 'solver progress'
         plans.append(plan)
@@ -398,7 +397,7 @@ def build_executions(run, plans, warn) -> List[Execution]:
 def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> dict:
     """Summary entry of a plan: solver's report and the violations recomputed here."""
     solve = plan.solve or Solve(status='unknown')
-    values = solve.values
+    report = solve.report
     excess = None
     if plan.efforts is not None:
         excess = max(float(np.max(np.abs(plan.efforts) - u_max[None, :])), 0.0)
@@ -416,9 +415,8 @@ def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> d
         'status': solve.status,
         'message': solve.message,
         't_min': float(plan.times[-1]),
-        'solve_wall_time_s': _num(_float(values.get('elapsed_s'))),
-        'iterations': (int(_float(values['iteration']))
-                       if math.isfinite(_float(values.get('iteration'))) else None),
+        'solve_wall_time_s': _num(_float(report.elapsed_s)),
+        'iterations': report.iteration,
         'points': int(plan.times.size),
         'joint_names': plan.joint_names,
         'goal': None if plan.goal is None else plan.goal.tolist(),
@@ -429,8 +427,10 @@ def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> d
         'margin_source': plan.margin_source,
         'violations': {'max_control_excess': _num(excess), 'terminal_error': _num(terminal),
                        'min_clearance': _num(clearance), 'start_error': _num(start_error)},
-        'reported_violations': {k: _num(_float(values.get(k))) for k in
-                                ('max_control_excess', 'terminal_error', 'min_clearance')},
+        'reported_violations': {
+            'max_control_excess': _num(_float(report.max_control_excess)),
+            'terminal_error': _num(_float(report.terminal_error)),
+            'min_clearance': _num(_float(report.min_clearance))},
     }
 
 
@@ -473,7 +473,7 @@ def execution_numbers(execution: Execution, plan: Plan, a: float, u_max: np.ndar
 class Report:
     """A run's numbers (summary, JSON-ready) and the arrays the plots draw."""
 
-    run: Run
+    run: RecordedRun
     solves: List[Solve]
     plans: List[Plan]
     executions: List[Execution]
@@ -496,7 +496,7 @@ def missing_roles(run, goal_needed=True) -> List[str]:
     return missing
 
 
-def analyse(run: Run, recording_info: dict, warn) -> Report:
+def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
     """Plans, executions and the summary of a loaded run."""
     robot = robot_from_parameters(run.params)
     a, u_max = robot.a, robot.u_max
@@ -525,8 +525,8 @@ def analyse(run: Run, recording_info: dict, warn) -> Report:
         'executions': [execution_numbers(e, plans[e.plan], a, u_max) for e in executions],
         'solves': [{'status': s.status, 'message': s.message,
                     'time_s': _num(s.final_time), 'progress_messages': len(s.points),
-                    'iterations': _num(_float(s.values.get('iteration'))),
-                    'elapsed_s': _num(_float(s.values.get('elapsed_s')))} for s in solves],
+                    'iterations': _num(_float(s.report.iteration)),
+                    'elapsed_s': _num(_float(s.report.elapsed_s))} for s in solves],
         'missing': missing_roles(run, any(p.goal is None for p in plans)),
     }
     names = plans[0].joint_names if plans else list(run.params['joint_names'])
@@ -583,7 +583,8 @@ def markdown(summary: dict) -> str:
                 f'| {e["final_hand_error"]:.3g} | {rms["q1"]:.3g} | {rms["q2"]:.3g} '
                 f'| {rms["hand"]:.3g} | {effort} |')
         lines.append('')
-    other = [s for s in summary['solves'] if s['status'] not in ('SOLVED', 'unknown')]
+    other = [s for s in summary['solves']
+             if s['status'] not in (Status.SOLVED.value, 'unknown')]
     if other:
         lines += ['## Other solver outcomes', '']
         lines += [f'- {_fmt(s["time_s"], 5)} s: {s["status"]}: {s["message"]}'

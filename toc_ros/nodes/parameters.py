@@ -32,6 +32,10 @@ from toc_ros.config import SCENARIO_TABLE
 from toc_ros.core.settings import parameter_table, setting
 
 
+class ParameterError(ValueError):
+    """Invalid node parameters at start-up (the on-set callbacks guard later changes)."""
+
+
 @dataclass(frozen=True)
 class SolverNodeSettings:
     """solver_node's own parameters (beyond the scenario's)."""
@@ -39,6 +43,10 @@ class SolverNodeSettings:
     extension_limits: Tuple[float, float] = setting(
         (-1.0, 3.0), '[q2_min, q2_max] m: reachable extension of goals (goal_pose, goal_joints, '
         '~/plan); the paper gives none, so generous defaults')
+    max_count: int = setting(
+        64, 'largest obstacle set accepted (obstacles topic and obstacles.* parameters); '
+        'larger sets are refused with the reason on ~/progress', low=0, high=100000,
+        ros_name='obstacles.max_count')
 
 
 @dataclass(frozen=True)

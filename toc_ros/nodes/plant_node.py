@@ -63,10 +63,6 @@ TRACKING_PERIOD_S = 0.1
 MAX_CATCH_UP_S = 0.5
 
 
-class ParameterError(ValueError):
-    """Invalid parameters at start-up."""
-
-
 def plant_robot(params):
     """Return the plant's RobotParams: the solver's data with the mismatch knobs applied."""
     robot = robot_from_parameters(params)
@@ -136,7 +132,7 @@ class PlantNode(Node):
         self._params = parameters.values(self, PARAMETER_NAMES)
         errors = parameter_errors(self._params)
         if errors:
-            raise ParameterError('; '.join(errors))
+            raise parameters.ParameterError('; '.join(errors))
         self._apply_parameters()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -300,7 +296,7 @@ class PlantNode(Node):
 def main(args=None):
     """Run plant_node until shutdown; exit code 2 for invalid parameters."""
     return run_node('plant_node', PlantNode, SingleThreadedExecutor, args=args,
-                    errors=(ParameterError, InvalidParameterValueException,
+                    errors=(parameters.ParameterError, InvalidParameterValueException,
                             InvalidParameterTypeException),
                     error_prefix='invalid parameters: ')
 

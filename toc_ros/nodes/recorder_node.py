@@ -21,6 +21,11 @@ the CDR bytes received (``raw=True``); each topic is subscribed with QoS adapted
 publishers, so latched (transient-local) messages are caught. SIGINT, SIGTERM and node
 shutdown close the bag with a valid summary; errors exit non-zero with a message.
 
+Crash durability: the chunk in progress is written and fsynced at least every
+``flush_period`` s (default 0.1), so a SIGKILL or a power loss loses at most about two periods
+(the chunk in memory and one being written); ``toc-bag recover`` rewrites such a bag into a
+complete one, and ``toc-analyze`` and ``replay_node`` read it as it is.
+
 Run: ``ros2 run toc_ros recorder_node --ros-args -p output:=runs/x -p "topics:=[/a, /b]"``
 """
 
@@ -42,7 +47,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from toc_ros.nodes.common import topic_list
-from toc_ros.recording.bag_writer import BagWriter, qos_profile_to_dict, RecordingError
+from toc_ros.recording.bag_writer import (
+    BagWriter, FLUSH_PERIOD_S, qos_profile_to_dict, RecordingError)
 from toc_ros.recording.msg_definitions import (
     full_definition, MessageDefinitionError, split_type_name, type_description_hash)
 from toc_ros.recording.process import default_output_dir
@@ -117,6 +123,16 @@ class RecorderNode(Node):
             description='s between two scans of the ROS graph for new topics',
             floating_point_range=[FloatingPointRange(from_value=0.05, to_value=10.0)],
             read_only=True))
+        self.declare_parameter('flush_period', FLUSH_PERIOD_S, ParameterDescriptor(
+            description='s: the chunk in progress is written to the file at least this often, '
+                        'so a crash (SIGKILL, power loss) loses at most about twice this much '
+                        'recording; shorter periods make more, smaller chunks',
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)],
+            read_only=True))
+        self.declare_parameter('fsync', True, ParameterDescriptor(
+            description='fsync the file after each periodic flush (survives a power loss, '
+                        'not only a killed process)',
+            read_only=True))
 
         self._topics = {self.resolve_topic_name(t) for t in
                         topic_list(self.get_parameter('topics'))}
@@ -126,14 +142,19 @@ class RecorderNode(Node):
         self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
         output = str(self.get_parameter('output').value or '') or default_output_dir()
 
-        self.writer = BagWriter(output)
+        self.writer = BagWriter(output,
+                                flush_period=float(self.get_parameter('flush_period').value),
+                                fsync=bool(self.get_parameter('fsync').value))
         self.writer.create()  # RecordingError: reported by main(), nothing to clean up
         self.error: Optional[str] = None
         self._last_dds_receive_ns = 0
         self._recorded: Dict[str, object] = {}
         self._ignored: Set[str] = set()
         what = ', '.join(sorted(self._topics)) if self._topics else 'all topics'
-        self.get_logger().info(f'recording {what} to {self.writer.path}')
+        self.get_logger().info(
+            f'recording {what} to {self.writer.path} (flushed every '
+            f"{self.get_parameter('flush_period').value:g} s"
+            f"{', fsync' if self.get_parameter('fsync').value else ''})")
         self._timer = self.create_timer(
             float(self.get_parameter('discovery_period').value), self._discover)
         self._discover()
@@ -169,6 +190,9 @@ class RecorderNode(Node):
         self.get_logger().warning(f'not recording {topic}: {reason}')
 
     def _discover(self):
+        if self.writer.error is not None:  # a periodic flush failed (e.g. disk full)
+            self._stop_with_error(f'writing {self.writer.mcap_path} failed: '
+                                  f'{self.writer.error}')
         if self.error is not None or not self.writer.is_open:
             return
         for topic, types in self.get_topic_names_and_types():

@@ -16,16 +16,28 @@
 solver_node: minimum-time trajectories of the 2-DOF cylindrical robot on request.
 
 Goals arrive on ``goal_pose`` (hand position, inverse kinematics), ``goal_joints`` (joint
-space, by name) or the blocking service ``~/plan`` (nav_msgs/GetPlan).  Each plan starts from
-the latest ``joint_states`` (parameter ``initial_state`` until one arrived) and avoids the
-current obstacles (parameters ``obstacles.*``, replaced by messages on ``obstacles``).
+space, by name) or the service ``~/plan`` (nav_msgs/GetPlan, answered when its solve ends).
+Each plan starts from the latest ``joint_states`` (parameter ``initial_state`` until one
+arrived) and avoids the current obstacles (parameters ``obstacles.*``, replaced by messages on
+``obstacles``; at most ``obstacles.max_count`` circles).  ``~/ready`` (std_srvs/Trigger)
+answers success once the numba kernels are loaded.
 
-One worker thread solves; a new goal preempts the running solve (cancel, then start the new
-one), ``~/cancel`` stops it.  While it solves, ``~/progress`` reports at >= 5 Hz, and once at
-the end with the status: level OK for SOLVED, WARN for SOLVED_INACCURATE (paper mode's
-heuristic, trajectory published anyway), CANCELED and TIMEOUT, ERROR for failures and refused
-input (message = the reason).  ``trajectory`` (transient local) is published for SOLVED and
-SOLVED_INACCURATE results only, together with ``planned_path`` and ``markers``.
+One worker thread solves; only the newest goal is solved (a new goal preempts the running
+solve, a queued one is answered as superseded), ``~/cancel`` stops it.  The subscriptions and
+services exist from the start; the numba kernels load in the background and goals that
+arrive meanwhile are queued and solved once ready.  While it solves, ``~/progress`` reports at
+>= 5 Hz, and once at the end with the status: level OK for SOLVED, WARN for SOLVED_INACCURATE
+(paper mode's heuristic, trajectory published anyway), CANCELED and TIMEOUT, ERROR for
+failures and refused input (message = the reason).  ``trajectory`` (transient local) is
+published for SOLVED and SOLVED_INACCURATE results only, together with ``planned_path`` and
+``markers``; the result on ``~/progress`` and the markers name the obstacle set it was planned
+for (``obstacles_hash``) and the revision of the planning data (``data_revision``).
+
+No plan for stale data: when the obstacles, the margin, the robot data or the extension
+limits change during a solve, the solve restarts from the same goal and the latest state;
+when they change while a published trajectory is still executing and its remaining part
+now cuts an (inflated) obstacle or exceeds u_max, an empty trajectory (the plant stops and
+holds) is published at once and the goal is planned again from the measured state.
 
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
@@ -36,31 +48,33 @@ import sys
 import threading
 import time
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 import numpy as np
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from toc_ros import conversions
+from toc_ros import conversions, progress as schema
 from toc_ros.config import obstacle_rows, options_from_parameters, problem_from_parameters
-from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
+from toc_ros.core import arm_clearance, ProblemError, Progress, solve, Status, warm_up
+from toc_ros.core.result import CLEARANCE_TOL
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 PARAMETER_NAMES = parameters.SOLVER_NODE_NAMES
-PUBLISHED = (Status.SOLVED, Status.SOLVED_INACCURATE)
+# Parameters a plan depends on beyond its goal: a change restarts the running solve and
+# re-checks the executing trajectory.
+PLANNING_PREFIXES = ('obstacles.', 'robot.', 'extension_limits')
 # ~/progress while solving: the core reports every 0.1 s; the heartbeat fills gaps (set-up,
 # slow iterations) so that no gap exceeds MAX_PROGRESS_GAP_S.
 HEARTBEAT_PERIOD_S = 0.05
@@ -69,10 +83,15 @@ MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # How long ~/cancel waits for the solve to stop (the core stops within ~0.1 s).
 CANCEL_WAIT_S = 2.0
-
-
-class ParameterError(ValueError):
-    """Invalid parameters at start-up (before the on-set callback guards changes)."""
+# Before a solve starts, the worker waits until no goal arrived for QUIET_S (at most
+# SETTLE_MAX_S): after a burst the executor takes the newer goals first, so only the newest
+# is solved.
+QUIET_S = 0.05
+SETTLE_MAX_S = 0.5
+# Queue depth of the services: every request of a burst is kept and answered.
+SERVICE_QOS = QoSProfile(depth=100)
+# A published trajectory is "executing" until its duration plus this has passed.
+EXECUTION_SLACK_S = 0.5
 
 
 def parameter_errors(params):
@@ -90,6 +109,10 @@ def parameter_errors(params):
         limit_errors = [f'extension_limits must be [q2_min, q2_max] with q2_min < q2_max, got '
                         f'{params["extension_limits"]}']
     errors += limit_errors
+    count, limit = len(params['obstacles.x']), int(params['obstacles.max_count'])
+    if count > limit:
+        errors.append(f'{count} obstacles exceed obstacles.max_count = {limit}')
+        return errors      # no per-obstacle work on a refused set
     state_errors = (parameters.vector_errors('initial_state', params['initial_state'], 4)
                     + parameters.vector_errors('goal_state', params['goal_state'], 4))
     errors += state_errors
@@ -107,30 +130,66 @@ def parameter_errors(params):
     return errors
 
 
+def planning_data(params):
+    """Return the parameter values a plan depends on beyond its goal (one revision's data)."""
+    return {k: v for k, v in params.items()
+            if k.startswith(PLANNING_PREFIXES) and k != 'obstacles.max_count'}
+
+
+def obstacle_count(msg):
+    """Rows of an obstacles message, counted without reading the data (the limit check)."""
+    dims = list(msg.layout.dim)
+    if dims:
+        return int(dims[0].size)
+    return len(msg.data) // 3
+
+
 class _Request:
-    """One goal on its way through the worker."""
+    """One goal on its way through the worker (a restart keeps the same request)."""
 
     def __init__(self, goal, source):
         self.goal = np.asarray(goal, dtype=float)
         self.source = source
         self.stop_reason = None          # set when preempted or canceled
+        self.restart_reason = None       # set when the planning data changed during the solve
+        self.event = ''                  # schema event of its result (e.g. a replacement)
         self.result = None               # SolveResult once solved (None when dropped)
         self.path = None                 # nav_msgs/Path when a trajectory was published
         self.done = threading.Event()
+        self._lock = threading.Lock()
+        self._callbacks = []
+
+    def on_done(self, callback):
+        """Call callback() once the request is done (at once if it is)."""
+        with self._lock:
+            if not self.done.is_set():
+                self._callbacks.append(callback)
+                return
+        callback()
+
+    def finish(self):
+        """Mark the request done and run the on_done callbacks."""
+        with self._lock:
+            self.done.set()
+            callbacks, self._callbacks = self._callbacks, []
+        for callback in callbacks:
+            callback()
 
 
 class _Worker:
     """A thread solving one request at a time; the newest request preempts older ones."""
 
-    def __init__(self, run, drop, logger):
+    def __init__(self, run, drop, ready, logger):
         self._run = run          # run(request, cancel_event): solve and publish
         self._drop = drop        # drop(request, reason): report a request never started
+        self._ready = ready      # threading.Event: the kernels are loaded
         self._logger = logger
         self._cond = threading.Condition()
         self._pending = None
         self._active = None
         self._cancel = None
         self._stopping = False
+        self._last_submit = 0.0
         self._thread = threading.Thread(target=self._loop, name='solver', daemon=True)
         self._thread.start()
 
@@ -138,12 +197,22 @@ class _Worker:
         """Queue request, dropping a queued one and canceling the running one."""
         with self._cond:
             dropped, self._pending = self._pending, request
+            self._last_submit = time.monotonic()
             if self._active is not None:
                 self._active.stop_reason = 'preempted by a newer goal'
                 self._cancel.set()
-            self._cond.notify()
+            self._cond.notify_all()
         if dropped is not None:
             self._drop(dropped, 'superseded by a newer goal before its solve started')
+
+    def restart(self, reason):
+        """Stop the running solve and solve its goal again (unless a newer goal is queued)."""
+        with self._cond:
+            if self._active is not None and self._active.stop_reason is None:
+                self._active.restart_reason = reason
+                self._cancel.set()
+                return True
+        return False
 
     def cancel(self):
         """Stop the running solve and drop a queued one; True when a solve was stopped."""
@@ -152,6 +221,7 @@ class _Worker:
             active = self._active
             if active is not None:
                 active.stop_reason = 'canceled by ~/cancel'
+                active.restart_reason = None
                 self._cancel.set()
         if dropped is not None:
             self._drop(dropped, 'canceled by ~/cancel before its solve started')
@@ -169,29 +239,58 @@ class _Worker:
             if self._cancel is not None:
                 self._cancel.set()
             dropped, self._pending = self._pending, None
-            self._cond.notify()
+            self._cond.notify_all()
         if dropped is not None:
-            dropped.done.set()
+            dropped.finish()
         self._thread.join(timeout=CANCEL_WAIT_S)
+
+    def _next(self):
+        """Wait for the kernels and a request, let a burst settle; None when stopping."""
+        while not self._ready.wait(0.1):
+            with self._cond:
+                if self._stopping:
+                    return None
+        with self._cond:
+            while self._pending is None and not self._stopping:
+                self._cond.wait()
+            settle_end = time.monotonic() + SETTLE_MAX_S
+            while not self._stopping:
+                quiet = self._last_submit + QUIET_S - time.monotonic()
+                if quiet <= 0.0 or time.monotonic() >= settle_end:
+                    break
+                self._cond.wait(min(quiet, settle_end - time.monotonic()))
+            if self._stopping or self._pending is None:
+                return None
+            request, self._pending = self._pending, None
+            self._active, self._cancel = request, threading.Event()
+            return request, self._cancel
 
     def _loop(self):
         while True:
-            with self._cond:
-                while self._pending is None and not self._stopping:
-                    self._cond.wait()
-                if self._stopping:
-                    return
-                request, self._pending = self._pending, None
-                self._active, self._cancel = request, threading.Event()
-                cancel = self._cancel
+            taken = self._next()
+            if taken is None:
+                with self._cond:
+                    if self._stopping:
+                        return
+                continue
+            request, cancel = taken
             try:
                 self._run(request, cancel)
             except Exception as exc:  # noqa: B902 - a bug must not end the worker thread
                 self._logger.error(f'solve of goal from {request.source} failed: {exc!r}')
-            finally:
-                with self._cond:
-                    self._active = None
-                request.done.set()
+                request.restart_reason = None
+            with self._cond:
+                self._active = None
+                again = (request.restart_reason is not None and self._pending is None
+                         and not self._stopping)
+                if again:
+                    self._pending = request
+                superseded = request.restart_reason is not None and not again
+                request.restart_reason = None
+            if superseded:
+                self._drop(request, 'superseded by a newer goal while restarting')
+            elif not again:
+                request.finish()
 
 
 class SolverNode(Node):
@@ -203,47 +302,91 @@ class SolverNode(Node):
         self._params = parameters.values(self, PARAMETER_NAMES)
         errors = parameter_errors(self._params)
         if errors:
-            raise ParameterError('; '.join(errors))
+            raise parameters.ParameterError('; '.join(errors))
+        self._name = self.get_fully_qualified_name()
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest state from joint_states
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
-        self._path_states = None            # states of the last published plan
         self._progress = None               # (Progress, solve start) of the running solve
         self._progress_sent = 0.0
         self._publish_lock = threading.Lock()
+        # Planning data: revision counter and the plan in execution, guarded by _plan_lock
+        # (a trajectory is published only while its data revision is still current).
+        self._plan_lock = threading.Lock()
+        self._revision = 0
+        self._planning = planning_data(self._params)
+        self._executing = None              # dict of the last published plan
+        self._plan_info = None              # (hash, revision) of the last published plan
+        self._obstacle_markers = None       # (key, markers) cache
+        self._ready = threading.Event()
+        self._started = time.monotonic()
+        self._kernel_load_s = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
-
-        started = time.monotonic()
-        warm_up()  # compile or load the numba kernels before the first goal can arrive
-        self.get_logger().info(f'numba kernels loaded in {time.monotonic() - started:.2f} s')
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
         self._trajectory_pub = self.create_publisher(JointTrajectory, 'trajectory', latched)
         self._path_pub = self.create_publisher(Path, 'planned_path', 10)
         self._marker_pub = self.create_publisher(MarkerArray, 'markers', latched)
-        self._progress_pub = self.create_publisher(DiagnosticStatus, '~/progress', 50)
-        self.create_subscription(PoseStamped, 'goal_pose', self._on_goal_pose, 10)
-        self.create_subscription(JointState, 'goal_joints', self._on_goal_joints, 10)
-        self.create_subscription(Float64MultiArray, 'obstacles', self._on_obstacles, 10)
+        self._progress_pub = self.create_publisher(schema.DiagnosticStatus, '~/progress', 100)
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(PoseStamped, 'goal_pose', self._on_goal_pose, 10,
+                                 callback_group=inputs)
+        self.create_subscription(JointState, 'goal_joints', self._on_goal_joints, 10,
+                                 callback_group=inputs)
+        self.create_subscription(Float64MultiArray, 'obstacles', self._on_obstacles, 10,
+                                 callback_group=inputs)
         self.create_subscription(JointState, 'joint_states', self._on_joint_states, 10)
-        # ~/plan blocks until its solve ends, so it must not share a group with anything that
-        # has to run meanwhile; reentrant so that a second plan can preempt the first.
-        self.create_service(GetPlan, '~/plan', self._on_plan,
+        # ~/plan is a coroutine that waits for its request without holding an executor
+        # thread; reentrant so that any number of them wait at once.
+        self.create_service(GetPlan, '~/plan', self._on_plan, qos_profile=SERVICE_QOS,
                             callback_group=ReentrantCallbackGroup())
-        self.create_service(Trigger, '~/cancel', self._on_cancel,
+        self.create_service(Trigger, '~/cancel', self._on_cancel, qos_profile=SERVICE_QOS,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, '~/ready', self._on_ready, qos_profile=SERVICE_QOS,
                             callback_group=MutuallyExclusiveCallbackGroup())
         timers = MutuallyExclusiveCallbackGroup()
         self.create_timer(HEARTBEAT_PERIOD_S, self._heartbeat, callback_group=timers)
         self.create_timer(MARKER_PERIOD_S, self._publish_markers_if_dirty,
                           callback_group=timers)
-        self._worker = _Worker(self._run, self._drop, self.get_logger())
+        self._worker = _Worker(self._run, self._drop, self._ready, self.get_logger())
         self._publish_markers()
+        # Compile or load the numba kernels in the background: the node already listens, and
+        # goals that arrive meanwhile are queued.
+        threading.Thread(target=self._warm_up, name='warm_up', daemon=True).start()
+
+    def _warm_up(self):
+        started = time.monotonic()
+        try:
+            warm_up()
+        except Exception as exc:  # noqa: B902 - reported; solves then compile on demand
+            self.get_logger().error(f'loading the numba kernels failed: {exc!r}')
+        elapsed = time.monotonic() - started
+        self.get_logger().info(f'numba kernels loaded in {elapsed:.2f} s')
+        self._kernel_load_s = elapsed
+        self._ready.set()
+        self._publish_progress(schema.ProgressReport(
+            message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
+            event=schema.EVENT_READY))
+        with self._lock:
+            params = dict(self._params)
         self.get_logger().info(
-            f"ready: {len(self._params['obstacles.x'])} obstacle(s), mode "
-            f"{self._params['solver.mode']}, N = {self._params['solver.N']}")
+            f"ready: {len(params['obstacles.x'])} obstacle(s), mode "
+            f"{params['solver.mode']}, N = {params['solver.N']}")
+
+    def ready(self):
+        """Tell whether the kernels are loaded (goals before that are queued)."""
+        return self._ready.is_set()
+
+    def _on_ready(self, _request, response):
+        response.success = self._ready.is_set()
+        response.message = (
+            f'ready: numba kernels loaded in {self._kernel_load_s:.2f} s' if response.success
+            else f'loading the numba kernels ({time.monotonic() - self._started:.1f} s so '
+                 'far); goals are queued until then')
+        return response
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -259,6 +402,80 @@ class SolverNode(Node):
         with self._lock:
             self._params = parameters.candidate(self._params, changed)
             self._arm_dirty = True   # obstacles or frames may have changed
+            params = dict(self._params)
+        planning = planning_data(params)
+        with self._plan_lock:
+            if planning == self._planning:
+                return
+            self._planning = planning
+            self._revision += 1
+            revision = self._revision
+        reason = f'planning data changed (data revision {revision})'
+        if self._worker.restart(reason):
+            self.get_logger().warning(f'{reason}: restarting the running solve')
+            self._publish_progress(schema.ProgressReport(
+                message=f'{reason}: solving again from the latest state',
+                event=schema.EVENT_RESTARTED, data_revision=revision))
+        self._check_executing(params, revision)
+
+    def _check_executing(self, params, revision):
+        """Stop (and replan) an executing trajectory that violates the current data."""
+        with self._plan_lock:
+            plan = self._executing
+            if plan is None or revision != self._revision:
+                return
+            elapsed = time.monotonic() - plan['published']
+            if elapsed > plan['duration'] + EXECUTION_SLACK_S:
+                self._executing = None
+                return
+            violation = self._violation(plan, params, elapsed)
+            if violation is None:
+                return
+            # Stop at once: an empty trajectory makes the plant hold its position.
+            stop = JointTrajectory()
+            stop.header.stamp = self.get_clock().now().to_msg()
+            stop.joint_names = list(params['joint_names'])
+            self._trajectory_pub.publish(stop)
+            self._executing = None
+        replan = not self._worker.busy()
+        reason = (f'the executing trajectory {violation} under data revision {revision}: '
+                  'stopped' + (', planning the goal again' if replan else ''))
+        self.get_logger().warning(reason)
+        self._publish_progress(schema.ProgressReport(
+            status=Status.CANCELED, message=reason, level=schema.DiagnosticStatus.WARN,
+            goal_source=plan['source'], data_revision=revision, event=schema.EVENT_STOPPED))
+        if replan:
+            request = self._submit(lambda _params: plan['goal'], 'replan')
+            if request is not None:
+                request.event = schema.EVENT_REPLACED
+
+    @staticmethod
+    def _violation(plan, params, elapsed):
+        """Return what the rest of a published plan violates under params, or None."""
+        try:
+            problem = problem_from_parameters(params, x0=plan['states'][0],
+                                              x_goal=plan['goal'])
+        except ProblemError as exc:
+            return f'cannot be checked ({exc})'
+        rest = plan['times'] >= elapsed
+        if rest.any():
+            rest[max(int(np.argmax(rest)) - 1, 0)] = True     # the segment being executed
+        else:
+            rest[-1] = True                                   # at rest at the goal
+        states = plan['states'][rest]
+        circles = problem.circles()
+        if len(circles):
+            gaps = arm_clearance(states, problem.robot.a, circles)
+            worst = float(np.min(gaps))
+            if worst < -CLEARANCE_TOL:
+                k = int(np.argmin(np.min(gaps, axis=0)))
+                return f'cuts obstacle {k} by {-worst:.3g} m'
+        controls = plan['controls'][rest[:len(plan['controls'])]]
+        if len(controls):
+            excess = float(np.max(np.abs(controls) - problem.robot.u_max[None, :]))
+            if excess > 0.0:
+                return f'exceeds u_max by {excess:.3g}'
+        return None
 
     def _snapshot(self):
         with self._lock:
@@ -291,6 +508,12 @@ class SolverNode(Node):
             msg, params['joint_names']), 'goal_joints')
 
     def _on_obstacles(self, msg):
+        with self._lock:
+            limit = int(self._params['obstacles.max_count'])
+        count = obstacle_count(msg)
+        if count > limit:    # refused before any per-obstacle work
+            self._refuse('obstacles', f'{count} obstacles exceed obstacles.max_count = {limit}')
+            return
         try:
             rows = conversions.obstacle_rows_from_msg(msg)
         except conversions.ConversionError as exc:
@@ -304,7 +527,7 @@ class SolverNode(Node):
         else:
             self.get_logger().info(f'obstacles replaced: {len(rows)} circle(s)')
 
-    def _on_plan(self, request, response):
+    async def _on_plan(self, request, response):
         response.plan.header.frame_id = self._snapshot()[0]['base_frame']
         response.plan.header.stamp = self.get_clock().now().to_msg()
         pending = self._submit(lambda params: conversions.pose_to_joint_goal(
@@ -312,9 +535,16 @@ class SolverNode(Node):
             tuple(params['extension_limits'])), '~/plan')
         if pending is None:
             return response
-        while not pending.done.wait(0.5):
-            if not rclpy.ok(context=self.context):
-                return response
+        finished = Future()
+
+        def wake():      # worker thread: resume this coroutine in the executor
+            if not finished.done():
+                finished.set_result(True)
+            executor = self.executor
+            if executor is not None:
+                executor.wake()
+        pending.on_done(wake)
+        await finished
         if pending.path is not None:
             response.plan = pending.path
         return response
@@ -352,17 +582,23 @@ class SolverNode(Node):
             return None
         request = _Request(goal, source)
         self.get_logger().info(f'goal from {source}: {np.round(goal, 6).tolist()}')
+        if not self._ready.is_set():
+            note = (f'goal from {source} queued: the numba kernels are still loading; it is '
+                    'solved once ready')
+            self.get_logger().info(note)
+            self._publish_progress(schema.ProgressReport(
+                message=note, goal_source=source, goal=tuple(goal), event=schema.EVENT_QUEUED))
         self._worker.submit(request)
         return request
 
     def _refuse(self, source, reason):
         self.get_logger().error(f'refused {source}: {reason}')
-        self._publish_progress(conversions.error_msg(self.get_fully_qualified_name(),
-                                                     f'{source}: {reason}'))
+        self._publish_progress(schema.refusal_report(f'{source}: {reason}'))
 
     # -- solving (worker thread) --------------------------------------------------------------
 
-    def _publish_progress(self, msg):
+    def _publish_progress(self, report):
+        msg = schema.progress_msg(self._name, report)
         with self._publish_lock:
             self._progress_pub.publish(msg)
             self._progress_sent = time.monotonic()
@@ -374,8 +610,7 @@ class SolverNode(Node):
             if self._progress is None:
                 return
             self._progress = (progress, self._progress[1])
-        self._publish_progress(conversions.progress_msg(self.get_fully_qualified_name(),
-                                                        progress))
+        self._publish_progress(schema.running_report(progress))
 
     def _heartbeat(self):
         with self._lock:
@@ -384,20 +619,20 @@ class SolverNode(Node):
             return
         progress, started = current
         progress = dataclasses.replace(progress, elapsed_s=time.monotonic() - started)
-        self._publish_progress(conversions.progress_msg(self.get_fully_qualified_name(),
-                                                        progress))
+        self._publish_progress(schema.running_report(progress))
 
     def _drop(self, request, reason):
         self.get_logger().warning(f'goal from {request.source} {reason}')
-        self._publish_progress(conversions.diagnostic_msg(
-            self.get_fully_qualified_name(), DiagnosticStatus.WARN,
-            f'goal from {request.source} {reason}', {'status': Status.CANCELED.value}))
-        request.done.set()
+        self._publish_progress(schema.ProgressReport(
+            status=Status.CANCELED, message=f'goal from {request.source} {reason}',
+            goal_source=request.source, event=schema.EVENT_SUPERSEDED))
+        request.finish()
 
     def _run(self, request, cancel):
         params, measured = self._snapshot()
+        with self._plan_lock:
+            revision = self._revision
         start, start_source = self._start_state(params, measured)
-        name = self.get_fully_qualified_name()
         try:
             problem = problem_from_parameters(params, x0=start, x_goal=request.goal)
             options = options_from_parameters(params)
@@ -408,49 +643,71 @@ class SolverNode(Node):
             self._progress = (Progress(0, problem.t_f0, math.nan, math.nan, 0.0, 'start'),
                               time.monotonic())
             progress = self._progress[0]
-        self._publish_progress(conversions.progress_msg(name, progress))
+        self._publish_progress(schema.running_report(progress))
         try:
             result = solve(problem, options, progress=self._on_progress, cancel=cancel)
         except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
             self.get_logger().error(f'solver failed: {exc!r}')
-            self._publish_progress(conversions.error_msg(name, f'internal solver error: {exc!r}',
-                                                         'ERROR'))
+            self._publish_progress(schema.refusal_report(
+                f'internal solver error: {exc!r}', status=Status.INVALID_INPUT, event=''))
             return
         finally:
             with self._lock:
                 self._progress = None
+        if request.restart_reason is not None:
+            return        # the worker runs it again with the current data
         request.result = result
         message = result.message
         if result.status is Status.CANCELED and request.stop_reason:
             message = f'{request.stop_reason} ({result.message})'
         if result.status is Status.INVALID_INPUT:
             message = f'{message} (start state from {start_source})'
-        extra = {'goal_source': request.source, 'start_source': start_source,
-                 'goal': str(np.round(request.goal, 9).tolist())}
-        if result.status in PUBLISHED and result.has_trajectory:
-            self._publish_plan(request, result, problem, params)
-        report = (f'{result.status.value} for goal from {request.source}: {message} '
-                  f'({result.iterations} iterations, {result.wall_time_s:.3f} s)')
+        rows = problem.obstacles
+        report = schema.result_report(
+            result, message, goal_source=request.source, start_source=start_source,
+            goal=tuple(float(v) for v in np.round(request.goal, 9)),
+            obstacles_hash=schema.obstacles_hash(rows, problem.margin),
+            data_revision=revision, event=request.event)
+        if result.status in schema.PUBLISHED and result.has_trajectory:
+            if not self._publish_plan(request, result, problem, params, revision):
+                request.restart_reason = 'planning data changed at the end of the solve'
+                return
+        text = (f'{result.status.value} for goal from {request.source}: {message} '
+                f'({result.iterations} iterations, {result.wall_time_s:.3f} s)')
         # One call site per severity: rclpy refuses to change it between calls of a site.
-        level = conversions.LEVELS[result.status]
-        if level == DiagnosticStatus.OK:
-            self.get_logger().info(report)
-        elif level == DiagnosticStatus.WARN:
-            self.get_logger().warning(report)
+        level = schema.LEVELS[result.status]
+        if level == schema.DiagnosticStatus.OK:
+            self.get_logger().info(text)
+        elif level == schema.DiagnosticStatus.WARN:
+            self.get_logger().warning(text)
         else:
-            self.get_logger().error(report)
-        self._publish_progress(conversions.result_msg(name, result, message, extra))
+            self.get_logger().error(text)
+        self._publish_progress(report)
 
-    def _publish_plan(self, request, result, problem, params):
+    def _publish_plan(self, request, result, problem, params, revision):
+        """Publish the plan unless its data revision is stale (then return False)."""
         stamp = self.get_clock().now().to_msg()
-        self._trajectory_pub.publish(conversions.trajectory_msg(
-            result, params['joint_names'], problem.robot, stamp))
-        request.path = conversions.hand_path_msg(result.states, problem.robot.a,
-                                                 params['base_frame'], stamp)
-        self._path_pub.publish(request.path)
-        with self._lock:
-            self._path_states = result.states
+        trajectory = conversions.trajectory_msg(result, params['joint_names'], problem.robot,
+                                                stamp)
+        path = conversions.hand_path_msg(result.states, problem.robot.a, params['base_frame'],
+                                         stamp)
+        with self._plan_lock:
+            if revision != self._revision:
+                return False
+            self._trajectory_pub.publish(trajectory)
+            self._executing = {
+                'published': time.monotonic(), 'duration': float(result.time_grid[-1]),
+                'times': np.asarray(result.time_grid, dtype=float),
+                'states': np.asarray(result.states, dtype=float),
+                'controls': np.asarray(result.controls, dtype=float),
+                'goal': request.goal.copy(), 'source': request.source,
+                'path_states': result.states}
+            self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
+                               revision)
+        request.path = path
+        self._path_pub.publish(path)
         self._publish_markers()
+        return True
 
     # -- markers ------------------------------------------------------------------------------
 
@@ -463,19 +720,25 @@ class SolverNode(Node):
     def _publish_markers(self):
         with self._lock:
             params = dict(self._params)
-            path_states = self._path_states
             arm = self._measured
             self._arm_dirty = False
             self._arm_drawn = arm
+        with self._plan_lock:
+            plan = self._executing
+            path_states = None if plan is None else plan['path_states']
+            plan_info, revision = self._plan_info, self._revision
         if arm is None:
             arm = np.asarray(params['initial_state'], dtype=float)
         try:
             rows = obstacle_rows(params)
         except ProblemError:
             rows = ()
+        margin = float(params['obstacles.margin'])
         self._marker_pub.publish(conversions.markers_msg(
-            rows, float(params['obstacles.margin']), float(params['robot.a']),
-            params['base_frame'], self.get_clock().now().to_msg(), path_states, arm))
+            rows, margin, float(params['robot.a']), params['base_frame'],
+            self.get_clock().now().to_msg(), path_states, arm,
+            obstacles_info=(schema.obstacles_hash(rows, margin), revision),
+            plan_info=plan_info))
 
     def busy(self):
         """Tell whether a goal is queued or being solved."""
@@ -491,7 +754,7 @@ class SolverNode(Node):
 def main(args=None):
     """Run solver_node until shutdown; exit code 2 for invalid parameters."""
     return run_node('solver_node', SolverNode, lambda: MultiThreadedExecutor(num_threads=4),
-                    args=args, errors=(ParameterError, InvalidParameterValueException,
+                    args=args, errors=(parameters.ParameterError, InvalidParameterValueException,
                                        InvalidParameterTypeException),
                     error_prefix='invalid parameters: ')
 

@@ -16,11 +16,12 @@
 Read rosbag2 recordings (bag directory or bare ``.mcap``) with the ``mcap`` library.
 
 A complete file is read through its summary (lazily, in log-time order). A file without a
-valid footer and summary (recorder killed, copy cut short) is scanned record by record up to
-the point where it breaks, including the complete messages of a cut-off last chunk, with a
-warning; the rest is still read. Channels that are not ROS 2 CDR messages (e.g. JSON) or whose
-type is not installed are listed with the reason and skipped by ``decode``; fatal problems
-(no such path, not an MCAP file) raise RecordingError.
+valid footer and summary (recorder killed, power loss, disk full, copy cut short) is read
+with the library's StreamReader up to the point where it breaks: every complete chunk is
+recovered, and a warning says how much (messages, chunks, time span, bytes lost). Channels
+that are not ROS 2 CDR messages (e.g. JSON) or whose type is not installed are listed with the
+reason and skipped by ``decode``; fatal problems (no such path, not an MCAP file) raise
+RecordingError.
 """
 
 import functools
@@ -31,20 +32,15 @@ import re
 import struct
 from typing import Callable, Dict, Iterable, Iterator, List, NamedTuple, Optional, Tuple
 
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
-from mcap.opcode import Opcode
+from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
-from mcap.stream_reader import get_chunk_data_stream
+from mcap.stream_reader import breakup_chunk, StreamReader
 import yaml
 
 from .bag_writer import RecordingError
 
 MAGIC = b'\x89MCAP0\r\n'
-_RECORD_HEAD = struct.Struct('<BQ')
-# start, end, uncompressed size, crc: the fixed head of a chunk record before its compression
-_CHUNK_HEAD = struct.Struct('<QQQI')
 _TYPE_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*/(msg|srv|action)/[A-Za-z][A-Za-z0-9_]*$')
 ROS2_SCHEMA_ENCODINGS = ('ros2msg', 'ros2idl')
 # Errors the mcap library and the decompressors raise on damaged bytes.
@@ -60,6 +56,8 @@ class TopicInfo(NamedTuple):
     message_encoding: str          # 'cdr' for ROS 2
     schema_encoding: str           # 'ros2msg' or 'ros2idl' for ROS 2
     qos_profiles: Tuple[dict, ...]  # offered QoS of the recorded publishers (rosbag2 metadata)
+    schema_text: str = ''          # the stored message definition
+    type_hash: str = ''            # RIHS01 hash of the type (rosbag2 channel metadata)
 
     @property
     def problem(self) -> Optional[str]:
@@ -73,6 +71,16 @@ class TopicInfo(NamedTuple):
             return (f'schema encoding {self.schema_encoding!r} is not a ROS 2 message '
                     'definition (ros2msg or ros2idl)')
         return message_class_problem(self.type_name)
+
+
+class FileStatus(NamedTuple):
+    """How one .mcap file of a recording was read."""
+
+    path: str
+    size: int
+    complete: bool            # read through its summary (closed cleanly)
+    problem: Optional[str]    # why reading stopped before the footer, or None
+    recovered: str            # what a sequential read recovered ('' when complete)
 
 
 class RawMessage(NamedTuple):
@@ -129,7 +137,9 @@ def _topic_info(channel: Channel, schema: Optional[Schema]) -> TopicInfo:
         name=channel.topic, type_name=schema.name if schema is not None else '',
         message_encoding=channel.message_encoding,
         schema_encoding=schema.encoding if schema is not None else '',
-        qos_profiles=parse_qos_profiles(channel.metadata.get('offered_qos_profiles', '')))
+        qos_profiles=parse_qos_profiles(channel.metadata.get('offered_qos_profiles', '')),
+        schema_text=bytes(schema.data).decode('utf-8', 'replace') if schema is not None else '',
+        type_hash=channel.metadata.get('topic_type_hash', ''))
 
 
 # -- locating the files ---------------------------------------------------------------------
@@ -177,105 +187,79 @@ def _files_from_metadata(directory: str, metadata_path: str) -> List[str]:
 
 # -- one file -------------------------------------------------------------------------------
 class _Scan:
-    """Record-by-record read of a whole MCAP file that stops where the file breaks."""
+    """
+    Sequential read (the mcap library's StreamReader) of a file without a usable summary.
 
-    def __init__(self, data: bytes):
+    Reads every record up to where the file breaks: a file cut off (recorder killed, disk
+    full, copy cut short) keeps every complete chunk; the chunk being written when it broke is
+    dropped (its CRC or length does not check out). ``problem`` says why it stopped, if not
+    at the footer.
+    """
+
+    def __init__(self, path: str, size: int):
+        self.size = size
         self.schemas: Dict[int, Schema] = {}
         self.channels: Dict[int, Channel] = {}
         self.messages: List[Message] = []
         self.metadata: List[Metadata] = []
         self.problem: Optional[str] = None
+        self.cut_off = False
         self.orphans = 0
-        self._read(data)
-
-    def _read(self, data: bytes):
-        size = len(data)
-        pos = len(MAGIC)
-        while True:
-            if size - pos < _RECORD_HEAD.size:
-                self.problem = (f'the file ends after {size} bytes without a footer '
-                                '(the recording was not closed or was cut short)')
-                return
-            opcode, length = _RECORD_HEAD.unpack_from(data, pos)
-            body = pos + _RECORD_HEAD.size
-            if body + length > size:
-                salvaged = self._partial_chunk(data[body:]) if opcode == Opcode.CHUNK else 0
-                self.problem = (f'the file is cut off at byte {size} inside a record that '
-                                f'starts at byte {pos}'
-                                + (f' ({salvaged} message(s) of the last chunk recovered)'
-                                   if salvaged else ''))
-                return
-            if opcode == Opcode.FOOTER:
-                return
+        self.chunks = 0
+        self.good_bytes = len(MAGIC)   # end of the last complete record
+        with open(path, 'rb') as stream:
+            # No record can be longer than the file: a cut-off one fails the size limit.
+            reader = StreamReader(stream, emit_chunks=True, record_size_limit=size)
             try:
-                self._record(opcode, data[body:body + length])
+                for record in reader.records:
+                    if isinstance(record, Chunk):
+                        for inner in breakup_chunk(record, validate_crc=True):
+                            self._record(inner)
+                        self.chunks += 1
+                    else:
+                        self._record(record)
+                    self.good_bytes = stream.tell()
             except _DAMAGE as error:
-                self.problem = f'damaged record at byte {pos}: {error or type(error).__name__}'
-                return
-            pos = body + length
+                # Cut off: the last record runs past the end of the file (its header, body or
+                # padding); anything else is damage in the middle.
+                self.cut_off = (isinstance(error, (EndOfFile, RecordLengthLimitExceeded))
+                                or stream.tell() >= size)
+                why = 'not closed: recorder killed, power loss or disk full?'
+                if self.cut_off and self.good_bytes >= size:
+                    self.problem = (f'the file is cut off after its last complete record, at '
+                                    f'byte {size}, without summary and footer ({why})')
+                elif self.cut_off:
+                    self.problem = (f'the file is cut off inside a record: {self.good_bytes} '
+                                    f'of {size} bytes readable ({why})')
+                else:
+                    self.problem = (f'damaged record after byte {self.good_bytes} of {size}: '
+                                    f'{error or type(error).__name__}')
 
-    def _record(self, opcode: int, body: bytes):
-        stream = ReadDataStream(io.BytesIO(body))
-        if opcode == Opcode.SCHEMA:
-            schema = Schema.read(stream)
-            self.schemas[schema.id] = schema
-        elif opcode == Opcode.CHANNEL:
-            channel = Channel.read(stream)
-            self.channels[channel.id] = channel
-        elif opcode == Opcode.MESSAGE:
-            self._message(Message.read(stream, len(body)))
-        elif opcode == Opcode.METADATA:
-            self.metadata.append(Metadata.read(stream))
-        elif opcode == Opcode.CHUNK:
-            inner, inner_size = get_chunk_data_stream(Chunk.read(stream))
-            self._inner_records(inner.read(inner_size), complete=True)
-
-    def _message(self, message: Message):
-        if message.channel_id in self.channels:
-            self.messages.append(message)
-        else:
-            self.orphans += 1
-
-    def _inner_records(self, data: bytes, complete: bool) -> int:
-        """Read the records of a chunk's content; a cut-off last one ends a partial chunk."""
-        pos = 0
-        count = 0
-        while pos < len(data):
-            if len(data) - pos < _RECORD_HEAD.size:
-                break
-            opcode, length = _RECORD_HEAD.unpack_from(data, pos)
-            end = pos + _RECORD_HEAD.size + length
-            if end > len(data):
-                break
-            if opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
-                self._record(opcode, data[pos + _RECORD_HEAD.size:end])
-                count += opcode == Opcode.MESSAGE
-            pos = end
-        if complete and pos != len(data):
-            raise McapError('chunk content ends inside a record')
-        return count
-
-    def _partial_chunk(self, body: bytes) -> int:
-        """Recover the complete messages at the start of a chunk the file cuts off."""
-        try:
-            pos = _CHUNK_HEAD.size
-            (name_length,) = struct.unpack_from('<I', body, pos)
-            compression = body[pos + 4:pos + 4 + name_length].decode()
-            pos += 4 + name_length + 8  # records length: the cut-off part is what there is
-            payload = body[pos:]
-            if compression == '':
-                content = payload
-            elif compression == 'zstd':
-                import zstandard
-                content = zstandard.ZstdDecompressor().decompressobj().decompress(payload)
-            elif compression == 'lz4':
-                import lz4.frame
-                content = lz4.frame.LZ4FrameDecompressor().decompress(payload)
+    def _record(self, record):
+        if isinstance(record, Schema):
+            self.schemas[record.id] = record
+        elif isinstance(record, Channel):
+            self.channels[record.id] = record
+        elif isinstance(record, Message):
+            if record.channel_id in self.channels:
+                self.messages.append(record)
             else:
-                return 0
-            return self._inner_records(content, complete=False)
-        except Exception:  # noqa: B902 - any failure here only means nothing is salvaged
-            return 0
+                self.orphans += 1
+        elif isinstance(record, Metadata):
+            self.metadata.append(record)
+
+    def recovered(self) -> str:
+        """Say how much was read: messages, chunks, the time they span."""
+        text = f'recovered {len(self.messages)} messages'
+        if self.chunks:
+            text += f' from {self.chunks} complete chunk(s)'
+        if self.messages:
+            times = [m.log_time for m in self.messages]
+            text += f' spanning {(max(times) - min(times)) * 1e-9:.3f} s'
+        lost = self.size - self.good_bytes
+        if lost > 0:
+            text += f'; the last {lost} bytes are lost'
+        return text
 
 
 class _McapFile:
@@ -301,14 +285,17 @@ class _McapFile:
             raise RecordingError(
                 f'{path}: not an MCAP file (it starts with {head[:8]!r}, not the MCAP magic); '
                 'toc_ros reads rosbag2 recordings in MCAP storage only')
+        self.size = size
         summary = self._open_summary() if tail == MAGIC and size > 2 * len(MAGIC) else None
         if summary is None:
-            with open(path, 'rb') as stream:
-                self._scan = _Scan(stream.read())
+            try:
+                self._scan = _Scan(path, size)
+            except OSError as error:
+                raise RecordingError(
+                    f'{path}: cannot read: {error.strerror or error}') from error
             self.damaged = bool(self._scan.problem or self._scan.orphans)
             if self._scan.problem:
-                warn(f'{path}: {self._scan.problem}; read {len(self._scan.messages)} '
-                     'messages up to that point')
+                warn(f'{path}: {self._scan.problem}; {self._scan.recovered()}')
             if self._scan.orphans:
                 warn(f'{path}: {self._scan.orphans} messages refer to unknown channels '
                      'and were skipped')
@@ -320,13 +307,21 @@ class _McapFile:
     def _open_summary(self):
         try:
             self._stream = open(self.path, 'rb')
-            self._reader = SeekingReader(self._stream)
+            # No record is longer than the file: a damaged length fails, not a MemoryError.
+            self._reader = SeekingReader(self._stream, record_size_limit=self.size)
             summary = self._reader.get_summary()
         except _DAMAGE:
             summary = None
         if summary is None:
             self.close()
         return summary
+
+    def status(self) -> FileStatus:
+        """How this file was read."""
+        scan = self._scan
+        if scan is None:
+            return FileStatus(self.path, self.size, True, None, '')
+        return FileStatus(self.path, self.size, False, scan.problem, scan.recovered())
 
     def topics(self) -> List[TopicInfo]:
         """Every channel of the file as a TopicInfo."""
@@ -407,6 +402,10 @@ class Recording:
     def files(self) -> List[str]:
         """Paths of the .mcap files, in playback order."""
         return [f.path for f in self._files]
+
+    def file_status(self) -> List[FileStatus]:
+        """How each .mcap file was read (complete, or cut off and how much was recovered)."""
+        return [f.status() for f in self._files]
 
     def readable_topics(self) -> Dict[str, TopicInfo]:
         """Topics whose messages decode here; warns once about each of the others."""

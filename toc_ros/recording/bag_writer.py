@@ -20,6 +20,15 @@ Writes what ``ros2 bag record -s mcap`` of ROS 2 Jazzy writes: a directory ``<na
 metadata hold ``offered_qos_profiles`` and ``topic_type_hash``, a ``rosbag2`` metadata record)
 and ``metadata.yaml`` (rosbag2_bagfile_information version 9).
 
+Crash durability: with ``flush_period`` (default 0.1 s) a background thread finishes the chunk
+in progress and hands it to the OS at least that often (``mcap.Writer.flush``), then fsyncs it
+(``fsync``, default on), so a SIGKILL or a power loss loses at most the last period or two:
+the chunk in memory and one being written. ``metadata.yaml`` is written at ``create()``,
+rewritten after new topics and at most every ``metadata_period`` while recording (counts of
+the data flushed so far), and written with the final counts at ``close()``. A file cut off
+this way is read up to its last complete chunk by ``bag_reader`` and rewritten into a
+complete bag by ``toc-bag recover`` (``bag_tool``).
+
 All public methods are thread-safe. Do not call them from a signal handler: set a flag there
 and close from the main thread, or a handler that interrupts a write would deadlock on the lock.
 """
@@ -27,6 +36,7 @@ and close from the main thread, or a handler that interrupts a write would deadl
 import os
 import shutil
 import threading
+import time
 from typing import Dict, Iterable, List, Mapping, NamedTuple, Optional
 
 from mcap.writer import CompressionType, Writer
@@ -40,6 +50,9 @@ STORAGE_IDENTIFIER = 'mcap'
 SERIALIZATION_FORMAT = 'cdr'
 # Refuse to start with less free space than this; a full disk mid-run is reported on write.
 MIN_FREE_BYTES = 4 * 1024 * 1024
+# Crash durability defaults: at most this much recording time lives only in memory.
+FLUSH_PERIOD_S = 0.1
+METADATA_PERIOD_S = 1.0
 _NO_MESSAGE_START = 2**63 - 1
 
 
@@ -107,6 +120,37 @@ def qos_profile_to_dict(profile) -> dict:
     }
 
 
+_QOS_POLICIES = ('history', 'reliability', 'durability', 'liveliness')
+_QOS_DURATIONS = ('deadline', 'lifespan', 'liveliness_lease_duration')
+
+
+def complete_qos_profile(profile: Mapping) -> dict:
+    """
+    Fill what a QoS mapping lacks (e.g. one copied from another writer's bag) with 'unknown'.
+
+    rosbag2 and rosbags expect every key of the version-9 mapping; a missing one makes the
+    whole bag unreadable for them. Durations may also be given in nanoseconds.
+    """
+    result = {}
+    for key in ('history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
+                'liveliness', 'liveliness_lease_duration', 'avoid_ros_namespace_conventions'):
+        value = profile.get(key)
+        if key in _QOS_POLICIES:
+            result[key] = _policy_name(value) if value is not None else 'unknown'
+        elif key in _QOS_DURATIONS:
+            if isinstance(value, Mapping):
+                try:
+                    value = int(value.get('sec', 0)) * 1_000_000_000 + int(value.get('nsec', 0))
+                except (TypeError, ValueError):
+                    value = 0
+            result[key] = _rmw_time(value if isinstance(value, int) and value >= 0 else 0)
+        elif key == 'depth':
+            result[key] = value if isinstance(value, int) and value >= 0 else 0
+        else:
+            result[key] = bool(value)
+    return result
+
+
 class _IndentedDumper(yaml.SafeDumper):
     """Indents sequences under their key, as yaml-cpp (and so rosbag2) does."""
 
@@ -154,10 +198,18 @@ class BagWriter:
     ``create()`` makes the directory (which must not exist or be empty), ``add_topic()``
     declares a topic, ``write()`` stores CDR bytes as given, ``close()`` writes the MCAP
     summary and footer and ``metadata.yaml``. Also a context manager.
+
+    ``flush_period`` [s]: the longest time a written message stays in memory only (a chunk is
+    also finished when it reaches ``chunk_size`` bytes); None: only ``chunk_size`` and
+    ``flush()`` calls finish chunks. ``fsync``: each periodic flush also fsyncs the file.
     """
 
     def __init__(self, path: str, *, chunk_size: int = 1024 * 1024,
-                 min_free_bytes: int = MIN_FREE_BYTES, ros_distro: str = ROS_DISTRO):
+                 min_free_bytes: int = MIN_FREE_BYTES, ros_distro: str = ROS_DISTRO,
+                 flush_period: Optional[float] = FLUSH_PERIOD_S, fsync: bool = True,
+                 metadata_period: float = METADATA_PERIOD_S):
+        if flush_period is not None and not float(flush_period) > 0.0:
+            raise ValueError(f'flush_period must be > 0 s or None, got {flush_period!r}')
         self.path = os.path.abspath(os.fspath(path))
         name = os.path.basename(self.path.rstrip(os.sep)) or 'bag'
         self.mcap_name = f'{name}_0.mcap'
@@ -175,6 +227,19 @@ class BagWriter:
         self._last_ns = 0
         self._error: Optional[BaseException] = None
         self._closed = False
+        self._flush_period = None if flush_period is None else float(flush_period)
+        self._fsync = bool(fsync)
+        self._metadata_period = float(metadata_period)
+        # _flush_lock orders flushes (and close) without holding _lock during fsync.
+        self._flush_lock = threading.Lock()
+        self._unflushed = 0               # messages accepted since the last flush
+        self._metadata_written = 0.0      # time.monotonic() of the last metadata.yaml
+        self._metadata_lock = threading.Lock()
+        self._metadata_generation = 0
+        self._metadata_generation_written = 0
+        self._flusher: Optional[threading.Thread] = None
+        self._stop_flusher = threading.Event()
+        self.flush_count = 0              # flushes that wrote data (for tests and benchmarks)
 
     # -- state ------------------------------------------------------------------------------
     @property
@@ -201,10 +266,16 @@ class BagWriter:
                                       compression=CompressionType.NONE)
                 self._writer.start(profile='ros2', library=_library_string())
                 self._stream.flush()
+                self._write_metadata_yaml(self._metadata_snapshot())
             except OSError as error:
                 self._abandon()
                 raise RecordingError(
                     f'cannot create {self.mcap_path}: {error.strerror or error}') from error
+            self._metadata_written = time.monotonic()
+            if self._flush_period is not None:
+                self._flusher = threading.Thread(
+                    target=self._flush_loop, name='bag-flush', daemon=True)
+                self._flusher.start()
         return self
 
     def _create_directory(self):
@@ -256,7 +327,7 @@ class BagWriter:
             definition = full_definition(type_name)
         if type_hash is None:
             type_hash = type_description_hash(type_name)
-        profiles = [dict(p) for p in qos_profiles]
+        profiles = [complete_qos_profile(p) for p in qos_profiles]
         with self._lock:
             self._check_writable()
             if name in self._topics:
@@ -275,6 +346,12 @@ class BagWriter:
             except OSError as error:
                 raise self._fail(error) from error
             self._topics[name] = _Topic(name, type_name, profiles, type_hash, channel_id)
+            # At once, so a bag that is never closed still lists every topic (rare: cheap).
+            try:
+                self._write_metadata_yaml(self._metadata_snapshot())
+            except OSError as error:
+                raise self._fail(error) from error
+            self._metadata_written = time.monotonic()
             return True
 
     def write(self, topic: str, data, log_time_ns: int,
@@ -295,6 +372,7 @@ class BagWriter:
                 raise self._fail(error) from error
             entry.count += 1
             self._message_count += 1
+            self._unflushed += 1
             self._first_ns = min(self._first_ns, log_time_ns)
             self._last_ns = max(self._last_ns, log_time_ns)
 
@@ -310,6 +388,63 @@ class BagWriter:
             f'writing {self.mcap_path} failed ({self._message_count} messages accepted '
             f'so far): {error.strerror or error}')
 
+    # -- durability -------------------------------------------------------------------------
+    @property
+    def error(self) -> Optional[str]:
+        """Why the bag stopped accepting data (e.g. disk full during a flush), or None."""
+        error = self._error
+        return None if error is None else str(getattr(error, 'strerror', None) or error)
+
+    def flush(self) -> bool:
+        """
+        Finish the chunk in progress and hand it to the OS (fsync if enabled); True if written.
+
+        Also rewrites metadata.yaml (counts so far) when ``metadata_period`` has passed.
+        RecordingError when the bag is not open or the write fails.
+        """
+        with self._flush_lock:
+            with self._lock:
+                self._check_writable()
+                wrote = self._unflushed > 0
+                try:
+                    if wrote:
+                        self._writer.flush()
+                    fileno = self._stream.fileno()
+                except OSError as error:
+                    raise self._fail(error) from error
+                self._unflushed = 0
+                metadata = None
+                now = time.monotonic()
+                if wrote and now - self._metadata_written >= self._metadata_period:
+                    metadata = self._metadata_snapshot()
+                    self._metadata_written = now
+            # Outside _lock: writers go on while the disk syncs; close() waits on _flush_lock.
+            try:
+                if wrote and self._fsync:
+                    os.fsync(fileno)
+                if metadata is not None:
+                    self._write_metadata_yaml(metadata)
+            except OSError as error:
+                with self._lock:
+                    raise self._fail(error) from error
+            if wrote:
+                self.flush_count += 1
+            return wrote
+
+    def _flush_loop(self):
+        while not self._stop_flusher.wait(self._flush_period):
+            try:
+                self.flush()
+            except RecordingError:
+                return  # kept in self._error: the next write() and close() report it
+
+    def _stop_flush_loop(self):
+        self._stop_flusher.set()
+        flusher = self._flusher
+        if flusher is not None and flusher is not threading.current_thread():
+            flusher.join()
+        self._flusher = None
+
     # -- close ------------------------------------------------------------------------------
     def close(self) -> BagSummary:
         """
@@ -318,7 +453,8 @@ class BagWriter:
         Raises RecordingError (naming the incomplete file) when this cannot be done, e.g.
         after a write failed because the disk is full.
         """
-        with self._lock:
+        self._stop_flush_loop()
+        with self._flush_lock, self._lock:
             if self._closed or self._writer is None:
                 self._closed = True
                 return self._summary()
@@ -337,15 +473,15 @@ class BagWriter:
                 self._abandon()
             if failure is None:
                 try:
-                    self._write_metadata_yaml()
+                    self._write_metadata_yaml(self._metadata_snapshot())
                 except OSError as error:
                     failure = error
             if failure is not None:
                 reason = getattr(failure, 'strerror', None) or failure
                 raise RecordingError(
-                    f'bag {self.path} is incomplete (no MCAP summary, no metadata.yaml): '
-                    f'{reason}; `mcap recover {self.mcap_path}` can salvage the chunks '
-                    'written before the failure')
+                    f'bag {self.path} is incomplete (no MCAP summary, metadata.yaml not '
+                    f'final): {reason}; `toc-bag recover {self.path}` rewrites the chunks '
+                    'written before the failure into a complete bag')
             return self._summary()
 
     def _summary(self) -> BagSummary:
@@ -393,8 +529,21 @@ class BagWriter:
             'ros_distro': self._ros_distro,
         }
 
-    def _write_metadata_yaml(self):
-        text = dump_yaml({'rosbag2_bagfile_information': self._metadata()})
+    def _metadata_snapshot(self):
+        """Numbered metadata (call under _lock): a later one is never replaced by an earlier."""
+        self._metadata_generation += 1
+        return self._metadata_generation, self._metadata()
+
+    def _write_metadata_yaml(self, snapshot):
+        generation, metadata = snapshot
+        with self._metadata_lock:  # the flush thread writes outside _lock
+            if generation <= self._metadata_generation_written:
+                return
+            self._write_metadata_file(metadata)
+            self._metadata_generation_written = generation
+
+    def _write_metadata_file(self, metadata: dict):
+        text = dump_yaml({'rosbag2_bagfile_information': metadata})
         final = os.path.join(self.path, 'metadata.yaml')
         temporary = final + '.tmp'
         with open(temporary, 'w', encoding='utf-8') as stream:
@@ -402,6 +551,16 @@ class BagWriter:
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, final)
+        try:  # make the rename itself durable
+            directory = os.open(self.path, os.O_RDONLY)
+        except OSError:
+            return
+        try:
+            os.fsync(directory)
+        except OSError:
+            pass  # some file systems cannot fsync a directory; the data is synced anyway
+        finally:
+            os.close(directory)
 
     # -- context manager ----------------------------------------------------------------------
     def __enter__(self) -> 'BagWriter':

@@ -1,0 +1,389 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The demo's run: start the nodes, send each stage's obstacles and goal, watch the plant."""
+
+import dataclasses
+import math
+import os
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+import numpy as np
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import Trigger
+from toc_ros import config, conversions, harness
+from toc_ros.core import Status
+from toc_ros.demo import checks
+from toc_ros.demo.summary import recording_facts
+from toc_ros.progress import EVENT_READY, progress_from_msg
+from toc_ros.recording.process import recorder_command
+from trajectory_msgs.msg import JointTrajectory
+
+
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    """One goal of the demo: joint target (q1 rad, q2 m) and the obstacle set sent before."""
+
+    label: str
+    q_goal: tuple
+    obstacles: tuple
+
+
+STAGES = (
+    # Section 4 of the paper: to q = (5 pi/12, 1 m) around one circle.
+    Stage('paper goal', (5.0 * math.pi / 12.0, 1.0), ((1.0, 1.0, 0.2),)),
+    # Back past a moved circle and a new one, starting wherever the plant came to rest.
+    Stage('replan', (math.pi / 12.0, 0.8), ((0.9, 1.2, 0.2), (1.5, 0.6, 0.15))),
+)
+
+PROGRESS_PRINT_PERIOD_S = 0.5
+REQUIRED_TOPICS = (
+    '/goal_pose', '/goal_joints', '/obstacles', '/trajectory', '/planned_path', '/markers',
+    '/solver_node/progress', '/joint_states', '/plant_node/tracking')
+# Topics that must be recorded before the first goal (/goal_joints has no publisher here).
+WATCHED_TOPICS = tuple(t for t in REQUIRED_TOPICS if t != '/goal_joints')
+RECORDER_NODE = 'recorder_node'
+PROGRESS = 'solver_node/progress'
+
+
+class DemoError(RuntimeError):
+    """The demo cannot go on (a node died, a wait timed out); the message says why."""
+
+
+class Printer:
+    """Stage lines with the time since the start (nothing when quiet)."""
+
+    def __init__(self, quiet):
+        self.quiet = quiet
+        self.start = time.monotonic()
+
+    def stage(self, text):
+        """Print a stage line."""
+        if not self.quiet:
+            print(f'[{time.monotonic() - self.start:6.1f} s] {text}', flush=True)
+
+    def detail(self, text):
+        """Print an indented detail line."""
+        if not self.quiet:
+            print(f'           {text}', flush=True)
+
+
+def kernel_cache_found():
+    """Tell whether numba's cache holds compiled toc_ros kernels (else the solver compiles)."""
+    import numba
+    import toc_ros.core  # noqa: F401 - points numba's cache at the core's directory
+    cache_dir = numba.config.CACHE_DIR
+    return bool(cache_dir) and os.path.isdir(cache_dir) and any(
+        name.endswith('.nbi') for _, _, files in os.walk(cache_dir) for name in files)
+
+
+def obstacles_msg(rows):
+    """Float64MultiArray with rows (x, y, radius) and a (rows, 3) layout."""
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label='rows', size=len(rows), stride=3 * len(rows)),
+                      MultiArrayDimension(label='x_y_radius', size=3, stride=3)]
+    msg.data = [float(v) for row in rows for v in row]
+    return msg
+
+
+def goal_pose_msg(q_goal, a, frame_id):
+    """Build the hand's PoseStamped at joint position (q1, q2) (conversions' kinematics)."""
+    state = np.array([[q_goal[0], 0.0, q_goal[1], 0.0]])
+    pose = conversions.hand_path_msg(state, a, frame_id, PoseStamped().header.stamp).poses[0]
+    pose.header.frame_id = frame_id
+    return pose
+
+
+class Demo:
+    """One run of the demo: start, wait_ready, run_stage per Stage, stop; fills summary."""
+
+    def __init__(self, args, printer):
+        self.args = args
+        self.out = printer
+        self.deadline = time.monotonic() + args.timeout
+        self.params_file = config.default_config_path()
+        params = config.load_parameters(self.params_file, 'solver_node')
+        self.a = float(params['robot.a'])
+        self.base_frame = str(params['base_frame'])
+        self.joint_names = list(params['joint_names'])
+        self.solver_timeout = float(params['solver.timeout'])
+        self.children = {}
+        self.client = None
+        self.goal_pub = self.obstacles_pub = None
+        self.ready_reported = False
+        self.summary = {'plans': [], 'position_tolerance': list(checks.POSITION_TOL),
+                        'joint_names': self.joint_names, 'robot_a': self.a,
+                        'base_frame': self.base_frame, 'ros_domain_id':
+                        os.environ.get('ROS_DOMAIN_ID'), 'recording': None}
+
+    # waiting ------------------------------------------------------------------------------------
+
+    def _check_children(self):
+        for child in self.children.values():
+            if not child.alive():
+                raise DemoError(f'{child.name} exited with code {child.process.returncode}:\n'
+                                f'{child.tail()}')
+
+    def _wait(self, predicate, what, timeout=None, tick=None, optional=False):
+        """
+        Poll predicate until truthy and return its value.
+
+        DemoError when a node exits or the time is up; after an optional wait's own timeout
+        (not the demo's --timeout) the result is None instead.
+        """
+        own_end = math.inf if timeout is None else time.monotonic() + timeout
+        while True:
+            value = predicate()
+            if value:
+                return value
+            self._check_children()
+            self._report_ready()
+            now = time.monotonic()
+            if now > self.deadline:
+                raise DemoError(f'timed out waiting for {what} (--timeout)')
+            if now > own_end:
+                if optional:
+                    return None
+                raise DemoError(f'timed out waiting for {what}')
+            if tick is not None:
+                tick()
+            time.sleep(0.02)
+
+    def _report_ready(self):
+        """Print (once) the solver's ready notice: the kernel load time, from ~/progress."""
+        if self.ready_reported or self.client is None:
+            return
+        for msg in self.client.messages(PROGRESS):
+            report = progress_from_msg(msg)
+            if report.event == EVENT_READY:
+                self.ready_reported = True
+                self.summary['kernel_load_s'] = report.elapsed_s
+                self.out.stage(f'solver_node: numba kernels loaded in {report.elapsed_s:.1f} s')
+                return
+
+    # start --------------------------------------------------------------------------------------
+
+    def start(self, log_dir):
+        """Start the nodes (each in its own session) and the demo's own client node."""
+        self.client = client = harness.RosClient('toc_demo', namespace='', private_domain=False)
+        client.collect(DiagnosticStatus, PROGRESS, 100)
+        client.collect(JointState, 'joint_states', 10, keep=1000)
+        client.collect(DiagnosticStatus, 'plant_node/tracking', 10, keep=50)
+        client.collect(JointTrajectory, 'trajectory', harness.LATCHED)
+        self.goal_pub = client.node.create_publisher(PoseStamped, '/goal_pose', harness.LATCHED)
+        self.obstacles_pub = client.node.create_publisher(Float64MultiArray, '/obstacles',
+                                                          harness.LATCHED)
+        if self.args.record:
+            argv = recorder_command(self.args.output, extra_ros_args=[
+                '-r', f'__node:={RECORDER_NODE}'])
+            self.children['recorder'] = harness.NodeProcess(
+                argv=argv, name=RECORDER_NODE, log_dir=log_dir, new_session=True)
+        for name in ('solver_node', 'plant_node'):
+            self.children[name] = harness.NodeProcess(
+                name, log_dir=log_dir, params_file=self.params_file, new_session=True)
+
+    def wait_ready(self):
+        """Wait until the nodes are connected and the plant publishes joint_states."""
+        out, client = self.out, self.client
+        if kernel_cache_found():
+            out.stage('solver_node: loading the numba kernels from the cache (goals sent '
+                      'meanwhile are queued) ...')
+        else:
+            out.stage('solver_node: first run, compiling the numba kernels (about a minute; '
+                      'cached for later runs; goals sent meanwhile are queued) ...')
+        ready = client.node.create_client(Trigger, '/solver_node/ready')
+
+        def solver_ready():
+            try:
+                return client.call(ready, Trigger.Request(), timeout=5.0).success
+            except harness.HarnessError:
+                return False
+        self._wait(solver_ready, 'solver_node to load its kernels')
+        self._report_ready()
+        out.stage('solver_node ready')
+        self._wait(lambda: client.count('joint_states'), 'joint_states from plant_node',
+                   timeout=60.0)
+        out.stage('plant_node publishes joint_states')
+        subscribers = 2 if self.args.record else 1
+        self._wait(lambda: (self.goal_pub.get_subscription_count() >= subscribers
+                            and self.obstacles_pub.get_subscription_count() >= subscribers
+                            and 'solver_node' in client.subscribers('joint_states')
+                            and 'plant_node' in client.subscribers('trajectory')),
+                   'the nodes to connect', timeout=60.0)
+        if self.args.record:
+            self._wait(lambda: all(RECORDER_NODE in client.subscribers(t.lstrip('/'))
+                                   for t in WATCHED_TOPICS),
+                       f'recorder_node to subscribe to {", ".join(WATCHED_TOPICS)}',
+                       timeout=30.0)
+            out.stage(f'recorder_node records to {self.args.output}')
+
+    def _solver_obstacles(self):
+        try:
+            values = self.client.get_parameters(
+                'solver_node', ['obstacles.x', 'obstacles.y', 'obstacles.radius'], timeout=5.0)
+        except harness.HarnessError:
+            return None
+        return tuple(zip(values['obstacles.x'], values['obstacles.y'],
+                         values['obstacles.radius']))
+
+    # one goal -----------------------------------------------------------------------------------
+
+    def run_stage(self, number, stage):
+        """Send the stage's obstacles and goal, wait for the plan and its execution."""
+        out, client = self.out, self.client
+        q_goal = stage.q_goal
+        plan = {'label': stage.label, 'goal_q': list(q_goal), 'obstacles':
+                [list(r) for r in stage.obstacles]}
+        self.summary['plans'].append(plan)
+        out.stage(f'plan {number} ({stage.label}): {len(stage.obstacles)} obstacle(s) '
+                  f'{list(stage.obstacles)}')
+        self.obstacles_pub.publish(obstacles_msg(stage.obstacles))
+        expected = tuple(tuple(float(v) for v in row) for row in stage.obstacles)
+        self._wait(lambda: self._solver_obstacles() == expected,
+                   'solver_node to take the obstacles', timeout=30.0)
+
+        goal = goal_pose_msg(q_goal, self.a, self.base_frame)
+        plan['goal_pose'] = [goal.pose.position.x, goal.pose.position.y]
+        progress_seen = client.count(PROGRESS)
+        trajectories_seen = client.count('trajectory')
+        sent = time.monotonic()
+        self.goal_pub.publish(goal)
+        out.stage(f'plan {number}: goal_pose ({goal.pose.position.x:.4f}, '
+                  f'{goal.pose.position.y:.4f}) m in {self.base_frame}, i.e. q = '
+                  f'({q_goal[0]:.4f} rad, {q_goal[1]:.4f} m)')
+
+        printed = [0.0]
+
+        def final():
+            reports = [progress_from_msg(m) for m in client.messages(PROGRESS)[progress_seen:]]
+            for report in reports:
+                if report.final:
+                    return report
+            running = [r for r in reports if r.solving]
+            if running and time.monotonic() - printed[0] >= PROGRESS_PRINT_PERIOD_S:
+                printed[0] = time.monotonic()
+                latest = running[-1]
+                best = latest.best_feasible_t_f
+                out.detail(f'solving: {latest.elapsed_s:.1f} s, iteration {latest.iteration}, '
+                           f't_f {latest.t_f:.4f} s, best feasible t_f '
+                           + ('none yet' if best is None or math.isnan(best)
+                              else f'{best:.4f} s'))
+            return None
+
+        # The first goal may wait for the kernels: only the demo's --timeout bounds it.
+        report = self._wait(final, f'the result of plan {number}',
+                            timeout=None if number == 1 else self.solver_timeout + 30.0)
+        plan.update(status=report.status.value, message=report.message, t_min=report.t_f,
+                    solve_wall_time_s=report.elapsed_s, iterations=report.iteration,
+                    start_source=report.start_source, obstacles_hash=report.obstacles_hash,
+                    data_revision=report.data_revision,
+                    goal_to_result_s=time.monotonic() - sent)
+        out.stage(f"plan {number}: {plan['status']}: t_min {plan['t_min']:.4f} s, solved in "
+                  f"{plan['solve_wall_time_s']:.2f} s ({plan['iterations']} iterations), "
+                  f'start from {plan["start_source"]}')
+        if report.status is not Status.SOLVED:
+            raise DemoError(f'plan {number} ended {plan["status"]}: {report.message}')
+
+        received, trajectory = self._wait(
+            lambda: client.stamped('trajectory')[trajectories_seen:],
+            f'the trajectory of plan {number}', timeout=10.0)[-1]
+        start, end = trajectory.points[0], trajectory.points[-1]
+        duration = conversions.duration_seconds(end.time_from_start)
+        plan['trajectory'] = {'points': len(trajectory.points), 'duration_s': duration,
+                              'start_q': list(start.positions), 'end_q': list(end.positions)}
+        end_error = max(abs(e - g) for e, g in zip(end.positions, q_goal))
+        if end_error > checks.TRAJECTORY_END_TOL:
+            raise DemoError(f'plan {number}: the trajectory ends {end_error:.3g} from the goal')
+        out.stage(f'plan {number}: plant_node executes {len(trajectory.points)} points, '
+                  f'{duration:.4f} s')
+        self._execute(plan, received, duration)
+
+    def _joint_state(self, msg):
+        positions, velocities = conversions.joint_state_arrays(msg, self.joint_names)
+        return positions.tolist(), velocities.tolist()
+
+    def _execute(self, plan, received, duration):
+        """Wait until the plant rests at the goal (or gave up), record the final error."""
+        client, q_goal = self.client, plan['goal_q']
+        settling = checks.Settling(q_goal, received + duration)
+        last = [received]
+
+        def settled():
+            for stamp, msg in client.stamped('joint_states', last[0]):
+                if stamp <= last[0]:
+                    continue
+                last[0] = stamp
+                try:
+                    positions, velocities = self._joint_state(msg)
+                except conversions.ConversionError:
+                    continue
+                if settling.add(stamp, positions, velocities):
+                    return True
+            return False
+
+        at_rest = bool(self._wait(settled, 'plant_node to settle at the goal',
+                                  timeout=duration + checks.SETTLE_TIMEOUT_S, optional=True))
+        stamp, msg = client.stamped('joint_states')[-1]
+        positions, velocities = self._joint_state(msg)
+        tracking = client.messages('plant_node/tracking')
+        tracking = conversions.diagnostic_values(tracking[-1]) if tracking else {}
+        errors = [p - g for p, g in zip(positions, q_goal)]
+        plan.update(
+            final_q=positions, final_dq=velocities, final_error=errors,
+            final_distance=math.hypot(*errors), at_rest=at_rest,
+            settle_time_s=stamp - received - duration,
+            max_tracking_error=[_num(tracking.get('max_position_error_q1')),
+                                _num(tracking.get('max_position_error_q2'))],
+            reached=at_rest and checks.reached(errors))
+        self.out.stage(
+            f"plan {len(self.summary['plans'])}: plant "
+            f"{'at rest' if at_rest else 'NOT at rest'} "
+            f'{plan["settle_time_s"]:.2f} s after the trajectory end, error '
+            f'({errors[0]:.2e} rad, {errors[1]:.2e} m), max tracking error during execution '
+            f'({plan["max_tracking_error"][0]:.2e} rad, {plan["max_tracking_error"][1]:.2e} m)')
+
+    # stop ---------------------------------------------------------------------------------------
+
+    def stop(self):
+        """Stop the nodes (recorder last, so it gets their final messages); log exit codes."""
+        nodes = [c for n, c in self.children.items() if n != 'recorder']
+        for child in nodes:
+            child.interrupt()
+        for child in nodes + [self.children.get('recorder')]:
+            if child is not None:
+                child.stop()
+        self.summary['exit_codes'] = {c.name: c.exit_code for c in self.children.values()}
+        self.summary['stopped_by'] = {c.name: c.stopped_by for c in self.children.values()}
+        recorder = self.children.get('recorder')
+        if recorder is not None:
+            self.summary['recording'] = recording_facts(self.args.output,
+                                                        recorder.exit_code == 0)
+
+    def close(self):
+        """Stop every child that still runs and the client."""
+        for child in self.children.values():
+            child.stop()
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+
+def _num(text):
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return math.nan

@@ -1,0 +1,72 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The demo's summary: the recording's facts from its metadata.yaml, and the printed text."""
+
+import os
+
+import yaml
+
+
+def recording_facts(path, closed_cleanly):
+    """Path, clean close and message count of a recording (count from its metadata.yaml)."""
+    count = None
+    try:
+        with open(os.path.join(path, 'metadata.yaml')) as stream:
+            info = (yaml.safe_load(stream) or {}).get('rosbag2_bagfile_information') or {}
+        count = int(info['message_count'])
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
+        pass     # no metadata (the recorder failed early): the count stays unknown
+    return {'path': os.path.abspath(path), 'closed_cleanly': closed_cleanly, 'messages': count}
+
+
+def format_summary(summary):
+    """Return the human-readable summary."""
+    lines = ['', 'toc-demo summary']
+    tol = summary['position_tolerance']
+    for k, plan in enumerate(summary['plans'], 1):
+        q = plan['goal_q']
+        lines.append(f"  plan {k} ({plan['label']}) to q = ({q[0]:.4f} rad, {q[1]:.4f} m), "
+                     f"{len(plan['obstacles'])} obstacle(s): {plan.get('status', 'not finished')}")
+        if 't_min' in plan:
+            lines.append(f"    t_min {plan['t_min']:.4f} s, solve wall time "
+                         f"{plan['solve_wall_time_s']:.2f} s ({plan['iterations']} "
+                         f"iterations), start from {plan['start_source']}")
+        if 'final_error' in plan:
+            e = plan['final_error']
+            lines.append(
+                f'    final tracking error ({e[0]:.2e} rad, {e[1]:.2e} m), distance '
+                f"{plan['final_distance']:.2e}: "
+                + ('within' if plan['reached'] else 'OUTSIDE')
+                + f' the tolerance ({tol[0]:g} rad, {tol[1]:g} m)'
+                + ('' if plan['at_rest'] else ', not at rest'))
+    recording = summary.get('recording')
+    if recording:
+        count = recording['messages']
+        lines.append(f"  recording: {recording['path']} ("
+                     + ('unknown number of' if count is None else str(count)) + ' messages, '
+                     + ('closed cleanly)' if recording['closed_cleanly'] else
+                        'recorder FAILED: see logs)'))
+    else:
+        lines.append('  recording: none (--no-record)')
+    codes = summary.get('exit_codes', {})
+    if any(codes.values()):
+        lines.append(f'  exit codes of the nodes: {codes}')
+    if summary.get('logs'):
+        lines.append(f"  node logs: {summary['logs']}")
+    if summary.get('error'):
+        lines.append(f"  error: {summary['error']}")
+    lines.append(f"  wall time {summary['wall_time_s']:.1f} s: "
+                 + ('OK' if summary['success'] else 'FAILED'))
+    return '\n'.join(lines)
