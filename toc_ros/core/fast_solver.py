@@ -29,6 +29,7 @@ being executed) skips the coarse grid.
 """
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -55,6 +56,8 @@ RHO_TERMINAL = 1e2
 # l1 weight of the obstacle constraints' elastic variables: above every obstacle multiplier
 # (they are O(1) here), so the elastic variables vanish at the solution.
 ELASTIC_WEIGHT = 100.0
+# [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
+STOP_POLL = 0.005
 # Box on t_f [s].
 T_LOW = 1e-3
 T_HIGH_FACTOR = 100.0
@@ -170,21 +173,38 @@ class InteriorPointRun:
         return self.ws.hist[:k, [ipm.H_T, ipm.H_THETA]]
 
     # Driving -----------------------------------------------------------------------------
-    def run(self, check):
+    def run(self, check, stop_requested=None):
         """
         Iterate until a stop code; check() runs between chunks of ~20 ms (progress, cancel,
-        timeout: it raises Stop).  Returns the ipm code.
+        timeout: it raises Stop).  While a chunk runs (the kernel releases the GIL), a watcher
+        thread sets the kernel's stop flag as soon as stop_requested() is true, so a stop is
+        honoured within one phase of an iteration even on long horizons.  Returns the ipm code.
         """
         chunk = 1
-        while True:
-            check(self)
-            started = time.monotonic()
-            code = self.kernels.ipm_iterate(self.ws, chunk)
-            per_iteration = (time.monotonic() - started) / chunk
-            chunk = int(max(1, min(50, 0.02 / max(per_iteration, 1e-6))))
-            if code != ipm.CONTINUE:
+        done = threading.Event()
+        watcher = None
+        if stop_requested is not None:
+            def watch():
+                while not done.wait(STOP_POLL):
+                    if stop_requested():
+                        self.ws.iscal[ipm.I_STOP] = 1
+                        return
+            watcher = threading.Thread(target=watch, name='toc_ros-stop-watch', daemon=True)
+            watcher.start()
+        try:
+            while True:
                 check(self)
-                return code
+                started = time.monotonic()
+                code = self.kernels.ipm_iterate(self.ws, chunk)
+                per_iteration = (time.monotonic() - started) / chunk
+                chunk = int(max(1, min(50, 0.02 / max(per_iteration, 1e-6))))
+                if code != ipm.CONTINUE:
+                    check(self)
+                    return code
+        finally:
+            done.set()
+            if watcher is not None:
+                watcher.join()
 
 
 def interpolation_start(problem, n):
@@ -329,9 +349,11 @@ class FastSolve:
         run.start(states, controls, t_f, mu, duals)
         self.run = run
         try:
-            code = run.run(self._check)
+            code = run.run(self._check, lambda: self.clock.stop_reason() is not None)
         finally:
             self._record(run)
+        if code == ipm.STOPPED:
+            raise Stop(self.clock.stop_reason() or Status.CANCELED)
         return run, code
 
     def _record(self, run):

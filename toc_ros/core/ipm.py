@@ -93,7 +93,8 @@ I_LS_FAILS = 5       # consecutive line-search failures
 I_STATUS = 6
 I_REG_TRIES = 7      # factorizations of the last iteration
 I_BACKTRACKS = 8     # line-search trials of the last iteration
-N_ISCAL = 9
+I_STOP = 9           # set to 1 by another thread to stop the iterations (cancel, timeout)
+N_ISCAL = 10
 
 # Return codes of iterate().
 CONTINUE = 0
@@ -101,6 +102,7 @@ CONVERGED = 1
 ITERATION_LIMIT = 2
 LINE_SEARCH_FAILED = 3
 NUMERICAL_FAILURE = 4
+STOPPED = 5          # iscal[I_STOP] was set
 
 # History columns (one row per iteration).
 H_T, H_THETA, H_ERR, H_MU, H_ALPHA, H_DELTA = 0, 1, 2, 3, 4, 5
@@ -1123,6 +1125,8 @@ def _line_search(rhs, segments, ws, dt, alpha_max):
     alpha = alpha_max
     backtracks = 0
     for _ls in range(MAX_BACKTRACKS):
+        if ws.iscal[I_STOP]:
+            break
         backtracks += 1
         theta, phi = trial_merit(rhs, segments, ws, alpha, dt)
         ws.iscal[I_BACKTRACKS] = backtracks
@@ -1144,11 +1148,15 @@ def _line_search(rhs, segments, ws, dt, alpha_max):
 def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
     """
     Run up to n_iter interior-point iterations from the current point; returns CONTINUE,
-    CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED or NUMERICAL_FAILURE.
+    CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED, NUMERICAL_FAILURE or STOPPED (another
+    thread set iscal[I_STOP]: checked between the phases of an iteration, so a stop request
+    waits at most for one derivative evaluation or one factorization).
     """
     fs = ws.fscal
     it = ws.iscal
     for _ in range(n_iter):
+        if it[I_STOP]:
+            return STOPPED
         derivative_terms(rhs_jac, rhs_hess, segments, ws)
         if not barrier_terms(ws):
             return NUMERICAL_FAILURE
@@ -1170,7 +1178,11 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
             derivative_terms(rhs_jac, rhs_hess, segments, ws)
             barrier_terms(ws)
         _update_barrier(ws)
+        if it[I_STOP]:
+            return STOPPED
         dt = _regularized_step(ws)
+        if it[I_STOP]:
+            return STOPPED
         if not math.isfinite(dt):
             return NUMERICAL_FAILURE
         frac = max(0.99, 1.0 - fs[F_MU])
@@ -1179,6 +1191,8 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
         theta0 = fs[F_THETA]
         phi0 = fs[F_PHI]
         alpha, accepted, f_type = _line_search(rhs, segments, ws, dt, alpha_max)
+        if it[I_STOP]:
+            return STOPPED
         if not accepted:
             # No acceptable point: take the longest trial that does not blow theta up, reset
             # the filter and count the failure (IPOPT would enter feasibility restoration).
