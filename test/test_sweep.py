@@ -108,7 +108,14 @@ def _stop(proc):
 
 
 @pytest.fixture(scope='module')
-def serial():
+def warm_cache():
+    """Compile or load the numba kernels here first, so the workers find them cached."""
+    from toc_ros.core import warm_up
+    warm_up()
+
+
+@pytest.fixture(scope='module')
+def serial(warm_cache):
     """Solve serially by the code path of toc-solve (parse_args, build_problem, core solve)."""
     from toc_ros.core import solve
     from toc_ros.solve import build_problem, parse_args
@@ -299,7 +306,7 @@ def test_summary_and_heat_map_of_random_samples(tmp_path):
 
 # -- a real LocalCluster (the default of toc-sweep) ------------------------------------------
 
-def test_local_cluster_rows_equal_serial_solves(tmp_path, serial):
+def test_local_cluster_rows_equal_serial_solves(tmp_path, warm_cache, serial):
     from toc_ros.sweep import cli
     out = tmp_path / 'local'
     spec = _write_spec(tmp_path, LOCAL_SPEC)
@@ -341,7 +348,7 @@ def test_local_cluster_rows_equal_serial_solves(tmp_path, serial):
 # -- a separately started dask scheduler + dask worker processes -----------------------------
 
 @pytest.fixture(scope='module')
-def cluster():
+def cluster(warm_cache):
     """`dask scheduler` and two `dask worker` processes on 127.0.0.1 (random ports)."""
     port = _free_port()
     address = f'tcp://127.0.0.1:{port}'

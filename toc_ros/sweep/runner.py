@@ -34,6 +34,7 @@ import uuid
 
 TARGET_TASK_S = 1.0          # aimed-for duration of one task
 MIN_TASK_S = 0.05            # tasks at the end are not made shorter than this
+WAIT_FOR_WORKERS_S = 120     # an external scheduler without workers: give up after this
 FIRST_BATCH = 1              # cases per task until solve times have been measured
 MAX_BATCH = 2000
 TASKS_PER_WORKER = 3         # tasks in flight per worker thread
@@ -128,6 +129,13 @@ def connect(scheduler=None, workers=None, log=print):
             raise ConnectionError(f'cannot reach the Dask scheduler {scheduler}: {exc}')
         cluster = None
         what = f'scheduler {scheduler}'
+        try:
+            client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
+        except TimeoutError:
+            client.close()
+            raise ConnectionError(f'no worker joined the Dask scheduler {scheduler} within '
+                                  f'{WAIT_FOR_WORKERS_S} s (start some: dask worker '
+                                  f'{scheduler} --nthreads 1)')
     else:
         n = workers or default_workers()
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
@@ -192,8 +200,6 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
     stats.cases = len(cases)
     if not cases:
         return stats
-    if _threads(client) == 0:
-        client.wait_for_workers(1, timeout=120)
     pending = deque(cases)
     batcher = Batcher(batch_size, target_task_s)
     batches = {}
