@@ -424,6 +424,13 @@ def test_external_scheduler_interrupted_sweep_resumes_missing_cases_only(
     warmed = sorted(e['worker'] for e in events if e['now'])
     assert warmed == sorted(cluster['workers'].values()), events
     assert len(events) >= 2 * len(warmed)
+    # The spec grows by one q2 value: --resume solves the 7 new cases only.
+    grown = dict(CLUSTER_SPEC, grid=dict(CLUSTER_SPEC['grid'], **{'goal.q2': [0.7, 1.1, 0.9]}))
+    spec = _write_spec(tmp_path, grown, 'grown.yaml')
+    proc = _sweep_cli(spec, '--scheduler', cluster['address'], '--out', str(out), '--resume')
+    assert proc.returncode == 0, proc.stderr
+    assert f'21 case(s) in {spec}, 14 already in' in proc.stdout and 'solving 7' in proc.stdout
+    _assert_each_case_once(_rows(out), 21)
 
 
 def test_external_scheduler_worker_killed_mid_sweep_loses_no_case(tmp_path, cluster, serial):
