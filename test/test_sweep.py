@@ -204,6 +204,30 @@ def test_bad_specs_are_refused_before_any_solve(tmp_path, monkeypatch, capsys, d
     assert not out.exists()
 
 
+ISSUE_EXAMPLE = '''\
+base: {mode: fast, integrator: euler, N: 300}     # toc-solve long options, without "--"
+grid:                                             # cross product of the listed values
+  goal.x: [1.0, 1.5]                              # hand goal [m] (with goal.y), or goal.q1/q2
+  goal.y: [1.0, 1.5]
+  obstacles.0.x: [0.9, 1.1]                       # obstacles.K.{x,y,radius}; start.q1/q2/dq1/dq2
+random: {n: 0, seed: 1, ranges: {}}               # optional: n samples, uniform in ranges
+'''
+
+
+def test_the_issue_example_spec_is_accepted(tmp_path, capsys):
+    from toc_ros.sweep import cli
+    from toc_ros.sweep.dataset import schema_for
+    from toc_ros.sweep.spec import load_spec
+    path = tmp_path / 'issue.yaml'
+    path.write_text(ISSUE_EXAMPLE)
+    assert cli.main([str(path), '--dry-run']) == 0
+    assert '8 case(s), varied: goal.x, goal.y, obstacles.0.x' in capsys.readouterr().out
+    columns = schema_for(load_spec(str(path))).names
+    assert columns[:4] == ['case_id', 'goal.x', 'goal.y', 'obstacles.0.x']
+    assert {'status', 'final_time', 'iterations', 'wall_time_s', 'max_control_excess',
+            'terminal_error', 'min_clearance', 'worker'} <= set(columns)
+
+
 def test_unreadable_and_non_yaml_specs(tmp_path, capsys):
     from toc_ros.sweep import cli
     assert cli.main([str(tmp_path / 'nope.yaml')]) == 2
