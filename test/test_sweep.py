@@ -204,14 +204,14 @@ def test_bad_specs_are_refused_before_any_solve(tmp_path, monkeypatch, capsys, d
     assert not out.exists()
 
 
-ISSUE_EXAMPLE = '''\
+ISSUE_EXAMPLE = """\
 base: {mode: fast, integrator: euler, N: 300}     # toc-solve long options, without "--"
 grid:                                             # cross product of the listed values
   goal.x: [1.0, 1.5]                              # hand goal [m] (with goal.y), or goal.q1/q2
   goal.y: [1.0, 1.5]
   obstacles.0.x: [0.9, 1.1]                       # obstacles.K.{x,y,radius}; start.q1/q2/dq1/dq2
 random: {n: 0, seed: 1, ranges: {}}               # optional: n samples, uniform in ranges
-'''
+"""
 
 
 def test_the_issue_example_spec_is_accepted(tmp_path, capsys):
