@@ -467,8 +467,14 @@ def test_external_scheduler_worker_killed_mid_sweep_loses_no_case(tmp_path, clus
     try:
         _wait_for(lambda: any(r['worker'] == victim for r in _rows(out))
                   or sweep.poll() is not None, 120, 'a row from worker w0')
-        assert sweep.poll() is None, 'the sweep ended before the worker could be killed'
-        cluster['procs']['w0'].send_signal(signal.SIGKILL)
+        from distributed import Client
+        with Client(cluster['address'], timeout=10) as client:
+            # Kill it while the scheduler has a task of this sweep on it.
+            _wait_for(lambda: any(str(k).startswith('toc-sweep-') for k in
+                                  client.processing(workers=[victim]).get(victim, ()))
+                      or sweep.poll() is not None, 60, 'a task on worker w0')
+            assert sweep.poll() is None, 'the sweep ended before the worker could be killed'
+            cluster['procs']['w0'].send_signal(signal.SIGKILL)
         stdout, stderr = sweep.communicate(timeout=150)
     finally:
         _stop(sweep)
