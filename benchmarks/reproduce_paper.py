@@ -36,6 +36,7 @@ from pathlib import Path
 import platform
 import subprocess
 import sys
+import textwrap
 import time
 from typing import Optional, Tuple
 
@@ -846,8 +847,8 @@ def _method(res):
     return f"""\
 ## Method
 
-All runs solve the section-4 scenario: {_scenario_text(res['paper'].problem)},
-N intervals of τ = t_f / N with controls constant on each interval.
+{textwrap.fill('All runs solve the section-4 scenario: ' + _scenario_text(res['paper'].problem)
+                + ', N intervals of τ = t_f / N with controls constant on each interval.', 99)}
 
 * **Paper mode** (`SolverOptions(mode='paper')`, defaults = the paper's constants): u(0) = 0,
   t_f0 = {res['paper'].problem.t_f0:g} s; gradient descent with constant η = {po.eta:g} (eq. 32) on

@@ -318,7 +318,6 @@ class SolverNode(Node):
         self._planning = planning_data(self._params)
         self._executing = None              # dict of the last published plan
         self._plan_info = None              # (hash, revision) of the last published plan
-        self._obstacle_markers = None       # (key, markers) cache
         self._ready = threading.Event()
         self._started = time.monotonic()
         self._kernel_load_s = None
