@@ -278,16 +278,17 @@ def test_paper_mode_refuses_other_models_and_initial_guesses():
 
 
 def test_planar_2r_is_solved_and_feasible_for_both_links():
-    problem = replace(CASES['planar_2r_gravity'], n_intervals=200)
+    model = load_model('planar_2r')
+    problem = Problem(model=model, x0=tuple(model.state([0.0, 0.5])),
+                      x_goal=tuple(model.state([1.4, 0.3])), n_intervals=200, t_f0=1.0,
+                      obstacles=((1.3, 1.1, 0.15), (-0.5, 0.4, 0.2)))
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
-    u_max = np.asarray(PLANAR.u_max)
-    assert np.all(np.abs(result.controls) <= u_max)
-    # Independent re-integration (numpy RK-free Euler with the model's own rhs at the nodes is
-    # the kernels' business; here: the states the result reports reach the goal, and every
-    # link clears every inflated circle, measured by the numpy geometry).
+    assert np.all(np.abs(result.controls) <= np.asarray(model.u_max))
+    # The reported states reach the goal, and every link clears every inflated circle,
+    # measured by the numpy geometry (independent of the kernels).
     states = result.states
     assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= 1e-6
-    clearance = model_clearance(PLANAR, states, problem.circles())
-    assert clearance.shape == (201, 2)
+    clearance = model_clearance(model, states, problem.circles())
+    assert clearance.shape == (201, 4)
     assert clearance.min() >= -1e-6

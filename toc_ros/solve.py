@@ -72,6 +72,9 @@ def build_parser():
                         help='sign of the A2/(2 A3) dq1^2 term: eq. (37) as printed or eq. (36)')
     parser.add_argument('--paper-gradient', choices=('shortcut', 'exact'),
                         help='paper mode obstacle gradient: eq. (46) shortcut or exact')
+    parser.add_argument('--initial-guess', metavar='RESULT.json',
+                        help='warm start (fast mode) from a result written by --json: its '
+                             'controls and final time, resampled to N')
     parser.add_argument('--json', metavar='PATH', help='write the result as JSON to PATH')
     parser.add_argument('--quiet', action='store_true',
                         help='no progress line and no summary (errors still go to stderr)')
@@ -145,6 +148,14 @@ def parse_args(argv, parser=None):
         folder = os.path.dirname(os.path.abspath(args.json))
         if not os.path.isdir(folder):
             parser.error(f'--json: directory {folder} does not exist')
+    args.guess = None
+    if args.initial_guess:
+        from toc_ros.core.result import guess_from_dict
+        try:
+            with open(args.initial_guess) as stream:
+                args.guess = guess_from_dict(json.load(stream))
+        except (OSError, ValueError) as exc:
+            parser.error(f'--initial-guess {args.initial_guess}: {exc}')
     return args
 
 
@@ -259,12 +270,12 @@ def write_json(path, result):
     os.replace(tmp, path)
 
 
-def _solve_interruptible(problem, options, progress):
+def _solve_interruptible(problem, options, progress, guess=None):
     """Run solve() in this thread; the first Ctrl-C cancels it, returning the best so far."""
     from toc_ros.core import solve
     cancel = threading.Event()
     if threading.current_thread() is not threading.main_thread():
-        return solve(problem, options, progress=progress, cancel=cancel)
+        return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
     previous = signal.getsignal(signal.SIGINT)
     if previous is None:      # installed outside Python: restore the default instead
         previous = signal.default_int_handler
@@ -276,7 +287,7 @@ def _solve_interruptible(problem, options, progress):
 
     signal.signal(signal.SIGINT, on_sigint)
     try:
-        return solve(problem, options, progress=progress, cancel=cancel)
+        return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
     finally:
         signal.signal(signal.SIGINT, previous)
 
@@ -303,7 +314,8 @@ def _run(args):
         show_progress = not args.quiet and sys.stderr.isatty()
         line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
         try:
-            result = _solve_interruptible(problem, options, line if show_progress else None)
+            result = _solve_interruptible(problem, options, line if show_progress else None,
+                                          getattr(args, 'guess', None))
         finally:
             line.clear()
     if result.status is Status.INVALID_INPUT:

@@ -55,7 +55,7 @@ def step_work(nx, nu):
             np.zeros((nx, nu)), np.zeros((4, nx, nx)), np.zeros((4, nx, nu)), np.zeros((4, nx)))
 
 
-@njit
+@njit(inline='always')
 def step(rhs, x, u, tau, p, method, out, work):
     """out = Phi(x, u, tau): one Euler or RK4 step."""
     k, y, f = work[0], work[1], work[2]
@@ -92,7 +92,7 @@ def rollout(rhs, x0, controls, tau, p, method, states):
         step(rhs, states[i], controls[i], tau, p, method, states[i + 1], work)
 
 
-@njit
+@njit(inline='always')
 def step_jacobians(rhs_jac, x, u, tau, p, method, out, jac_x, jac_u, jac_tau, work):
     """
     out = Phi(x, u, tau) with jac_x = dPhi/dx, jac_u = dPhi/du, jac_tau = dPhi/dtau.
@@ -159,7 +159,7 @@ def step_jacobians(rhs_jac, x, u, tau, p, method, out, jac_x, jac_u, jac_tau, wo
                                  + ku[3, r, col])
 
 
-@njit
+@njit(inline='always')
 def step_lagrangian_hessian(rhs_jac, rhs_hess, x, u, tau, p, lam, hxx, hxu, huu, hxt, hut,
                             work, hwork):
     """

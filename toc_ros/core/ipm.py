@@ -52,7 +52,8 @@ import math
 from numba import njit
 import numpy as np
 
-from .horizon import hessian_work, step, step_jacobians, step_lagrangian_hessian, step_work
+from .horizon import EULER, hessian_work, step, step_jacobians, step_lagrangian_hessian, \
+    step_work
 
 # fscal entries.
 F_T = 0              # final time [s]
@@ -235,7 +236,7 @@ def _segment_distance_sq(seg, cx, cy, g, h):
     return d2
 
 
-@njit
+@njit(inline='always')
 def obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess_q, work):
     """
     Obstacle constraints of one node: cons (L K), cons_q (L K, n); hess_q (n x n) receives sum_j sigma_j grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block
@@ -291,7 +292,7 @@ def _segment_distance_sq_value(seg, cx, cy):
     return wx * wx + wy * wy - proj * proj / length_sq
 
 
-@njit
+@njit(inline='always')
 def obstacle_values(segments, q, p, circles, cons, work):
     """Obstacle constraints c = (d^2 - R^2) / (2 R) of one node (values only)."""
     seg, seg_q, seg_qq = work[0], work[1], work[2]
@@ -315,7 +316,7 @@ def obstacle_work(n_links, n):
 # Evaluation: derivatives, stage blocks and residuals at the current point.
 # ---------------------------------------------------------------------------------------------
 
-@njit
+@njit(inline='always')
 def _controls(v, u_max, u):
     for c in range(v.shape[0]):
         u[c] = v[c] * u_max[c]
@@ -371,17 +372,49 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
         for a in range(nxi):
             for b in range(nxi):
                 qq[i, a, b] = 0.0
+    f, fx, fu = work[2], work[3], work[4]
+    hx_f, hxu_f, huu_f = hwork
     for i in range(n):
         _controls(ws.v[i], u_max, u)
-        step_jacobians(rhs_jac, ws.x[i], u, tau, p, method, nxt, ws.jac_x[i], jac_u,
-                       ws.jac_t[i], work)
-        for r in range(nx):
-            ws.defect[i, r] = nxt[r] - ws.x[i + 1, r]
-            ws.jac_t[i, r] /= n
-            for c in range(nu):
-                ws.jac_v[i, r, c] = jac_u[r, c] * u_max[c]
-        step_lagrangian_hessian(rhs_jac, rhs_hess, ws.x[i], u, tau, p, ws.lam[i + 1], hxx,
-                                hxu, huu, hxt, hut, work, hwork)
+        if method == EULER:
+            # Written out for Euler (Phi = x + tau f): no output views in the hot loop, which
+            # costs numba several times the arithmetic.
+            rhs_jac(ws.x[i], u, p, f, fx, fu)
+            rhs_hess(ws.x[i], u, p, ws.lam[i + 1], hx_f, hxu_f, huu_f)
+            for r in range(nx):
+                ws.defect[i, r] = ws.x[i, r] + tau * f[r] - ws.x[i + 1, r]
+                ws.jac_t[i, r] = f[r] / n
+                for c in range(nx):
+                    ws.jac_x[i, r, c] = tau * fx[r, c]
+                ws.jac_x[i, r, r] += 1.0
+                for c in range(nu):
+                    ws.jac_v[i, r, c] = tau * fu[r, c] * u_max[c]
+            for r in range(nx):
+                acc = 0.0
+                for m in range(nx):
+                    acc += fx[m, r] * ws.lam[i + 1, m]
+                hxt[r] = acc
+                for c in range(nx):
+                    hxx[r, c] = tau * hx_f[r, c]
+                for c in range(nu):
+                    hxu[r, c] = tau * hxu_f[r, c]
+            for r in range(nu):
+                acc = 0.0
+                for m in range(nx):
+                    acc += fu[m, r] * ws.lam[i + 1, m]
+                hut[r] = acc
+                for c in range(nu):
+                    huu[r, c] = tau * huu_f[r, c]
+        else:
+            step_jacobians(rhs_jac, ws.x[i], u, tau, p, method, nxt, ws.jac_x[i], jac_u,
+                           ws.jac_t[i], work)
+            for r in range(nx):
+                ws.defect[i, r] = nxt[r] - ws.x[i + 1, r]
+                ws.jac_t[i, r] /= n
+                for c in range(nu):
+                    ws.jac_v[i, r, c] = jac_u[r, c] * u_max[c]
+            step_lagrangian_hessian(rhs_jac, rhs_hess, ws.x[i], u, tau, p, ws.lam[i + 1],
+                                    hxx, hxu, huu, hxt, hut, work, hwork)
         # Stage blocks in (xi, v) with xi = (x, T): tau-derivatives divided by N, u = u_max v.
         for a in range(nx):
             for b in range(nx):
@@ -597,6 +630,7 @@ def factorize(ws, delta):
     shat = np.zeros((nu, nxi))
     h = np.zeros(nxi)
     rcol = np.zeros(nu)
+    lower = np.zeros((nu, nu))
     for a in range(nxi):
         for b in range(nxi):
             pp[n, a, b] = ws.qq[n, a, b]
@@ -607,42 +641,40 @@ def factorize(ws, delta):
     for r in range(nx):
         pc[n, r, 1 + r] = 1.0
     for i in range(n - 1, -1, -1):
-        p1 = pp[i + 1]
-        ax = ws.jac_x[i]
-        bv = ws.jac_v[i]
-        at = ws.jac_t[i]
         # pa = P Abar, pb = P Bbar with Abar = [[A, a_T], [0, 1]], Bbar = [B; 0].
         for a in range(nxi):
             for b in range(nx):
                 acc = 0.0
                 for m in range(nx):
-                    acc += p1[a, m] * ax[m, b]
+                    acc += pp[i + 1, a, m] * ws.jac_x[i, m, b]
                 pa[a, b] = acc
-            acc = p1[a, nx]
+            acc = pp[i + 1, a, nx]
             for m in range(nx):
-                acc += p1[a, m] * at[m]
+                acc += pp[i + 1, a, m] * ws.jac_t[i, m]
             pa[a, nx] = acc
             for c in range(nu):
                 acc = 0.0
                 for m in range(nx):
-                    acc += p1[a, m] * bv[m, c]
+                    acc += pp[i + 1, a, m] * ws.jac_v[i, m, c]
                 pb[a, c] = acc
         # rhat = R + B^T P B, shat = S + B^T P Abar.
         for c in range(nu):
             for d in range(nu):
                 acc = ws.rr[i, c, d]
                 for m in range(nx):
-                    acc += bv[m, c] * pb[m, d]
+                    acc += ws.jac_v[i, m, c] * pb[m, d]
                 rhat[c, d] = acc
             rhat[c, c] += delta
             for b in range(nxi):
                 acc = ws.ss[i, c, b]
                 for m in range(nx):
-                    acc += bv[m, c] * pa[m, b]
+                    acc += ws.jac_v[i, m, c] * pa[m, b]
                 shat[c, b] = acc
-        lower = ws.chol[i]
         if not _cholesky(rhat, lower, nu):
             return False
+        for c in range(nu):
+            for d in range(nu):
+                ws.chol[i, c, d] = lower[c, d]
         # gain = -rhat^-1 shat.
         for b in range(nxi):
             for c in range(nu):
@@ -656,11 +688,11 @@ def factorize(ws, delta):
                 if a < nx:
                     acc = 0.0
                     for m in range(nx):
-                        acc += ax[m, a] * pa[m, b]
+                        acc += ws.jac_x[i, m, a] * pa[m, b]
                 else:
                     acc = pa[nx, b]
                     for m in range(nx):
-                        acc += at[m] * pa[m, b]
+                        acc += ws.jac_t[i, m] * pa[m, b]
                 acc += ws.qq[i, a, b]
                 for c in range(nu):
                     acc += shat[c, a] * ws.gain[i, c, b]
@@ -675,12 +707,12 @@ def factorize(ws, delta):
                 acc = pc[i + 1, a, col]
                 if col == 0:
                     for m in range(nx):
-                        acc += p1[a, m] * ws.defect[i, m]
+                        acc += pp[i + 1, a, m] * ws.defect[i, m]
                 h[a] = acc
             for c in range(nu):
                 acc = ws.rv[i, c] if col == 0 else 0.0
                 for m in range(nx):
-                    acc += bv[m, c] * h[m]
+                    acc += ws.jac_v[i, m, c] * h[m]
                 rcol[c] = acc
             _chol_solve(lower, rcol, nu)
             for c in range(nu):
@@ -689,11 +721,11 @@ def factorize(ws, delta):
                 if a < nx:
                     acc = 0.0
                     for m in range(nx):
-                        acc += ax[m, a] * h[m]
+                        acc += ws.jac_x[i, m, a] * h[m]
                 else:
                     acc = h[nx]
                     for m in range(nx):
-                        acc += at[m] * h[m]
+                        acc += ws.jac_t[i, m] * h[m]
                 if col == 0:
                     acc += ws.qv[i, a]
                 for c in range(nu):

@@ -137,6 +137,28 @@ class SolveResult:
         }
 
 
+def guess_from_dict(data):
+    """
+    (controls, t_f) of a to_dict() result (a toc-solve --json file) for solve(initial_guess=).
+
+    Raises ValueError with a reason when the data holds no usable trajectory.
+    """
+    if not isinstance(data, dict):
+        raise ValueError('expected a JSON object as written by toc-solve --json')
+    controls = data.get('controls')
+    t_f = data.get('final_time')
+    if not controls or t_f is None:
+        raise ValueError('the result has no trajectory (controls and final_time)')
+    try:
+        controls = np.array(controls, dtype=float)
+        t_f = float(t_f)
+    except (TypeError, ValueError):
+        raise ValueError('controls must be rows of numbers and final_time a number')
+    if controls.ndim != 2:
+        raise ValueError(f'controls must be an M x nu array, got shape {controls.shape}')
+    return controls, t_f
+
+
 def _num(value):
     """JSON has no inf/nan: map them to None."""
     value = float(value)
