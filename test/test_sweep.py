@@ -273,6 +273,19 @@ def test_cases_become_toc_solve_arguments(tmp_path):
     assert third_id != case_id
 
 
+def test_an_exception_in_the_solver_is_an_error_row(monkeypatch):
+    import toc_ros.core
+    from toc_ros.sweep.worker import solve_case
+
+    def broken(problem, options):
+        raise RuntimeError('kaput')
+
+    monkeypatch.setattr(toc_ros.core, 'solve', broken)
+    row = solve_case(('0123456789abcdef', ['--N', '60'], {'N': 60}, None, None))
+    assert row['status'] == 'ERROR' and 'RuntimeError: kaput' in row['message']
+    assert row['N'] == 60 and row['args'] == 'toc-solve --N 60' and math.isnan(row['final_time'])
+
+
 def test_random_samples_are_seeded():
     from toc_ros.sweep.spec import parse_spec
     doc = {'random': {'n': 5, 'seed': 7, 'ranges': {'goal.q1': [0.5, 1.5], 'goal.q2': [0, 1]}}}
