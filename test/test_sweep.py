@@ -391,8 +391,9 @@ def cluster(warm_cache):
     port = _free_port()
     address = f'tcp://127.0.0.1:{port}'
     dask = [sys.executable, '-m', 'dask']
+    local = ['--no-dashboard', '--dashboard-address', '127.0.0.1:0']   # HTTP server too
     procs = [subprocess.Popen(dask + ['scheduler', '--host', '127.0.0.1', '--port', str(port),
-                                      '--no-dashboard', '--idle-timeout', '600'],
+                                      '--idle-timeout', '600'] + local,
                               env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     workers = {}
     try:
@@ -408,8 +409,8 @@ def cluster(warm_cache):
                 time.sleep(0.2)
         for k in range(2):
             proc = subprocess.Popen(
-                dask + ['worker', address, '--nthreads', '1', '--no-nanny', '--no-dashboard',
-                        '--host', '127.0.0.1', '--name', f'w{k}', '--death-timeout', '60'],
+                dask + ['worker', address, '--nthreads', '1', '--no-nanny', '--host',
+                        '127.0.0.1', '--name', f'w{k}', '--death-timeout', '60'] + local,
                 env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             procs.append(proc)
         client.wait_for_workers(2, timeout=60)
