@@ -273,6 +273,19 @@ def test_cases_become_toc_solve_arguments(tmp_path):
     assert third_id != case_id
 
 
+def test_an_exception_in_the_solver_is_an_error_row(monkeypatch):
+    import toc_ros.core
+    from toc_ros.sweep.worker import solve_case
+
+    def broken(problem, options):
+        raise RuntimeError('kaput')
+
+    monkeypatch.setattr(toc_ros.core, 'solve', broken)
+    row = solve_case(('0123456789abcdef', ['--N', '60'], {'N': 60}, None, None))
+    assert row['status'] == 'ERROR' and 'RuntimeError: kaput' in row['message']
+    assert row['N'] == 60 and row['args'] == 'toc-solve --N 60' and math.isnan(row['final_time'])
+
+
 def test_random_samples_are_seeded():
     from toc_ros.sweep.spec import parse_spec
     doc = {'random': {'n': 5, 'seed': 7, 'ranges': {'goal.q1': [0.5, 1.5], 'goal.q2': [0, 1]}}}
@@ -378,8 +391,9 @@ def cluster(warm_cache):
     port = _free_port()
     address = f'tcp://127.0.0.1:{port}'
     dask = [sys.executable, '-m', 'dask']
+    local = ['--no-dashboard', '--dashboard-address', '127.0.0.1:0']   # HTTP server too
     procs = [subprocess.Popen(dask + ['scheduler', '--host', '127.0.0.1', '--port', str(port),
-                                      '--no-dashboard', '--idle-timeout', '600'],
+                                      '--idle-timeout', '600'] + local,
                               env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     workers = {}
     try:
@@ -395,8 +409,8 @@ def cluster(warm_cache):
                 time.sleep(0.2)
         for k in range(2):
             proc = subprocess.Popen(
-                dask + ['worker', address, '--nthreads', '1', '--no-nanny', '--no-dashboard',
-                        '--host', '127.0.0.1', '--name', f'w{k}', '--death-timeout', '60'],
+                dask + ['worker', address, '--nthreads', '1', '--no-nanny', '--host',
+                        '127.0.0.1', '--name', f'w{k}', '--death-timeout', '60'] + local,
                 env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             procs.append(proc)
         client.wait_for_workers(2, timeout=60)

@@ -79,6 +79,10 @@ TABLE = {p.name: p for p in (list(SCENARIO_TABLE) + parameter_table(SolverNodeSe
                              + parameter_table(PlantSettings))}
 SOLVER_NODE_NAMES = [p.name for p in SCENARIO_TABLE] + [
     p.name for p in parameter_table(SolverNodeSettings)]
+# The plant simulates the robot of the scenario: every robot.* setting, so a new robot
+# parameter reaches it without an edit here.
+PLANT_NODE_NAMES = [p.name for p in SCENARIO_TABLE if p.name.startswith('robot.')] + [
+    'joint_names', 'initial_state'] + [p.name for p in parameter_table(PlantSettings)]
 
 
 def default(name):

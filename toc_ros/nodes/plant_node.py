@@ -54,10 +54,7 @@ from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node, survives_shutdown
 from trajectory_msgs.msg import JointTrajectory
 
-PARAMETER_NAMES = [
-    'robot.hand_mass', 'robot.link_mass', 'robot.inertia', 'robot.a', 'robot.u_max',
-    'robot.model_variant', 'joint_names', 'initial_state', 'rate', 'integration_rate', 'kp',
-    'kd', 'payload_mass_offset', 'inertia_scale', 'publish_clock']
+PARAMETER_NAMES = parameters.PLANT_NODE_NAMES
 TRACKING_PERIOD_S = 0.1
 # Longer stalls of the timer (suspended process, overloaded machine) are skipped, not replayed.
 MAX_CATCH_UP_S = 0.5

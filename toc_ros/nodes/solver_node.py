@@ -181,7 +181,7 @@ class _Worker:
 
     def __init__(self, run, drop, ready, logger):
         self._run = run          # run(request, cancel_event): solve and publish
-        self._drop = drop        # drop(request, reason): report a request never started
+        self._drop = drop        # drop(request, reason, event): report a request never started
         self._ready = ready      # threading.Event: the kernels are loaded
         self._logger = logger
         self._cond = threading.Condition()
@@ -224,7 +224,7 @@ class _Worker:
                 active.restart_reason = None
                 self._cancel.set()
         if dropped is not None:
-            self._drop(dropped, 'canceled by ~/cancel before its solve started')
+            self._drop(dropped, 'canceled by ~/cancel before its solve started', '')
         return active is not None and active.done.wait(CANCEL_WAIT_S)
 
     def busy(self):
@@ -620,11 +620,11 @@ class SolverNode(Node):
         progress = dataclasses.replace(progress, elapsed_s=time.monotonic() - started)
         self._publish_progress(schema.running_report(progress))
 
-    def _drop(self, request, reason):
+    def _drop(self, request, reason, event=schema.EVENT_SUPERSEDED):
         self.get_logger().warning(f'goal from {request.source} {reason}')
         self._publish_progress(schema.ProgressReport(
             status=Status.CANCELED, message=f'goal from {request.source} {reason}',
-            goal_source=request.source, event=schema.EVENT_SUPERSEDED))
+            goal_source=request.source, event=event))
         request.finish()
 
     def _run(self, request, cancel):

@@ -143,7 +143,7 @@ def connect(scheduler=None, workers=None, log=print):
     else:
         n = workers or default_workers()
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               host='127.0.0.1', dashboard_address=':0' if dashboard else None,
+                               host='127.0.0.1', dashboard_address='127.0.0.1:0',
                                silence_logs=logging.ERROR)
         client = Client(cluster)
         what = f'LocalCluster, {n} worker process(es) x 1 thread'
