@@ -13,8 +13,9 @@
 # limitations under the License.
 
 """
-The interior-point engine of fast mode (toc_ros/core/ipm.py), checked against derivatives and
-residuals computed here independently.
+Tests of the interior-point engine of fast mode (toc_ros/core/ipm.py).
+
+The engine is checked against derivatives and residuals computed here independently.
 
 * The Newton step: the full primal-dual KKT residual F (stationarity, shooting defects,
   terminal condition, elastic obstacle constraints, complementarity) is written out here in
@@ -34,14 +35,14 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
-from toc_ros.core import horizon, ipm, Problem, solve, SolverOptions, Status
 from toc_ros.core import fast_solver as fsv
+from toc_ros.core import horizon, ipm, Problem, solve, SolverOptions, Status
 from toc_ros.core.models import cylindrical, load_model
 from toc_ros.core.obstacles import model_clearance
 
 
 def _residual(run, ws):
-    """The KKT residual vector of the barrier problem at the point held in ws."""
+    """Compute the KKT residual vector of the barrier problem at the point held in ws."""
     run.kernels.ipm_evaluate(ws)
     n = ws.iscal[ipm.I_N]
     fs = ws.fscal

@@ -13,8 +13,10 @@
 # limitations under the License.
 
 """
-Fast mode: the discrete minimum-time problem of eqs. (1)-(5) (J0 = N tau = t_f) with the
-constraints kept as constraints, solved by the interior-point method of ipm.py:
+Fast mode: the discrete minimum-time problem solved by the interior-point method of ipm.py.
+
+This is the problem of eqs. (1)-(5) (J0 = N tau = t_f) with the constraints kept as
+constraints:
 
     minimise t_f  over  x(1..N), u(0..N-1), t_f
     s.t.  x(i+1) = Phi(x(i), u(i), t_f / N)          (eq. 2, multiple shooting)
@@ -99,8 +101,10 @@ class InteriorPointRun:
     # Starting points ---------------------------------------------------------------------
     def start(self, states, controls, t_f, mu, duals=None, push=BOUND_PUSH):
         """
-        Set the primal point (states (N+1, nx), controls (N, nu), t_f), pushed inside the
-        bounds by push, and the duals: given ones (a dict as from duals(), resampled) or
+        Set the primal point and the duals.
+
+        The primal point (states (N+1, nx), controls (N, nu), t_f) is pushed inside the
+        bounds by push; the duals are given ones (a dict as from duals(), resampled) or
         mu / slack.  With duals, each slack is at least mu / z (complementarity mu).
         """
         ws = self.ws
@@ -155,16 +159,16 @@ class InteriorPointRun:
     # Results -----------------------------------------------------------------------------
     @property
     def t_f(self):
-        """Current final time [s]."""
+        """Return the current final time [s]."""
         return float(self.ws.fscal[ipm.F_T])
 
     @property
     def iterations(self):
-        """Iterations done on this grid."""
+        """Return the number of iterations done on this grid."""
         return int(self.ws.iscal[ipm.I_ITER])
 
     def controls(self):
-        """Controls u (N, nu) of the current point."""
+        """Return the controls u (N, nu) of the current point."""
         return self.ws.v * self.u_max[None, :]
 
     def history(self):
@@ -175,10 +179,12 @@ class InteriorPointRun:
     # Driving -----------------------------------------------------------------------------
     def run(self, check, stop_requested=None):
         """
-        Iterate until a stop code; check() runs between chunks of ~20 ms (progress, cancel,
-        timeout: it raises Stop).  While a chunk runs (the kernel releases the GIL), a watcher
-        thread sets the kernel's stop flag as soon as stop_requested() is true, so a stop is
-        honoured within one phase of an iteration even on long horizons.  Returns the ipm code.
+        Iterate until a stop code.
+
+        check() runs between chunks of ~20 ms (progress, cancel, timeout: it raises Stop).
+        While a chunk runs (the kernel releases the GIL), a watcher thread sets the kernel's
+        stop flag as soon as stop_requested() is true, so a stop is honoured within one phase
+        of an iteration even on long horizons.  Returns the ipm code.
         """
         chunk = 1
         done = threading.Event()
@@ -209,11 +215,12 @@ class InteriorPointRun:
 
 def interpolation_start(problem, n):
     """
-    The cold starting point for n intervals over t_f0: each joint moves from x0 to x_goal
-    along a cubic in time (positions and velocities match both ends), and the controls are
-    that motion's inverse dynamics clipped to the bounds (least squares through df/du; exact
-    for models affine in u).  The same point is handed to the reference solvers in benchmarks/
-    so that all start alike.
+    Return the cold starting point for n intervals over t_f0.
+
+    Each joint moves from x0 to x_goal along a cubic in time (positions and velocities match
+    both ends), and the controls are that motion's inverse dynamics clipped to the bounds
+    (least squares through df/du; exact for models affine in u).  The same point is handed to
+    the reference solvers in benchmarks/ so that all start alike.
     """
     model = problem.robot_model
     t_f = float(problem.t_f0)
@@ -251,8 +258,10 @@ def interpolation_start(problem, n):
 
 def resample(states, controls, n):
     """
-    Carry a trajectory to n intervals: states linearly in time, controls piecewise constant
-    (the control of the old interval that contains the new interval's midpoint).
+    Carry a trajectory to n intervals.
+
+    States are interpolated linearly in time, controls piecewise constant (the control of the
+    old interval that contains the new interval's midpoint).
     """
     m = controls.shape[0]
     old = np.linspace(0.0, 1.0, m + 1)

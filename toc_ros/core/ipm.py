@@ -13,8 +13,10 @@
 # limitations under the License.
 
 """
-Fast mode's engine: a primal-dual interior-point method whose Newton steps are solved by a
-Riccati recursion, the second-order form of the BPTT recursion of eqs. (24)-(32).
+Fast mode's engine: a primal-dual interior-point method.
+
+Its Newton steps are solved by a Riccati recursion, the second-order form of the BPTT
+recursion of eqs. (24)-(32).
 
 The transcription is multiple shooting on the paper's grid: decision variables are the states
 x(1..N), the scaled controls v(i) = u(i) / u_max (|v| < 1) and the final time T (tau = T / N);
@@ -176,8 +178,10 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
 @njit(inline='always')
 def _segment_distance_sq(seg, cx, cy, g, h):
     """
-    Squared distance from segment (ax, ay, bx, by) to (cx, cy); gradient g (4) and Hessian h (4x4)
-    with respect to the endpoint coordinates.  Written with w = C - A, v = B - A.
+    Compute the squared distance from segment (ax, ay, bx, by) to (cx, cy).
+
+    Also fills the gradient g (4) and Hessian h (4x4) with respect to the endpoint
+    coordinates.  Written with w = C - A, v = B - A.
     """
     wx, wy = cx - seg[0], cy - seg[1]
     vx, vy = seg[2] - seg[0], seg[3] - seg[1]
@@ -239,8 +243,11 @@ def _segment_distance_sq(seg, cx, cy, g, h):
 @njit(inline='always')
 def obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess_q, work):
     """
-    Obstacle constraints of one node: cons (L K), cons_q (L K, n); hess_q (n x n) receives sum_j sigma_j grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block
-    of the condensed Newton system).
+    Evaluate the obstacle constraints of one node.
+
+    Fills cons (L K), cons_q (L K, n); hess_q (n x n) receives
+    sum_j sigma_j grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block of the
+    condensed Newton system).
     """
     seg, seg_q, seg_qq, ge, he = work
     n = q.shape[0]
@@ -325,8 +332,9 @@ def _controls(v, u_max, u):
 @njit
 def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
     """
-    Derivatives, the stage blocks of the Newton system and the residuals at the current point
-    (derivative_terms + barrier_terms).  Returns False when a value is not finite.
+    Compute the derivatives, Newton stage blocks and residuals at the current point.
+
+    This is derivative_terms + barrier_terms.  Returns False when a value is not finite.
     """
     derivative_terms(rhs_jac, rhs_hess, segments, ws)
     return barrier_terms(ws)
@@ -335,9 +343,11 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
 @njit
 def derivative_terms(rhs_jac, rhs_hess, segments, ws):
     """
-    The parts that do not depend on mu: step Jacobians, defects, the Hessian blocks qq, ss, rr
-    (Lagrangian curvature plus the condensed bound and obstacle terms), obstacle constraints
-    and their gradients, and the dual infeasibility fscal[F_DUAL_INF].
+    Compute the parts that do not depend on mu.
+
+    These are: step Jacobians, defects, the Hessian blocks qq, ss, rr (Lagrangian curvature
+    plus the condensed bound and obstacle terms), obstacle constraints and their gradients,
+    and the dual infeasibility fscal[F_DUAL_INF].
     """
     n = ws.iscal[I_N]
     method = ws.iscal[I_METHOD]
@@ -479,9 +489,11 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
 @njit
 def barrier_terms(ws):
     """
-    The parts that depend on mu, from the stored derivatives: the linear terms qv, rv, the
-    constraint violation theta, the barrier objective phi, complementarity, the scaled
-    optimality errors E_0 (fscal[F_ERR]) and the elastic maximum.
+    Compute the parts that depend on mu, from the stored derivatives.
+
+    These are: the linear terms qv, rv, the constraint violation theta, the barrier objective
+    phi, complementarity, the scaled optimality errors E_0 (fscal[F_ERR]) and the elastic
+    maximum.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -613,10 +625,12 @@ def _chol_solve(lower, b, m):
 @njit
 def factorize(ws, delta):
     """
-    Backward Riccati sweep for the current stage blocks with the shift delta on the primal
-    diagonal.  Returns False when a reduced Hessian is not positive definite (the caller then
-    raises delta).  pc holds nx + 1 right-hand sides: column 0 the Newton step's, column 1 + r
-    the derivative with respect to the terminal multiplier nu_r.
+    Run the backward Riccati sweep for the current stage blocks.
+
+    The shift delta is put on the primal diagonal.  Returns False when a reduced Hessian is
+    not positive definite (the caller then raises delta).  pc holds nx + 1 right-hand sides:
+    column 0 the Newton step's, column 1 + r the derivative with respect to the terminal
+    multiplier nu_r.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -738,8 +752,9 @@ def factorize(ws, delta):
 @njit
 def _forward(ws, col_weights, dt, xi, store):
     """
-    Forward sweep with feed-forward sum_c w_c ff[:, :, c] from xi(0) = (0, dt); returns xi(N)
-    in xi.  With store, writes dx, dv and the new multipliers lam_new.
+    Run the forward sweep with feed-forward sum_c w_c ff[:, :, c] from xi(0) = (0, dt).
+
+    Returns xi(N) in xi.  With store, writes dx, dv and the new multipliers lam_new.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -788,9 +803,10 @@ def _forward(ws, col_weights, dt, xi, store):
 @njit
 def newton_step(ws, delta):
     """
-    Solve for the Newton step after a successful factorize(ws, delta): nu from the nx x nx
-    terminal system, then dx, dv, dT and the new multipliers.  Returns dT, or nan when the
-    terminal system is singular.
+    Solve for the Newton step after a successful factorize(ws, delta).
+
+    First nu from the nx x nx terminal system, then dx, dv, dT and the new multipliers.
+    Returns dT, or nan when the terminal system is singular.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -1082,8 +1098,10 @@ def _t_bound_dual_limit(ws, dt, frac, ad):
 @njit
 def _update_barrier(ws):
     """
-    Monotone barrier update while the barrier problem is solved to kappa_eps mu (IPOPT's
-    rule); refreshes the mu-dependent terms.  Returns True when mu changed.
+    Update the barrier parameter monotonically.
+
+    Applied while the barrier problem is solved to kappa_eps mu (IPOPT's rule); refreshes the
+    mu-dependent terms.  Returns True when mu changed.
     """
     fs = ws.fscal
     changed = False
@@ -1101,6 +1119,7 @@ def _update_barrier(ws):
 def _regularized_step(ws):
     """
     Factorize with IPOPT's inertia correction (delta_w rules) and solve the Newton step.
+
     Returns dT (nan when no shift up to 1e40 works); fscal[F_DELTA] holds the shift used.
     """
     fs = ws.fscal
@@ -1128,8 +1147,10 @@ def _regularized_step(ws):
 @njit
 def _raise_elastic_weight(ws):
     """
-    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho): the l1 penalty is
-    then binding and would accept a violated constraint.  Returns True when rho changed.
+    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho).
+
+    The l1 penalty is then binding and would accept a violated constraint.  Returns True when
+    rho changed.
     """
     fs = ws.fscal
     rho_e = fs[F_ELASTIC]
@@ -1147,8 +1168,9 @@ def _raise_elastic_weight(ws):
 @njit
 def _line_search(rhs, segments, ws, dt, alpha_max):
     """
-    IPOPT's filter line search from alpha_max (backtracking by halves).  Returns (alpha,
-    accepted, f_type).
+    Run IPOPT's filter line search from alpha_max (backtracking by halves).
+
+    Returns (alpha, accepted, f_type).
     """
     fs = ws.fscal
     theta0 = fs[F_THETA]
@@ -1179,10 +1201,11 @@ def _line_search(rhs, segments, ws, dt, alpha_max):
 @njit
 def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
     """
-    Run up to n_iter interior-point iterations from the current point; returns CONTINUE,
-    CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED, NUMERICAL_FAILURE or STOPPED (another
-    thread set iscal[I_STOP]: checked between the phases of an iteration, so a stop request
-    waits at most for one derivative evaluation or one factorization).
+    Run up to n_iter interior-point iterations from the current point.
+
+    Returns CONTINUE, CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED, NUMERICAL_FAILURE or
+    STOPPED (another thread set iscal[I_STOP]: checked between the phases of an iteration, so
+    a stop request waits at most for one derivative evaluation or one factorization).
     """
     fs = ws.fscal
     it = ws.iscal
@@ -1255,7 +1278,7 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
 
 @njit(cache=True, nogil=True)
 def newton_direction(ws, delta):
-    """The Newton step at the evaluated point with shift delta: returns dT (nan if none)."""
+    """Compute the Newton step at the evaluated point with shift delta: return dT (nan if none)."""
     if not factorize(ws, delta):
         return np.nan
     dt = newton_step(ws, delta)

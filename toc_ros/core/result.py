@@ -139,7 +139,9 @@ class SolveResult:
 
 def guess_from_dict(data):
     """
-    (controls, t_f) of a to_dict() result (a toc-solve --json file) for solve(initial_guess=).
+    Return (controls, t_f) of a to_dict() result (a toc-solve --json file).
+
+    The pair is meant for solve(initial_guess=).
 
     Raises ValueError with a reason when the data holds no usable trajectory.
     """
