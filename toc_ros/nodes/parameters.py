@@ -27,6 +27,7 @@ from typing import Tuple
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
+from rclpy.parameter import Parameter
 
 from toc_ros.config import SCENARIO_TABLE
 from toc_ros.core.settings import parameter_table, setting
@@ -109,6 +110,14 @@ def descriptor(name):
 def declare(node, names):
     """Declare names on node with defaults and descriptors (overrides from --ros-args apply)."""
     for name in names:
+        spec = TABLE[name]
+        if spec.ros_type == 'string_array' and not spec.default:
+            # rclpy types an empty default as a byte array, and an empty list in a parameter
+            # file or on the command line arrives unset: declare the type, then set [].
+            node.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor(name))
+            if node.get_parameter_or(name).type_ == Parameter.Type.NOT_SET:
+                node.set_parameters([Parameter(name, Parameter.Type.STRING_ARRAY, [])])
+            continue
         node.declare_parameter(name, default(name), descriptor(name))
 
 
@@ -155,9 +164,10 @@ def vector_errors(name, value, size, minimum=None):
     return []
 
 
-def joint_name_errors(names):
-    """Errors of the joint_names parameter (two distinct non-empty names)."""
+def joint_name_errors(names, count=2, model='cylindrical'):
+    """Errors of the joint_names parameter (count distinct non-empty names for the model)."""
     names = list(names)
-    if len(names) != 2 or len(set(names)) != 2 or not all(names):
-        return [f'joint_names must be 2 distinct non-empty names, got {names}']
+    if len(names) != count or len(set(names)) != count or not all(names):
+        return [f'joint_names must be {count} distinct non-empty names (one per joint of '
+                f'robot model {model!r}), got {names}']
     return []
