@@ -52,7 +52,7 @@ SCENARIO = ((Frames, ''), (ModelChoice, 'robot.'), (Problem, ''), (SolverOptions
 
 
 def _scenario_table():
-    """The flat parameters of SCENARIO; robot.model(_parameters) lead the robot.* group."""
+    """Return the flat parameters of SCENARIO; robot.model(_parameters) lead robot.*."""
     table = [p for cls, prefix in SCENARIO if cls is not ModelChoice
              for p in parameter_table(cls, prefix)]
     first = next(k for k, p in enumerate(table) if p.name.startswith('robot.'))
@@ -130,7 +130,7 @@ def robot_from_parameters(params):
 
 
 def model_search_path():
-    """Folders where a bare model file name is looked up: share/toc_ros/config/models, source."""
+    """Return the folders searched for a bare model file name (share, then source tree)."""
     folders = []
     try:
         from ament_index_python.packages import get_package_share_directory
@@ -144,7 +144,7 @@ def model_search_path():
 
 
 def resolve_model_name(name):
-    """A built-in model name as is; a model file as an absolute path (ProblemError if absent)."""
+    """Return a built-in model name as is, a model file as a path (ProblemError if absent)."""
     from .core.models import MODELS
     name = str(name).strip()
     if name in MODELS:
@@ -174,7 +174,7 @@ def _cached_model(key, stamp, values):
 
 
 def model_choice(params):
-    """The ModelChoice of flat parameters (ProblemError for a bad value)."""
+    """Return the ModelChoice of flat parameters (ProblemError for a bad value)."""
     try:
         choice = from_parameters(ModelChoice, params, 'robot.')
         choice.parameter_values()
@@ -184,7 +184,7 @@ def model_choice(params):
 
 
 def _cylindrical(robot, values):
-    """RobotParams robot with robot.model_parameters overrides (not yet validated)."""
+    """Return robot with the robot.model_parameters overrides (not yet validated)."""
     known = {name: getattr(robot, name) for name in asdict(robot)}
     unknown = sorted(set(values) - set(known))
     if unknown:
@@ -202,7 +202,7 @@ def _cylindrical(robot, values):
 
 def model_from_parameters(params):
     """
-    The RobotModel of flat parameters (robot.model, robot.model_parameters, robot.*).
+    Return the RobotModel of flat parameters (robot.model, robot.model_parameters, robot.*).
 
     Built once per (model, parameters, file modification time): a model file is derived and
     compiled at its first use.  Raises ProblemError with the reason for a bad model.

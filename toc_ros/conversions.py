@@ -84,8 +84,10 @@ def duration_seconds(duration):
 
 def as_model(robot):
     """
-    The RobotModel of robot: a RobotModel as is, RobotParams or a hand offset a [m] as the
-    cylindrical robot (the older call forms of the functions below).
+    Return the RobotModel of robot.
+
+    A RobotModel as is; RobotParams or a hand offset a [m] as the cylindrical robot (the
+    older call forms of the functions below).
     """
     if isinstance(robot, RobotModel):
         return robot

@@ -43,7 +43,12 @@ class SolverNodeSettings:
 
     extension_limits: Tuple[float, float] = setting(
         (-1.0, 3.0), '[q2_min, q2_max] m: reachable extension of goals (goal_pose, goal_joints, '
-        '~/plan); the paper gives none, so generous defaults')
+        '~/plan) of the cylindrical robot; the paper gives none, so generous defaults')
+    ik_branch: str = setting(
+        'elbow_up', 'inverse-kinematics branch of hand goals (goal_pose, ~/plan) for models '
+        "with several: planar_2r 'elbow_up' (q2 <= 0) or 'elbow_down' (q2 >= 0); ignored by "
+        'models with one solution', choices=('elbow_up', 'elbow_down'),
+        ros_name='robot.ik_branch')
     max_count: int = setting(
         64, 'largest obstacle set accepted (obstacles topic and obstacles.* parameters); '
         'larger sets are refused with the reason on ~/progress', low=0, high=100000,
