@@ -245,16 +245,26 @@ def test_replanning_from_a_moving_state_with_the_plan_remainder():
     plan = solve(problem)
     assert plan.status is Status.SOLVED, plan.message
     k = 300
-    moved = replace(problem, x0=tuple(plan.states[k]))
-    remainder = (plan.controls[k:], plan.final_time - plan.time_grid[k])
+    # The robot at 30 % of the plan, moving; the same goal; N = the plan's remaining nodes.
+    moved = replace(problem, x0=tuple(plan.states[k]), n_intervals=problem.n_intervals - k)
+    remainder = plan.remainder(plan.time_grid[k])
+    assert remainder.controls.shape == (700, 2)
+    np.testing.assert_array_equal(remainder.states[0], plan.states[k])
     warm = solve(moved, initial_guess=remainder)
     cold = solve(moved)
     assert warm.status is Status.SOLVED and cold.status is Status.SOLVED
-    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-5)
-    # Bellman: the rest of an optimal plan is (nearly: another grid) optimal from its state.
-    assert warm.final_time == pytest.approx(remainder[1], rel=2e-3)
-    assert warm.iterations < cold.iterations
+    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-6)
+    # Bellman: the rest of an optimal plan is optimal from its state on the same grid.
+    assert warm.final_time == pytest.approx(remainder.final_time, rel=1e-6)
+    assert warm.iterations <= 0.2 * cold.iterations, (warm.iterations, cold.iterations)
     nm.assert_feasible(moved, warm)
+    # The bare pair (controls, remaining time), resampled to another N, and from a state the
+    # robot drifted to: still the same optimum.
+    drifted = replace(problem, x0=tuple(plan.states[k] + np.array([0.002, -0.01, 0.003, 0.0])))
+    pair = solve(drifted, initial_guess=(plan.controls[k:], remainder.final_time))
+    assert pair.status is Status.SOLVED, pair.message
+    assert pair.final_time == pytest.approx(solve(drifted).final_time, rel=1e-5)
+    nm.assert_feasible(drifted, pair)
 
 
 @pytest.mark.parametrize('guess, words', [

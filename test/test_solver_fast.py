@@ -155,7 +155,7 @@ def _check_best_so_far(problem, result):
 
 # Long solves: paper mode with a million iterations; fast mode (milliseconds at N = 1000) on a
 # long horizon with several circles, whose single iterations take tens of milliseconds.
-LONG = {'paper': PAPER, 'fast': replace(SCENARIOS['several_circles'], n_intervals=40000)}
+LONG = {'paper': PAPER, 'fast': replace(SCENARIOS['several_circles'], n_intervals=20000)}
 
 
 @pytest.mark.parametrize('mode', ['fast', 'paper'])

@@ -45,14 +45,21 @@ COARSE_INTERVALS = 100
 # Barrier parameter of a cold start (IPOPT's default), and of a warm start on N intervals:
 # MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
 MU_COLD = 0.1
-MU_WARM = 1e-5
+MU_WARM = 1e-4
 # Tolerances: IPOPT's scaled optimality error, and the unscaled constraint violation (well
 # inside the SOLVED tolerances of result.py, so the re-integrated trajectory passes them).
 TOL = 1e-8
 CONSTR_TOL = 1e-10
 MU_MIN = 1e-11
-# Interior push of the initial controls and slacks (IPOPT's bound_push).
+# Interior push of the initial controls and slacks (IPOPT's bound_push); a warm start keeps
+# the controls of the guess on their bounds (within WARM_PUSH).
 BOUND_PUSH = 1e-2
+WARM_PUSH = 1e-6
+# A warm start whose first state lies within WARM_EXACT of the start uses MU_EXACT.
+WARM_EXACT = 1e-6
+MU_EXACT = 1e-10
+# Iterations a warm start may take before fast mode solves from scratch instead.
+WARM_BUDGET = 60
 # Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (see ipm.py).
 RHO_TERMINAL = 1e2
 # l1 weight of the obstacle constraints' elastic variables: above every obstacle multiplier
@@ -136,6 +143,10 @@ class InteriorPointRun:
             ws.nu[:] = duals['nu']
         ws.zl[:] = mu / (1.0 + ws.v)
         ws.zu[:] = mu / (1.0 - ws.v)
+        if duals is not None and 'zl' in duals:
+            # Bound duals of the guess: they carry which controls sit on a bound.
+            ws.zl[:] = np.maximum(duals['zl'], ws.zl)
+            ws.zu[:] = np.maximum(duals['zu'], ws.zu)
         fs[ipm.F_ZT_LOW] = mu / (t_f - fs[ipm.F_T_LOW])
         fs[ipm.F_ZT_HIGH] = mu / (fs[ipm.F_T_HIGH] - t_f)
         fs[ipm.F_DELTA] = 0.0
@@ -154,7 +165,8 @@ class InteriorPointRun:
     def duals(self):
         """Copy of the multipliers (for a warm start of another run)."""
         ws = self.ws
-        return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy()}
+        return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy(),
+                'zl': ws.zl.copy(), 'zu': ws.zu.copy()}
 
     # Results -----------------------------------------------------------------------------
     @property
@@ -284,11 +296,21 @@ def resample_duals(duals, m, n):
     z = np.column_stack([np.interp(nodes_new, nodes_old, duals['z'][:, j])
                          for j in range(duals['z'].shape[1])]) * (m / n) \
         if duals['z'].shape[1] else np.zeros((n, 0))
-    return {'lam': lam, 'nu': duals['nu'].copy(), 'z': z}
+    out = {'lam': lam, 'nu': duals['nu'].copy(), 'z': z}
+    if 'zl' in duals:
+        mid = (np.arange(n) + 0.5) / n
+        idx = np.minimum((mid * m).astype(np.int64), m - 1)
+        out['zl'] = duals['zl'][idx] * (m / n)
+        out['zu'] = duals['zu'][idx] * (m / n)
+    return out
 
 
 def warm_start_point(problem, guess, n):
-    """(states, controls, t_f, duals or None) from an initial guess for n intervals."""
+    """
+    Return (states, controls, t_f, duals or None, drift) from an initial guess for n intervals.
+
+    drift: how far [max norm] the problem's start lies from the guess's first state.
+    """
     if isinstance(guess, SolveResult):
         controls = np.asarray(guess.controls, dtype=float)
         t_f = float(guess.final_time)
@@ -307,8 +329,16 @@ def warm_start_point(problem, guess, n):
     if not (np.all(np.isfinite(controls)) and math.isfinite(t_f) and t_f > 0.0):
         raise ValueError('initial guess must have finite controls and a positive final time')
     m = controls.shape[0]
-    if states is None or states.shape != (m + 1, model.nx) \
-            or not np.allclose(states[0], problem.x0, atol=1e-9, rtol=0.0):
+    drift = 0.0
+    if states is not None and states.shape == (m + 1, model.nx) \
+            and np.all(np.isfinite(states)):
+        # A trajectory (e.g. the remainder of the plan being executed): its states and
+        # multipliers, starting from the problem's start (the robot may have drifted off it;
+        # the first shooting defect absorbs that).
+        drift = float(np.max(np.abs(states[0] - np.asarray(problem.x0, dtype=float))))
+        states = states.copy()
+        states[0] = problem.x0
+    else:
         # Roll the controls out from the problem's start: consistent states (zero defects).
         states = np.empty((m + 1, model.nx))
         model.kernels.rollout(np.asarray(problem.x0, dtype=float),
@@ -326,7 +356,14 @@ def warm_start_point(problem, guess, n):
         states, controls = resample(states, controls, n)
     elif duals is not None and duals['z'].shape[1] != model.n_links * len(problem.obstacles):
         duals = None
-    return states, controls, t_f, duals
+    return states, controls, t_f, duals, drift
+
+
+def _guess_intervals(guess):
+    if guess is None:
+        return 0
+    controls = guess.controls if isinstance(guess, SolveResult) else guess[0]
+    return int(np.shape(controls)[0])
 
 
 class FastSolve:
@@ -337,6 +374,7 @@ class FastSolve:
         self.options = options
         self.clock = clock
         self.initial_guess = initial_guess
+        self.initial_guess_intervals = _guess_intervals(initial_guess)
         self.limit = options.iteration_limit()
         self.done = 0            # iterations on finished grids
         self.history = []
@@ -352,10 +390,11 @@ class FastSolve:
             self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
             f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
 
-    def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None):
+    def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
+                  push=BOUND_PUSH):
         left = max(1, self.limit - self.done)
         run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left))
-        run.start(states, controls, t_f, mu, duals)
+        run.start(states, controls, t_f, mu, duals, push)
         self.run = run
         try:
             code = run.run(self._check, lambda: self.clock.stop_reason() is not None)
@@ -375,8 +414,20 @@ class FastSolve:
         n = problem.n_intervals
         try:
             if self.initial_guess is not None:
-                states, controls, t_f, duals = warm_start_point(problem, self.initial_guess, n)
-                run, code = self._solve_on(n, states, controls, t_f, MU_WARM / n, duals)
+                states, controls, t_f, duals, drift = warm_start_point(
+                    problem, self.initial_guess, n)
+                # A guess that starts where the robot is (within ~1e-6) is kept tight against
+                # its bounds and barely re-centred; one the robot has drifted from gets room
+                # (an interior method cannot move along the bounds it is pinned to).
+                exact = self.initial_guess_intervals == n
+                if duals is None:
+                    mu, push = MU_WARM / n, BOUND_PUSH
+                elif exact and drift <= WARM_EXACT:
+                    mu, push = MU_EXACT, WARM_PUSH
+                else:
+                    mu, push = min(MU_WARM / n, max(MU_EXACT, 1e-4 * drift)), BOUND_PUSH
+                run, code = self._solve_on(n, states, controls, t_f, mu, duals,
+                                           budget=WARM_BUDGET, push=push)
                 if code != ipm.CONVERGED:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None
