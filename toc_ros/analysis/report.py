@@ -623,7 +623,8 @@ def markdown(summary: dict) -> str:
              'negative = collision).', '']
     robot = summary.get('robot') or {}
     if robot.get('model'):
-        values = ', '.join(f'{k} = {v}' for k, v in (robot.get('model_parameters') or {}).items())
+        given = robot['model_parameters'] if 'model_parameters' in robot else {}
+        values = ', '.join(f'{k} = {v}' for k, v in (given or {}).items())
         lines += [f'Robot model: {robot["model"]} (from the {robot.get("model_source")}): '
                   f'{values}.', '']
     if summary['plans']:
