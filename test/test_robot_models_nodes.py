@@ -236,3 +236,54 @@ def test_solver_node_with_a_bad_model_exits_2(tmp_path):
     finally:
         node.stop()
         client.close()
+
+
+# -- plant_node's model (no process) ---------------------------------------------------------
+
+def _plant_params(**values):
+    from toc_ros.nodes import parameters
+    params = {name: parameters.default(name) for name in parameters.PLANT_NODE_NAMES}
+    params.update({'robot.model': 'planar_2r', 'joint_names': PLANAR_JOINTS,
+                   'kp': [2000.0, 800.0], 'kd': [300.0, 100.0]})
+    params.update(values)
+    return params
+
+
+def test_plant_mismatch_knobs_map_onto_planar_2r():
+    from toc_ros.nodes import plant_node
+    model = plant_node.plant_model(_plant_params(payload_mass_offset=1.5, inertia_scale=2.0))
+    assert isinstance(model, Planar2R)
+    assert (model.params.m_p, model.params.m1, model.params.m2) == (3.5, 24.0, 16.0)
+    assert plant_node.parameter_errors(_plant_params()) == []
+    errors = plant_node.parameter_errors(_plant_params(payload_mass_offset=-5.0))
+    assert errors and 'robot.m_p must be a finite positive' in errors[0], errors
+    assert 'm_p + payload_mass_offset' in errors[0]
+
+
+def test_plant_refuses_knobs_and_gain_sizes_that_do_not_fit_the_model():
+    from toc_ros.nodes import plant_node
+    file_model = str(REPO / 'config' / 'models' / 'planar_2r.yaml')
+    assert plant_node.parameter_errors(_plant_params(**{'robot.model': file_model})) == []
+    errors = plant_node.parameter_errors(_plant_params(**{'robot.model': file_model},
+                                                       inertia_scale=1.2))
+    assert errors and 'no meaning for robot model' in errors[0], errors
+    errors = plant_node.parameter_errors(_plant_params(kp=[1.0, 2.0, 3.0]))
+    assert errors == ['kp must have 2 entries, got 3']
+
+
+def test_plant_step_is_the_models_rk4():
+    """One plant step equals the model kernels' RK4 rollout over the same step."""
+    from toc_ros.core.horizon import integrator_id
+    model = Planar2R()
+    x = model.state([0.3, 1.1], [0.5, -0.2])
+    u = np.array([[40.0, -10.0]])
+    states = np.empty((2, 4))
+    model.kernels.rollout(x, u, 1e-3, model.packed(), integrator_id('rk4'), states)
+    # Independent RK4 of the issue's planar_2r equations (test_cli's written-out version).
+    from test_cli import _planar_2r_rhs as f
+    h = 1e-3
+    k1 = f(x, u[0])
+    k2 = f(x + h / 2 * k1, u[0])
+    k3 = f(x + h / 2 * k2, u[0])
+    k4 = f(x + h * k3, u[0])
+    assert np.allclose(states[1], x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), atol=1e-12)
