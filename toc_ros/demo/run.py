@@ -141,6 +141,8 @@ class Demo:
         self.summary = {'plans': [], 'position_tolerance': list(checks.POSITION_TOL),
                         'joint_names': self.joint_names, 'robot_a': self.a,
                         'model': self.model.name, 'params_file': self.params_file,
+                        'joint_units': ['rad' if kind == 'revolute' else 'm'
+                                        for kind in self.model.joint_kinds],
                         'base_frame': self.base_frame, 'ros_domain_id':
                         os.environ.get('ROS_DOMAIN_ID'), 'recording': None}
 
