@@ -73,17 +73,17 @@ YAML_HEADER = """\
 """
 
 
-def default_config_path():
-    """config/toc_ros.yaml from the installed share directory, else from the source tree."""
+def default_config_path(name='toc_ros.yaml'):
+    """config/<name> from the installed share directory, else from the source tree."""
     try:
         from ament_index_python.packages import get_package_share_directory
-        path = os.path.join(get_package_share_directory('toc_ros'), 'config', 'toc_ros.yaml')
+        path = os.path.join(get_package_share_directory('toc_ros'), 'config', name)
         if os.path.isfile(path):
             return path
     except (ImportError, LookupError, OSError):
         pass    # no ament index, or toc_ros not in it: fall back to the source tree
     return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                        'config', 'toc_ros.yaml')
+                        'config', name)
 
 
 def _flatten(tree, prefix=''):

@@ -83,6 +83,8 @@ class ProgressReport:
     data_revision: Optional[int] = None   # counter of obstacle/margin/robot/limit changes
     obstacles_hash: str = ''                   # of the obstacle set (and margin) planned for
     event: str = ''
+    robot_model: str = ''         # robot.model planned for (ready and result reports)
+    model_parameters: str = ''    # its robot.model_parameters, 'name=value' joined by ', '
 
     @property
     def solving(self):

@@ -373,6 +373,7 @@ def _run(args):
     try:
         problem, options = build_problem(args)
     except ArgumentError as exc:
+        build_parser().print_usage(sys.stderr)
         print(f'toc-solve: error: {exc}', file=sys.stderr)
         return 2
     except ProblemError as exc:

@@ -137,6 +137,12 @@ def parameter_errors(params):
     return errors
 
 
+def model_keys(params):
+    """Return the robot-model values of ~/progress: the recording says what was planned for."""
+    return {'robot_model': str(params['robot.model']),
+            'model_parameters': ', '.join(params['robot.model_parameters'])}
+
+
 def planning_data(params):
     """Return the parameter values a plan depends on beyond its goal (one revision's data)."""
     return {k: v for k, v in params.items()
@@ -376,7 +382,7 @@ class SolverNode(Node):
         self._ready.set()
         self._publish_progress(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
-            event=schema.EVENT_READY))
+            event=schema.EVENT_READY, **model_keys(self._params)))
         with self._lock:
             params = dict(self._params)
         self.get_logger().info(
@@ -688,7 +694,7 @@ class SolverNode(Node):
             result, message, goal_source=request.source, start_source=start_source,
             goal=tuple(float(v) for v in np.round(request.goal, 9)),
             obstacles_hash=schema.obstacles_hash(rows, problem.margin),
-            data_revision=revision, event=request.event)
+            data_revision=revision, event=request.event, **model_keys(params))
         if result.status in schema.PUBLISHED and result.has_trajectory:
             if not self._publish_plan(request, result, problem, params, revision):
                 request.restart_reason = 'planning data changed at the end of the solve'
