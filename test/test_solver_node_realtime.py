@@ -115,3 +115,47 @@ def test_goal_to_trajectory_adds_little_to_the_solve_time(solver):
           + ', '.join(f'{1e3 * o:.1f}' for o in overheads))
     # Target 20 ms (median); a loaded shared machine gets generous slack.
     assert np.median(overheads) < 0.1, overheads
+
+
+def test_replanning_the_same_goal_while_moving_starts_from_the_plan_remainder(solver):
+    """Same goal again while the plan executes: the remainder of the plan seeds the solve."""
+    from sensor_msgs.msg import JointState
+    client = solver.client
+    assert all(r.successful for r in client.set_parameters(
+        'solver_node', {'solver.N': 300, 'solver.mode': 'fast'}))
+    try:
+        before = client.count('trajectory')
+        since = time.monotonic()
+        solver.joint_states.publish(JointState(
+            name=['rotation_joint', 'extension_joint'], position=[PAPER_GOAL[0] - 1.0472, 1.0],
+            velocity=[0.0, 0.0]))
+        time.sleep(0.2)
+        solver.goal_pose.publish(pose_of(PAPER_GOAL))
+        client.wait_for(lambda: client.count('trajectory') > before, 60.0, 'the first plan')
+        first = _final(solver, since)
+        assert first.status is Status.SOLVED, first.message
+        plan = client.messages('trajectory', since)[-1]
+        # The robot follows the plan: report the planned state at 30 % of it, then re-send the
+        # goal (a replan from the moving robot).
+        k = int(0.3 * (len(plan.points) - 1))
+        point = plan.points[k]
+        t_k = point.time_from_start.sec + 1e-9 * point.time_from_start.nanosec
+        received = client.stamped('trajectory', since)[-1][0]
+        time.sleep(max(0.0, received + t_k - time.monotonic()))
+        solver.joint_states.publish(JointState(
+            name=['rotation_joint', 'extension_joint'], position=list(point.positions),
+            velocity=list(point.velocities)))
+        time.sleep(0.05)
+        again = time.monotonic()
+        solver.goal_pose.publish(pose_of(PAPER_GOAL))
+        second = _final(solver, again)
+    finally:
+        client.set_parameters('solver_node', {'solver.N': 100})
+    print(f'replan: {second.iteration} iterations on N = {second.n_intervals} in '
+          f'{1e3 * second.elapsed_s:.1f} ms (first plan: {first.iteration} iterations, '
+          f'{1e3 * first.elapsed_s:.1f} ms)')
+    assert second.status is Status.SOLVED, second.message
+    assert second.start_source == 'joint_states'
+    # The plan's remaining nodes (same tau) and far fewer iterations than the cold plan.
+    assert second.n_intervals < 300
+    assert second.iteration < 0.6 * first.iteration

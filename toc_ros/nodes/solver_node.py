@@ -81,6 +81,8 @@ PLANNING_PREFIXES = ('obstacles.', 'robot.', 'extension_limits')
 # slow iterations) so that no gap exceeds MAX_PROGRESS_GAP_S.
 HEARTBEAT_PERIOD_S = 0.05
 MAX_PROGRESS_GAP_S = 0.15
+# Fewest remaining plan nodes for which a replan warm-starts from the executing plan.
+MIN_WARM_NODES = 20
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # How long ~/cancel waits for the solve to stop (the core stops within ~0.1 s).
@@ -666,13 +668,15 @@ class SolverNode(Node):
         except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
             self._refuse(request.source, str(exc))
             return
+        problem, guess = self._warm_start(problem, options, start_source)
         with self._lock:
             self._progress = (Progress(0, problem.t_f0, math.nan, math.nan, 0.0, 'start'),
                               time.monotonic())
             progress = self._progress[0]
         self._publish_progress(schema.running_report(progress))
         try:
-            result = solve(problem, options, progress=self._on_progress, cancel=cancel)
+            result = solve(problem, options, progress=self._on_progress, cancel=cancel,
+                           initial_guess=guess)
         except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
             self.get_logger().error(f'solver failed: {exc!r}')
             self._publish_progress(schema.refusal_report(
@@ -711,6 +715,35 @@ class SolverNode(Node):
             self.get_logger().error(text)
         self._publish_progress(report)
 
+    def _warm_start(self, problem, options, start_source):
+        """
+        Return (problem, initial guess) for replanning while a plan executes.
+
+        When the robot moves along a published plan to the same goal (a replan after an
+        obstacle or data change, or a repeated goal), fast mode starts from the remainder of that
+        plan (states, controls, multipliers from the plan node nearest to the measured state), on
+        the plan's remaining nodes (same tau: the remainder is then nearly optimal already).  Otherwise, or
+        with fewer than MIN_WARM_NODES left, a cold solve with solver.N.
+        """
+        with self._plan_lock:
+            plan = self._executing
+        if options.mode != 'fast' or plan is None or start_source != 'joint_states' \
+                or plan.get('result') is None \
+                or not np.allclose(plan['goal'], problem.x_goal, rtol=0.0, atol=1e-9):
+            return problem, None
+        elapsed = time.monotonic() - plan['published']
+        # The node of the plan nearest to the measured state (the plant may lag or lead the
+        # plan's clock), scaled by the state's spread along the plan.
+        states = plan['states']
+        scale = np.maximum(np.ptp(states, axis=0), 1e-6)
+        k = int(np.argmin(np.sum(((states - np.asarray(problem.x0)) / scale) ** 2, axis=1)))
+        remainder = plan['result'].remainder(plan['times'][k])
+        nodes = remainder.controls.shape[0]
+        if elapsed >= plan['duration'] or nodes < MIN_WARM_NODES \
+                or remainder.controls.shape[1] != problem.robot_model.nu:
+            return problem, None
+        return dataclasses.replace(problem, n_intervals=nodes), remainder
+
     def _publish_plan(self, request, result, problem, params, revision):
         """Publish the plan unless its data revision is stale (then return False)."""
         stamp = self.get_clock().now().to_msg()
@@ -727,7 +760,7 @@ class SolverNode(Node):
                 'states': np.asarray(result.states, dtype=float),
                 'controls': np.asarray(result.controls, dtype=float),
                 'goal': request.goal.copy(), 'source': request.source,
-                'path_states': result.states}
+                'path_states': result.states, 'result': result}
             self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
         request.path = path
