@@ -722,8 +722,8 @@ class SolverNode(Node):
         When the robot moves along a published plan to the same goal (a replan after an
         obstacle or data change, or a repeated goal), fast mode starts from the remainder of that
         plan (states, controls, multipliers from the plan node nearest to the measured state), on
-        the plan's remaining nodes (same tau: the remainder is then nearly optimal already).  Otherwise, or
-        with fewer than MIN_WARM_NODES left, a cold solve with solver.N.
+        the plan's remaining nodes (same tau: the remainder is then nearly optimal already).
+        Otherwise, or with fewer than MIN_WARM_NODES left, a cold solve with solver.N.
         """
         with self._plan_lock:
             plan = self._executing
