@@ -45,6 +45,8 @@ COARSE_INTERVALS = 100
 # Barrier parameter of a cold start (IPOPT's default), and of a warm start on N intervals:
 # MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
 MU_COLD = 0.1
+# Further cold starts of the N grid after a failure, with these barrier parameters.
+MU_COLD_RETRIES = (0.01, 1.0)
 MU_WARM = 1e-4
 # Tolerances: IPOPT's scaled optimality error, and the unscaled constraint violation (well
 # inside the SOLVED tolerances of result.py, so the re-integrated trajectory passes them).
@@ -432,22 +434,8 @@ class FastSolve:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None
                     return self.solve()
-            elif n > 2 * COARSE_INTERVALS:
-                states, controls, t_f = interpolation_start(problem, COARSE_INTERVALS)
-                coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD,
-                                              budget=self.limit // 2)
-                if code == ipm.CONVERGED:
-                    states, controls = resample(coarse.ws.x, coarse.controls(), n)
-                    duals = resample_duals(coarse.duals(), COARSE_INTERVALS, n)
-                    run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n,
-                                               duals)
-                if code != ipm.CONVERGED:
-                    # The coarse grid or the step to the fine one failed: the fine grid alone.
-                    states, controls, t_f = interpolation_start(problem, n)
-                    run, code = self._solve_on(n, states, controls, t_f, MU_COLD)
             else:
-                states, controls, t_f = interpolation_start(problem, n)
-                run, code = self._solve_on(n, states, controls, t_f, MU_COLD)
+                run, code = self._cold(n)
         except Stop as stop:
             reason = stop.args[0]
             run = self.run
@@ -464,6 +452,38 @@ class FastSolve:
                     ipm.NUMERICAL_FAILURE: 'numerical failure (non-finite values or a '
                                            'singular Newton system)'}
         return self._result(run, status, messages.get(code, ''))
+
+    def _cold(self, n):
+        """
+        Solve from the cold start and return (run, code).
+
+        The coarse grid first, then the N grid from its solution; when that fails, the N grid
+        from the cold start with each barrier parameter of MU_COLD_RETRIES in turn (the central
+        path from another mu can lead into another basin).
+        """
+        problem = self.problem
+        code = None
+        if n > 2 * COARSE_INTERVALS:
+            states, controls, t_f = interpolation_start(problem, COARSE_INTERVALS)
+            coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD,
+                                          budget=self.limit // 4)
+            if code == ipm.CONVERGED:
+                states, controls = resample(coarse.ws.x, coarse.controls(), n)
+                duals = resample_duals(coarse.duals(), COARSE_INTERVALS, n)
+                run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
+                                           budget=self.limit // 4)
+                if code == ipm.CONVERGED:
+                    return run, code
+        first = None
+        for mu in MU_COLD_RETRIES if code is not None else (MU_COLD,) + MU_COLD_RETRIES:
+            if self.done >= self.limit:
+                break
+            states, controls, t_f = interpolation_start(problem, n)
+            run, code = self._solve_on(n, states, controls, t_f, mu)
+            first = first or (run, code)
+            if code == ipm.CONVERGED:
+                return run, code
+        return first if first is not None else (run, code)
 
     def _history(self):
         return np.array(self.history, dtype=float).reshape(-1, 4)
