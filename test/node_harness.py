@@ -50,11 +50,20 @@ U_MAX = (600.0, 500.0)
 JOINTS = ['rotation_joint', 'extension_joint']
 
 
+# Longest wait for a node's 'ready:' log: after an edit of toc_ros/core the first solver_node
+# compiles the numba kernels (30-90 s, longer on a loaded shared machine).
+READY_TIMEOUT = 300.0
+
+
 class NodeProcess(harness.NodeProcess):
     """A toc_ros node of the tests: the scenario file unless told otherwise."""
 
     def __init__(self, module, namespace, log_dir, params=None, params_file=CONFIG, **kwargs):
         super().__init__(module, namespace, log_dir, params, params_file, **kwargs)
+
+    def wait_for_log(self, text, timeout=READY_TIMEOUT):
+        """Wait until text appears in the output (default: long enough for a cold compile)."""
+        super().wait_for_log(text, timeout)
 
 
 RosClient = harness.RosClient

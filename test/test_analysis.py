@@ -110,7 +110,7 @@ def build_run(path, result):
     pose.pose.position.y = (A + goal[2]) * math.sin(goal[0])
     add(0.10, '/goal_pose', pose)
     history = result.history[np.linspace(0, len(result.history) - 1, 6).astype(int)]
-    for k, (iteration, t_f, cost) in enumerate(history):
+    for k, (iteration, t_f, cost) in enumerate(history[:, :3]):   # iteration, t_f, cost, ...
         add(0.2 + 0.15 * k, '/solver_node/progress', progress(schema.ProgressReport(
             iteration=int(iteration), t_f=t_f, cost=cost, best_feasible_t_f=math.nan,
             elapsed_s=0.1 + 0.15 * k)))

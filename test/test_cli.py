@@ -198,3 +198,77 @@ def test_ctrl_c_cancels_and_returns_the_best_so_far(tmp_path):
     assert 'CANCELED' in stdout and b'Traceback' not in seen
     data = _load(out, 1000)
     assert data['status'] == 'CANCELED' and 0 < data['iterations'] < 1000000
+
+
+def _planar_2r_rhs(x, u, l1=1.0, l2=0.8, m1=12.0, m2=8.0, mp=2.0, g=0.0):
+    """planar_2r of issue 13 from its Lagrangian, written out here (not the package's)."""
+    q1, dq1, q2, dq2 = x
+    a = (m1 / 3.0 + m2 + mp) * l1 ** 2
+    b = (m2 / 3.0 + mp) * l2 ** 2
+    c = (m2 / 2.0 + mp) * l1 * l2
+    mass = np.array([[a + b + 2.0 * c * np.cos(q2), b + c * np.cos(q2)],
+                     [b + c * np.cos(q2), b]])
+    coriolis = c * np.sin(q2) * np.array([-(2.0 * dq1 * dq2 + dq2 ** 2), dq1 ** 2])
+    gravity = np.array([g * (m1 / 2.0 + m2 + mp) * l1 * np.cos(q1)
+                        + g * (m2 / 2.0 + mp) * l2 * np.cos(q1 + q2),
+                        g * (m2 / 2.0 + mp) * l2 * np.cos(q1 + q2)])
+    ddq = np.linalg.solve(mass, np.asarray(u) - coriolis - gravity)
+    return np.array([dq1, ddq[0], dq2, ddq[1]])
+
+
+def test_model_planar_2r_solves_and_reintegrates_independently(tmp_path):
+    out = tmp_path / 'planar.json'
+    proc = _run('--model', 'planar_2r', '--no-obstacles', '--N', '100', '--start', '0', '1',
+                '--goal', '1', '0.5', '--json', str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert 'model       planar_2r' in proc.stdout
+    data = _load(out, 100)
+    controls = np.array(data['controls'])
+    assert np.all(np.abs(controls) <= np.array([250.0, 120.0]) + 1e-9)
+    tau = data['final_time'] / 100
+    x = np.array([0.0, 0.0, 1.0, 0.0])
+    for u in controls:      # the paper's Euler discretisation
+        x = x + tau * _planar_2r_rhs(x, u)
+    assert np.allclose(x, [1.0, 0.0, 0.5, 0.0], atol=1e-6), x
+    assert np.allclose(data['states'][-1], x, atol=1e-9)
+
+
+def test_model_file_with_param_and_gravity(tmp_path):
+    out = tmp_path / 'file.json'
+    proc = _run('--model', 'planar_2r.yaml', '--param', 'l1=0.9', '--gravity', '9.81',
+                '--no-obstacles', '--N', '100', '--start', '0', '1', '0', '0', '--goal', '1',
+                '0.5', '--timeout', '0', '--json', str(out), timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert 'model       planar_2r_file' in proc.stdout
+    data = _load(out, 100)
+    tau = data['final_time'] / 100
+    x = np.array([0.0, 0.0, 1.0, 0.0])
+    for u in np.array(data['controls']):
+        x = x + tau * _planar_2r_rhs(x, u, l1=0.9, g=9.81)
+    assert np.allclose(x, [1.0, 0.0, 0.5, 0.0], atol=1e-6), x
+
+
+@pytest.mark.parametrize('args, code, text', [
+    (['--gravity', '9.81'], 2, "robot model 'cylindrical' has no gravity parameter g"),
+    (['--model', 'planar_2r', '--start', '1', '2', '3'], 2, '2 or 4 numbers'),
+    (['--model', 'planar_2r', '--param', 'l1'], 2, 'NAME=VALUE'),
+    (['--model', 'planar_2r', '--param', 'l9=1'], 4, 'no parameter(s) l9'),
+    (['--model', 'planar_2r', '--param', 'l1=-1'], 4, 'robot.l1 must be a finite positive'),
+    (['--model', 'no_such_model'], 4, "unknown model 'no_such_model'"),
+    (['--model', 'no_such_file.yaml'], 4, "no model file 'no_such_file.yaml'"),
+])
+def test_model_option_errors(args, code, text):
+    proc = _run(*args, '--N', '50')
+    assert proc.returncode == code, proc.stderr
+    assert text in proc.stderr, proc.stderr
+
+
+def test_bad_model_file_exits_4(tmp_path):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('name: bad\njoints: [{name: j1, kind: revolute}]\nparameters: {}\n'
+                   'u_max: [1.0]\nlinks: [[0, 0, cos(q1), sin(q1)]]\n'
+                   'dynamics: [dq1, u1 +* 2]\n')
+    proc = _run('--model', str(bad), '--no-obstacles', '--N', '50', '--start', '0',
+                '--goal', '1')
+    assert proc.returncode == 4, proc.stderr
+    assert 'invalid problem' in proc.stderr and 'bad.yaml' in proc.stderr, proc.stderr

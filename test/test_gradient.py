@@ -28,7 +28,6 @@ import numpy_model as nm
 import pytest
 
 from toc_ros.core.bptt import paper_cost, paper_cost_gradient, Workspace
-from toc_ros.core.fast_solver import alm_value_gradient
 from toc_ros.core.integrators import EULER, RK4
 from toc_ros.core.model import RobotParams
 from toc_ros.core.obstacles import GRAD_EXACT, GRAD_SHORTCUT, obstacle_penalty
@@ -207,54 +206,3 @@ def test_shortcut_gradient_is_eq46():
     value_exact = obstacle_penalty(states, A, QUADRANT_CIRCLES, k_p, GRAD_EXACT,
                                    np.zeros_like(states))
     assert value_short == value_exact > 0.0
-
-
-def _alm_setup(seed):
-    rng = np.random.default_rng(seed)
-    controls = _controls(seed)
-    controls = np.clip(controls, -nm.U_MAX, nm.U_MAX) * 0.95   # v strictly inside [-1, 1]
-    z = np.concatenate([(controls / nm.U_MAX).ravel(), [T_F]])
-    lam = rng.uniform(-3.0, 3.0, 4)
-    mu = rng.uniform(0.2, 1.0, N * CIRCLES.shape[0])
-    return z, lam, 10.0, mu
-
-
-def _alm_eval(z, method, lam, rho, mu):
-    ws = Workspace(N)
-    grad_z = np.zeros(2 * N + 1)
-    cons = np.zeros(4 + N * CIRCLES.shape[0])
-    value = alm_value_gradient(z, nm.X0, nm.XG, nm.U_MAX, P, method, CIRCLES, lam, rho, mu,
-                               ws.states, ws.jac_x, ws.jac_u, ws.jac_tau, ws.grad_x,
-                               ws.grad_u, ws.out_grad_u, grad_z, cons)
-    return value, grad_z, cons
-
-
-@pytest.mark.parametrize('name, method', METHODS)
-def test_fast_mode_augmented_lagrangian_gradient_matches_finite_differences(name, method):
-    z, lam, rho, mu = _alm_setup(seed=4)
-    value, grad, cons = _alm_eval(z, method, lam, rho, mu)
-
-    # Constraint values recomputed in numpy: terminal residuals, (d^2 - R^2) / (2 R) at 1..N.
-    controls = z[:-1].reshape(N, 2) * nm.U_MAX
-    states = nm.simulate(nm.X0, controls, z[-1], name)
-    np.testing.assert_allclose(cons[:4], states[-1] - nm.XG, rtol=1e-10, atol=1e-12)
-    dist = nm.clearance(states[1:], CIRCLES) + CIRCLES[None, :, 2]
-    radius = CIRCLES[None, :, 2]
-    c = ((dist ** 2 - radius ** 2) / (2.0 * radius)).ravel()
-    np.testing.assert_allclose(cons[4:], c, rtol=1e-9, atol=1e-12)
-    # Powell-Hestenes-Rockafellar value, and no node near the switch or a segment-end kink.
-    shifted = mu - rho * c
-    assert np.min(np.abs(shifted)) > 0.05
-    assert np.sum(shifted > 0.0) >= 5 and np.sum(c < 0.0) >= 3
-    expected = (z[-1] + lam @ cons[:4] + 0.5 * rho * cons[:4] @ cons[:4]
-                + np.sum((np.maximum(shifted, 0.0) ** 2 - mu ** 2) / (2.0 * rho)))
-    assert value == pytest.approx(expected, rel=1e-10)
-    e = np.stack([np.cos(states[1:, 0]), np.sin(states[1:, 0])], axis=1)
-    proj = e @ CIRCLES[:, :2].T
-    assert np.min(np.abs(proj)) > 1e-3
-    assert np.min(np.abs(proj - (A + states[1:, 2:3]))) > 1e-3
-
-    fd = _central_difference(lambda zz: _alm_eval(zz, method, lam, rho, mu)[0], z, 1e-5)
-    assert _relative_error(grad, fd) < FD_TOL
-    # The d/dt_f entry on its own (it is small next to the control entries).
-    assert abs(grad[-1] - fd[-1]) < FD_TOL * abs(fd[-1])

@@ -21,12 +21,13 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.srv import GetPlan
 from node_harness import (
     is_final, JOINTS, level_name, NEAR_GOAL, PAPER_GOAL, PAPER_X0, pose,
-    pose_of, running_solver, SOLVE_TIMEOUT, TEST_PARAMS, values)
+    pose_of, report, running_solver, SOLVE_TIMEOUT, TEST_PARAMS)
 import psutil
 import pytest
 from rcl_interfaces.srv import GetParameters
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from toc_ros.core import Status
 from trajectory_msgs.msg import JointTrajectory
 
 N = TEST_PARAMS['solver.N']
@@ -228,5 +229,5 @@ def test_200_goals_back_to_back(solver, record_property):
           f'{after / 2 ** 20:.1f} MiB ({100 * growth:+.2f} %)')
     assert solver.node.process.poll() is None
     assert growth < 0.10
-    statuses = [values(m)['status'] for m in finals(solver, started)]
-    assert 'SOLVED' in statuses and set(statuses) <= {'SOLVED', 'CANCELED'}
+    statuses = [report(m).status for m in finals(solver, started)]
+    assert Status.SOLVED in statuses and set(statuses) <= {Status.SOLVED, Status.CANCELED}

@@ -107,6 +107,8 @@ def test_toc_solve_help_and_overrides_come_from_the_table():
 
 def test_node_parameter_names_are_in_the_table():
     assert set(PLANT_NAMES) <= set(parameters.TABLE)
+    robot = {p.name for p in parameter_table(RobotParams, 'robot.')}
+    assert robot <= set(PLANT_NAMES) and robot <= set(parameters.SOLVER_NODE_NAMES)
     assert set(parameters.SOLVER_NODE_NAMES) == set(config.DEFAULTS) | {
         p.name for p in parameter_table(parameters.SolverNodeSettings)}
 

@@ -182,7 +182,7 @@ def _as_result(run):
 def test_report_numbers_come_from_the_data(quick):
     """The scenario's numbers in the text are read from the Problem, not written by hand."""
     res, _, text = quick
-    assert rp._scenario_text(res['paper'].problem) in text
+    assert rp._scenario_text(res['paper'].problem) in ' '.join(text.split())
     changed = replace(rp.BASE, margin=0.03, robot=replace(rp.BASE.robot, u2_max=450.0))
     described = rp._scenario_text(changed)
     assert 'to R = 0.23 m' in described and '|u2| ≤ 450 N' in described

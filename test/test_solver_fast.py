@@ -33,6 +33,7 @@ import numpy_model as nm
 import pytest
 
 from toc_ros.core import Problem, solve, SolverOptions, Status, warm_up
+from toc_ros.core.result import HISTORY_COLUMNS
 
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 GAP = 1e-3              # 0.1 % of the reference optimum
@@ -88,7 +89,8 @@ def test_paper_scenario_is_solved_feasible_and_optimal(paper_result):
     assert result.mode == 'fast' and result.integrator == 'euler' and result.n_intervals == 1000
     nm.assert_feasible(PAPER, result)
     assert abs(result.final_time - nm.T_STAR_PAPER) <= GAP * nm.T_STAR_PAPER, result.final_time
-    assert result.iterations > 0 and result.history.shape[1] == 3
+    assert result.iterations > 0 and result.history.shape[1] == len(HISTORY_COLUMNS)
+    assert result.cost == result.final_time
 
 
 @pytest.mark.parametrize('name', sorted(SCENARIOS))
@@ -151,16 +153,20 @@ def _check_best_so_far(problem, result):
                                                              abs=1e-9)
 
 
+# Long solves: paper mode with a million iterations; fast mode (milliseconds at N = 1000) on a
+# long horizon with several circles, whose single iterations take tens of milliseconds.
+LONG = {'paper': PAPER, 'fast': replace(SCENARIOS['several_circles'], n_intervals=20000)}
+
+
 @pytest.mark.parametrize('mode', ['fast', 'paper'])
 def test_cancel_is_honoured_within_100_ms(mode):
-    # Paper mode with a million iterations and the fast mode at N = 1000 both run for seconds.
     options = SolverOptions(mode=mode, max_iterations=10 ** 6 if mode == 'paper' else None)
-    result, latency = _solve_with_cancel(PAPER, options, delay=0.4)
+    result, latency = _solve_with_cancel(LONG[mode], options, delay=0.4)
     assert result.status is Status.CANCELED, result.message
     assert latency <= STOP_LATENCY, latency
     if mode == 'paper':
         assert result.has_trajectory
-    _check_best_so_far(PAPER, result)
+    _check_best_so_far(LONG[mode], result)
 
 
 @pytest.mark.parametrize('mode', ['fast', 'paper'])
@@ -169,19 +175,20 @@ def test_timeout_is_honoured_within_100_ms(mode):
     options = SolverOptions(mode=mode, timeout=timeout,
                             max_iterations=10 ** 6 if mode == 'paper' else None)
     start = time.monotonic()
-    result = solve(PAPER, options)
+    result = solve(LONG[mode], options)
     elapsed = time.monotonic() - start
     assert result.status is Status.TIMEOUT, result.message
     assert timeout <= elapsed <= timeout + STOP_LATENCY, elapsed
-    _check_best_so_far(PAPER, result)
+    _check_best_so_far(LONG[mode], result)
 
 
 @pytest.mark.parametrize('mode', ['fast', 'paper'])
 def test_progress_is_reported_at_least_every_100_ms(mode):
     calls = []
     options = SolverOptions(mode=mode, timeout=1.5)
+    problem = PAPER if mode == 'paper' else replace(LONG['fast'], n_intervals=8000)
     start = time.monotonic()
-    result = solve(PAPER, options, progress=lambda p: calls.append((time.monotonic(), p)))
+    result = solve(problem, options, progress=lambda p: calls.append((time.monotonic(), p)))
     stamps = np.array([start] + [t for t, _ in calls])
     gaps = np.diff(stamps)
     assert len(calls) >= 10

@@ -23,14 +23,15 @@ from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from node_harness import (
     A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL,
-    PAPER_GOAL, PAPER_X0, pose_of, running_solver, SOLVE_TIMEOUT,
-    TEST_PARAMS, U_MAX, values)
+    PAPER_GOAL, PAPER_X0, pose_of, report, running_solver, SOLVE_TIMEOUT,
+    TEST_PARAMS, U_MAX)
 import numpy as np
 import pytest
 from rcl_interfaces.srv import DescribeParameters, GetParameters
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from toc_ros.core import Status
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
@@ -109,18 +110,18 @@ def test_goal_pose_plans_from_the_measured_state(solver):
     since = time.monotonic()
     solver.goal_pose.publish(pose_of(PAPER_GOAL))
     final = wait_final(solver, since)[0]
-    result = values(final)
-    assert (final.level, result['status']) == (DiagnosticStatus.OK, 'SOLVED'), final.message
-    assert result['goal_source'] == 'goal_pose' and result['start_source'] == 'joint_states'
+    result = report(final)
+    assert (final.level, result.status) == (DiagnosticStatus.OK, Status.SOLVED), final.message
+    assert result.goal_source == 'goal_pose' and result.start_source == 'joint_states'
     trajectory = solver.client.wait_for(
         lambda: solver.client.messages('trajectory')[count:], 10.0, 'trajectory')[-1]
     t_f = check_trajectory(trajectory, start, PAPER_GOAL)
-    assert float(result['t_f']) == pytest.approx(t_f, abs=1e-8)
-    assert float(result['terminal_error']) <= 1e-6 and float(result['min_clearance']) >= -1e-6
+    assert result.t_f == pytest.approx(t_f, abs=1e-8)
+    assert result.terminal_error <= 1e-6 and result.min_clearance >= -1e-6
     # Progress while solving: >= 5 Hz by the node's clock, from the first to the final one.
     progress = [m for m in solver.client.messages('solver_node/progress', since)
                 if not is_final(m)] + [final]
-    elapsed = [float(values(m)['elapsed_s']) for m in progress]
+    elapsed = [report(m).elapsed_s for m in progress]
     assert len(progress) >= 2 and elapsed == sorted(elapsed)
     assert max(np.diff(elapsed)) <= 0.2, f'progress gaps {np.diff(elapsed)}'
     path = solver.client.wait_for(lambda: solver.client.messages('planned_path', since),
@@ -158,7 +159,7 @@ def test_plan_service_blocks_until_solved(solver):
 def wait_running(ctx, since, phase):
     return ctx.client.wait_for(
         lambda: [m for m in ctx.client.messages('solver_node/progress', since)
-                 if values(m).get('phase', '').startswith(phase)],
+                 if report(m).phase.startswith(phase)],
         30.0, f'a running {phase} solve')
 
 
@@ -189,7 +190,7 @@ def test_cancel_stops_a_long_solve_within_100_ms(solver, record_property):
               f'{1e3 * answered:.1f} ms, final progress after {1e3 * final_at:.1f} ms')
         assert node_side < 0.1
         assert answered < 0.5 and final_at < 0.5   # transport on a shared machine included
-        assert level_name(final) == 'WARN' and values(final)['status'] == 'CANCELED'
+        assert level_name(final) == 'WARN' and report(final).status is Status.CANCELED
         assert 'canceled by ~/cancel' in final.message
         time.sleep(0.2)
         assert len(solver.client.messages('trajectory')) == count   # nothing published
@@ -210,10 +211,10 @@ def test_new_goal_preempts_the_running_solve(solver):
         count = len(solver.client.messages('trajectory'))
         solver.goal_joints.publish(joint_state(NEAR_GOAL))
         first, second = wait_final(solver, since, count=2)[:2]
-        assert values(first)['status'] == 'CANCELED' and level_name(first) == 'WARN'
+        assert report(first).status is Status.CANCELED and level_name(first) == 'WARN'
         assert 'preempted by a newer goal' in first.message
-        assert values(second)['status'] == 'SOLVED', second.message
-        assert values(second)['goal_source'] == 'goal_joints'
+        assert report(second).status is Status.SOLVED, second.message
+        assert report(second).goal_source == 'goal_joints'
         trajectory = solver.client.wait_for(
             lambda: solver.client.messages('trajectory')[count:], 10.0, 'trajectory')[-1]
         check_trajectory(trajectory, PAPER_X0, NEAR_GOAL)
@@ -230,17 +231,17 @@ def test_paper_mode_inaccurate_result_is_published_with_a_warning(solver):
         since = time.monotonic()
         solver.goal_pose.publish(pose_of(PAPER_GOAL))
         final = wait_final(solver, since)[0]
-        result = values(final)
+        result = report(final)
         # The paper's heuristic ends at t_f = 2.1 s with small residual violations.
-        assert result['status'] == 'SOLVED_INACCURATE' and level_name(final) == 'WARN'
-        assert 'residual violations' in final.message and result['mode'] == 'paper'
+        assert result.status is Status.SOLVED_INACCURATE and level_name(final) == 'WARN'
+        assert 'residual violations' in final.message and result.mode == 'paper'
         trajectory = solver.client.wait_for(
             lambda: solver.client.messages('trajectory')[count:], 10.0, 'trajectory')[-1]
-        excess = float(result['max_control_excess'])
+        excess = result.max_control_excess
         t_f = check_trajectory(trajectory, PAPER_X0, PAPER_GOAL, n=1000,
-                               goal_tol=float(result['terminal_error']) + 1e-9,
+                               goal_tol=result.terminal_error + 1e-9,
                                u_tol=excess + 1e-9)
-        assert t_f == pytest.approx(float(result['t_f']), abs=1e-8)
+        assert t_f == pytest.approx(result.t_f, abs=1e-8)
     finally:
         solver.client.set_parameters('solver_node', {**NORMAL_SOLVE, 'solver.N': N})
 

@@ -28,6 +28,7 @@ import numpy_model as nm
 import pytest
 
 from toc_ros.core import PaperOptions, Problem, solve, SolverOptions, Status
+from toc_ros.core.result import HISTORY_COLUMNS
 
 PAPER = Problem()
 CONSTANTS = PaperOptions()       # K_B 600, K_V 0.01, K_p 1000, eta 1000, d_tau 1e-5, J_eps 0.01
@@ -61,7 +62,8 @@ def reduced():
 
 def test_t_f_decreases_by_the_tau_rule(reduced):
     hist = reduced.history
-    assert hist.shape == (M, 3)
+    assert hist.shape == (M, len(HISTORY_COLUMNS))
+    assert np.all(np.isnan(hist[:, 3]))     # paper mode: its penalties are the cost
     np.testing.assert_array_equal(hist[:, 0], np.arange(M))
     t_f, cost = hist[:, 1], hist[:, 2]
     assert t_f[0] == pytest.approx(PAPER.t_f0, abs=1e-12)

@@ -46,9 +46,10 @@ LOCAL_SPEC = {
     'grid': {'goal.x': [0.5, 1.5], 'goal.y': [1.0, 1.6]},
     'zip': [{'obstacles.0.x': [1.0, 0.8], 'obstacles.0.y': [1.0, 0.5]}],
 }
-# For the external cluster: 14 cases, slow enough (N = 100) to be interrupted.
+# For the external cluster: 14 cases, paper mode with a fixed iteration count, so that each
+# takes ~0.3 s (long enough to interrupt the sweep) however fast the fast mode gets.
 CLUSTER_SPEC = {
-    'base': {'mode': 'fast', 'N': 100},
+    'base': {'mode': 'paper', 'N': 1000, 'max-iterations': 8000},
     'grid': {'goal.q1': {'linspace': [0.6, 1.5, 7]}, 'goal.q2': [0.7, 1.1]},
 }
 
@@ -108,7 +109,14 @@ def _stop(proc):
 
 
 @pytest.fixture(scope='module')
-def serial():
+def warm_cache():
+    """Compile or load the numba kernels here first, so the workers find them cached."""
+    from toc_ros.core import warm_up
+    warm_up()
+
+
+@pytest.fixture(scope='module')
+def serial(warm_cache):
     """Solve serially by the code path of toc-solve (parse_args, build_problem, core solve)."""
     from toc_ros.core import solve
     from toc_ros.solve import build_problem, parse_args
@@ -197,6 +205,30 @@ def test_bad_specs_are_refused_before_any_solve(tmp_path, monkeypatch, capsys, d
     assert not out.exists()
 
 
+ISSUE_EXAMPLE = """\
+base: {mode: fast, integrator: euler, N: 300}     # toc-solve long options, without "--"
+grid:                                             # cross product of the listed values
+  goal.x: [1.0, 1.5]                              # hand goal [m] (with goal.y), or goal.q1/q2
+  goal.y: [1.0, 1.5]
+  obstacles.0.x: [0.9, 1.1]                       # obstacles.K.{x,y,radius}; start.q1/q2/dq1/dq2
+random: {n: 0, seed: 1, ranges: {}}               # optional: n samples, uniform in ranges
+"""
+
+
+def test_the_issue_example_spec_is_accepted(tmp_path, capsys):
+    from toc_ros.sweep import cli
+    from toc_ros.sweep.dataset import schema_for
+    from toc_ros.sweep.spec import load_spec
+    path = tmp_path / 'issue.yaml'
+    path.write_text(ISSUE_EXAMPLE)
+    assert cli.main([str(path), '--dry-run']) == 0
+    assert '8 case(s), varied: goal.x, goal.y, obstacles.0.x' in capsys.readouterr().out
+    columns = schema_for(load_spec(str(path))).names
+    assert columns[:4] == ['case_id', 'goal.x', 'goal.y', 'obstacles.0.x']
+    assert {'status', 'final_time', 'iterations', 'wall_time_s', 'max_control_excess',
+            'terminal_error', 'min_clearance', 'worker'} <= set(columns)
+
+
 def test_unreadable_and_non_yaml_specs(tmp_path, capsys):
     from toc_ros.sweep import cli
     assert cli.main([str(tmp_path / 'nope.yaml')]) == 2
@@ -239,6 +271,19 @@ def test_cases_become_toc_solve_arguments(tmp_path):
     doc2['grid']['robot.u_max.1'] = [451.0]
     (third_id, *_), = CaseBuilder(parse_spec(doc2, path=str(tmp_path / 's.yaml'))).cases()
     assert third_id != case_id
+
+
+def test_an_exception_in_the_solver_is_an_error_row(monkeypatch):
+    import toc_ros.core
+    from toc_ros.sweep.worker import solve_case
+
+    def broken(problem, options):
+        raise RuntimeError('kaput')
+
+    monkeypatch.setattr(toc_ros.core, 'solve', broken)
+    row = solve_case(('0123456789abcdef', ['--N', '60'], {'N': 60}, None, None))
+    assert row['status'] == 'ERROR' and 'RuntimeError: kaput' in row['message']
+    assert row['N'] == 60 and row['args'] == 'toc-solve --N 60' and math.isnan(row['final_time'])
 
 
 def test_random_samples_are_seeded():
@@ -299,7 +344,7 @@ def test_summary_and_heat_map_of_random_samples(tmp_path):
 
 # -- a real LocalCluster (the default of toc-sweep) ------------------------------------------
 
-def test_local_cluster_rows_equal_serial_solves(tmp_path, serial):
+def test_local_cluster_rows_equal_serial_solves(tmp_path, warm_cache, serial):
     from toc_ros.sweep import cli
     out = tmp_path / 'local'
     spec = _write_spec(tmp_path, LOCAL_SPEC)
@@ -341,13 +386,14 @@ def test_local_cluster_rows_equal_serial_solves(tmp_path, serial):
 # -- a separately started dask scheduler + dask worker processes -----------------------------
 
 @pytest.fixture(scope='module')
-def cluster():
+def cluster(warm_cache):
     """`dask scheduler` and two `dask worker` processes on 127.0.0.1 (random ports)."""
     port = _free_port()
     address = f'tcp://127.0.0.1:{port}'
     dask = [sys.executable, '-m', 'dask']
+    local = ['--no-dashboard', '--dashboard-address', '127.0.0.1:0']   # HTTP server too
     procs = [subprocess.Popen(dask + ['scheduler', '--host', '127.0.0.1', '--port', str(port),
-                                      '--no-dashboard', '--idle-timeout', '600'],
+                                      '--idle-timeout', '600'] + local,
                               env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     workers = {}
     try:
@@ -363,8 +409,8 @@ def cluster():
                 time.sleep(0.2)
         for k in range(2):
             proc = subprocess.Popen(
-                dask + ['worker', address, '--nthreads', '1', '--no-nanny', '--no-dashboard',
-                        '--host', '127.0.0.1', '--name', f'w{k}', '--death-timeout', '60'],
+                dask + ['worker', address, '--nthreads', '1', '--no-nanny', '--host',
+                        '127.0.0.1', '--name', f'w{k}', '--death-timeout', '60'] + local,
                 env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             procs.append(proc)
         client.wait_for_workers(2, timeout=60)
@@ -417,6 +463,13 @@ def test_external_scheduler_interrupted_sweep_resumes_missing_cases_only(
     warmed = sorted(e['worker'] for e in events if e['now'])
     assert warmed == sorted(cluster['workers'].values()), events
     assert len(events) >= 2 * len(warmed)
+    # The spec grows by one q2 value: --resume solves the 7 new cases only.
+    grown = dict(CLUSTER_SPEC, grid=dict(CLUSTER_SPEC['grid'], **{'goal.q2': [0.7, 1.1, 0.9]}))
+    spec = _write_spec(tmp_path, grown, 'grown.yaml')
+    proc = _sweep_cli(spec, '--scheduler', cluster['address'], '--out', str(out), '--resume')
+    assert proc.returncode == 0, proc.stderr
+    assert f'21 case(s) in {spec}, 14 already in' in proc.stdout and 'solving 7' in proc.stdout
+    _assert_each_case_once(_rows(out), 21)
 
 
 def test_external_scheduler_worker_killed_mid_sweep_loses_no_case(tmp_path, cluster, serial):
@@ -429,8 +482,14 @@ def test_external_scheduler_worker_killed_mid_sweep_loses_no_case(tmp_path, clus
     try:
         _wait_for(lambda: any(r['worker'] == victim for r in _rows(out))
                   or sweep.poll() is not None, 120, 'a row from worker w0')
-        assert sweep.poll() is None, 'the sweep ended before the worker could be killed'
-        cluster['procs']['w0'].send_signal(signal.SIGKILL)
+        from distributed import Client
+        with Client(cluster['address'], timeout=10) as client:
+            # Kill it while the scheduler has a task of this sweep on it.
+            _wait_for(lambda: any(str(k).startswith('toc-sweep-') for k in
+                                  client.processing(workers=[victim]).get(victim, ()))
+                      or sweep.poll() is not None, 60, 'a task on worker w0')
+            assert sweep.poll() is None, 'the sweep ended before the worker could be killed'
+            cluster['procs']['w0'].send_signal(signal.SIGKILL)
         stdout, stderr = sweep.communicate(timeout=150)
     finally:
         _stop(sweep)

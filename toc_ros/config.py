@@ -19,7 +19,8 @@ One mapping from flat parameter names ('robot.a', 'solver.N', ...) to the core t
 toc-solve and by the nodes (whose ROS parameters carry the same names).
 """
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
+import functools
 import os
 import sys
 import textwrap
@@ -28,6 +29,7 @@ from typing import Tuple
 import yaml
 
 from .core.model import RobotParams
+from .core.models import load_model, ModelChoice, ModelError
 from .core.problem import Problem, ProblemError, SolverOptions
 from .core.settings import from_parameters, parameter_table, setting
 
@@ -37,16 +39,27 @@ class Frames:
     """Names the nodes and the scenario file share (not part of the numeric problem)."""
 
     joint_names: Tuple[str, ...] = setting(
-        ('rotation_joint', 'extension_joint'), '[rotation joint, extension joint]: names used '
-        'in joint_states, goals and trajectories')
+        ('rotation_joint', 'extension_joint'), 'one name per joint of robot.model (cylindrical: '
+        'rotation, extension; planar_2r: shoulder, elbow), used in joint_states, goals and '
+        'trajectories')
     base_frame: str = setting(
         'base_link', 'frame of goal poses, planned paths and markers (the robot base)')
 
 
 # The scenario's settings: (dataclass, prefix of its flat names).  The flat names are the ROS
 # parameter names of the nodes; each field's setting() in the core is the one definition.
-SCENARIO = ((Frames, ''), (Problem, ''), (SolverOptions, 'solver.'))
-SCENARIO_TABLE = tuple(p for cls, prefix in SCENARIO for p in parameter_table(cls, prefix))
+SCENARIO = ((Frames, ''), (ModelChoice, 'robot.'), (Problem, ''), (SolverOptions, 'solver.'))
+
+
+def _scenario_table():
+    """Return the flat parameters of SCENARIO; robot.model(_parameters) lead robot.*."""
+    table = [p for cls, prefix in SCENARIO if cls is not ModelChoice
+             for p in parameter_table(cls, prefix)]
+    first = next(k for k, p in enumerate(table) if p.name.startswith('robot.'))
+    return tuple(table[:first] + parameter_table(ModelChoice, 'robot.') + table[first:])
+
+
+SCENARIO_TABLE = _scenario_table()
 # Flat parameter name -> default; the defaults are the paper's scenario.
 DEFAULTS = {p.name: p.default for p in SCENARIO_TABLE}
 
@@ -60,17 +73,17 @@ YAML_HEADER = """\
 """
 
 
-def default_config_path():
-    """config/toc_ros.yaml from the installed share directory, else from the source tree."""
+def default_config_path(name='toc_ros.yaml'):
+    """config/<name> from the installed share directory, else from the source tree."""
     try:
         from ament_index_python.packages import get_package_share_directory
-        path = os.path.join(get_package_share_directory('toc_ros'), 'config', 'toc_ros.yaml')
+        path = os.path.join(get_package_share_directory('toc_ros'), 'config', name)
         if os.path.isfile(path):
             return path
     except (ImportError, LookupError, OSError):
         pass    # no ament index, or toc_ros not in it: fall back to the source tree
     return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                        'config', 'toc_ros.yaml')
+                        'config', name)
 
 
 def _flatten(tree, prefix=''):
@@ -116,6 +129,99 @@ def robot_from_parameters(params):
         raise ProblemError(str(exc))
 
 
+def model_search_path():
+    """Return the folders searched for a bare model file name (share, then source tree)."""
+    folders = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        folders.append(os.path.join(get_package_share_directory('toc_ros'), 'config',
+                                    'models'))
+    except (ImportError, LookupError, OSError):
+        pass    # no ament index, or toc_ros not in it: the source tree only
+    folders.append(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                'config', 'models'))
+    return folders
+
+
+def resolve_model_name(name):
+    """Return a built-in model name as is, a model file as a path (ProblemError if absent)."""
+    from .core.models import MODELS
+    name = str(name).strip()
+    if name in MODELS:
+        return name
+    expanded = os.path.expanduser(name)
+    if os.path.isfile(expanded):
+        return os.path.abspath(expanded)
+    if os.sep not in name:
+        for folder in model_search_path():
+            path = os.path.join(folder, name)
+            if os.path.isfile(path):
+                return path
+    if expanded.lower().endswith(('.yaml', '.yml')) or os.sep in name:
+        raise ProblemError(f'robot.model: no model file {name!r} (looked in the working '
+                           'directory' + ('' if os.sep in name else ' and '
+                                          + ', '.join(model_search_path())) + ')')
+    raise ProblemError(f'robot.model: unknown model {name!r}: the built-in models are '
+                       f'{", ".join(sorted(MODELS))}, or give a model file (.yaml)')
+
+
+@functools.lru_cache(maxsize=32)
+def _cached_model(key, stamp, values):
+    try:
+        return load_model(key, **dict(values))
+    except ModelError as exc:
+        raise ProblemError(f'robot.model {key}: {exc}')
+
+
+def model_choice(params):
+    """Return the ModelChoice of flat parameters (ProblemError for a bad value)."""
+    try:
+        choice = from_parameters(ModelChoice, params, 'robot.')
+        choice.parameter_values()
+    except (ModelError, TypeError, ValueError) as exc:
+        raise ProblemError(str(exc))
+    return choice
+
+
+def _cylindrical(robot, values):
+    """Return robot with the robot.model_parameters overrides (not yet validated)."""
+    known = {name: getattr(robot, name) for name in asdict(robot)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ProblemError(f"model 'cylindrical' has no parameter(s) {', '.join(unknown)} "
+                           f"(known: {', '.join(known)})")
+    converted = {}
+    for name, text in values.items():
+        try:
+            converted[name] = text if isinstance(known[name], str) else float(text)
+        except ValueError:
+            raise ProblemError(f"model 'cylindrical': parameter {name} must be a number, got "
+                               f'{text!r}') from None
+    return replace(robot, **converted)
+
+
+def model_from_parameters(params):
+    """
+    Return the RobotModel of flat parameters (robot.model, robot.model_parameters, robot.*).
+
+    Built once per (model, parameters, file modification time): a model file is derived and
+    compiled at its first use.  Raises ProblemError with the reason for a bad model.
+    """
+    from .core.models import CylindricalRobot
+    choice = model_choice(params)
+    values = choice.parameter_values()
+    key = resolve_model_name(choice.name)
+    if key == 'cylindrical':
+        return CylindricalRobot(_cylindrical(robot_from_parameters(params), values))
+    try:
+        stamp = os.stat(key).st_mtime_ns if os.path.isfile(key) else 0
+        return _cached_model(key, stamp, tuple(sorted(values.items())))
+    except (OSError, TypeError, ValueError) as exc:
+        if isinstance(exc, ProblemError):
+            raise
+        raise ProblemError(f'robot.model {choice.name}: {exc}')
+
+
 def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
     """Problem from flat parameters; x0, x_goal, obstacles override the parameter values."""
     overrides = {k: tuple(float(v) for v in value)
@@ -123,11 +229,15 @@ def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
     if obstacles is not None:
         overrides['obstacles'] = tuple(tuple(row) for row in obstacles)
     try:
-        return from_parameters(Problem, params, **overrides)
+        problem = from_parameters(Problem, params, **overrides)
     except ValueError as exc:
         if isinstance(exc, ProblemError):
             raise
         raise ProblemError(str(exc))
+    model = model_from_parameters(params)
+    if model.name == 'cylindrical':
+        return replace(problem, robot=model.params) if model.params != problem.robot else problem
+    return replace(problem, model=model)
 
 
 def options_from_parameters(params):

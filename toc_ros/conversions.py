@@ -30,7 +30,8 @@ from nav_msgs.msg import Path
 import numpy as np
 from std_msgs.msg import ColorRGBA
 from toc_ros.core import Problem, ProblemError
-from toc_ros.core.model import dynamics
+from toc_ros.core.model import dynamics, RobotParams
+from toc_ros.core.models import CylindricalRobot, ModelError, RobotModel
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -81,12 +82,35 @@ def duration_seconds(duration):
     return duration.sec + duration.nanosec * 1e-9
 
 
-def accelerations(states, controls, packed_params):
-    """(N+1, 2) joint accelerations f(x_i, u_i) of eq. (37); the last node uses u_{N-1}."""
-    out = np.empty((states.shape[0], 2))
+def as_model(robot):
+    """
+    Return the RobotModel of robot.
+
+    A RobotModel as is; RobotParams or a hand offset a [m] as the cylindrical robot (the
+    older call forms of the functions below).
+    """
+    if isinstance(robot, RobotModel):
+        return robot
+    if isinstance(robot, RobotParams):
+        return CylindricalRobot(robot)
+    return CylindricalRobot(RobotParams(a=float(robot)))
+
+
+def accelerations(states, controls, packed_params, model=None):
+    """(N+1, n) joint accelerations of f(x_i, u_i) (default eq. 37); the last uses u_{N-1}."""
+    if model is None:
+        out = np.empty((states.shape[0], 2))
+        for i in range(states.shape[0]):
+            f = dynamics(states[i], controls[min(i, controls.shape[0] - 1)], packed_params)
+            out[i, 0], out[i, 1] = f[1], f[3]
+        return out
+    out = np.empty((states.shape[0], model.n_joints))
+    f = np.empty(model.nx)
     for i in range(states.shape[0]):
-        f = dynamics(states[i], controls[min(i, controls.shape[0] - 1)], packed_params)
-        out[i, 0], out[i, 1] = f[1], f[3]
+        model.kernels.rhs(np.ascontiguousarray(states[i]),
+                          np.ascontiguousarray(controls[min(i, controls.shape[0] - 1)]),
+                          packed_params, f)
+        out[i] = f[1::2]
     return out
 
 
@@ -94,12 +118,17 @@ def trajectory_msg(result, joint_names, robot, stamp):
     """
     Build the JointTrajectory of a solved result: all N+1 nodes at t_i = i tau.
 
-    positions (q1, q2), velocities (dq1, dq2), accelerations from eq. (37), effort = u_i (the
-    optimal controls, zero-order hold from t_i; the last point repeats u_{N-1}).
+    robot: the RobotModel (or RobotParams of the cylindrical robot).  Positions q, velocities
+    dq, accelerations from the model's dynamics, effort = u_i (the optimal controls,
+    zero-order hold from t_i; the last point repeats u_{N-1}).
     """
+    model = as_model(robot)
     states = np.asarray(result.states, dtype=float)
     controls = np.asarray(result.controls, dtype=float)
-    acc = accelerations(states, controls, robot.packed())
+    if isinstance(model, CylindricalRobot):
+        acc = accelerations(states, controls, model.packed())
+    else:
+        acc = accelerations(states, controls, model.packed(), model)
     msg = JointTrajectory()
     msg.header.stamp = stamp
     msg.joint_names = list(joint_names)
@@ -107,10 +136,10 @@ def trajectory_msg(result, joint_names, robot, stamp):
     for i, t in enumerate(result.time_grid):
         u = controls[min(i, controls.shape[0] - 1)]
         points.append(JointTrajectoryPoint(
-            positions=[float(states[i, 0]), float(states[i, 2])],
-            velocities=[float(states[i, 1]), float(states[i, 3])],
-            accelerations=[float(acc[i, 0]), float(acc[i, 1])],
-            effort=[float(u[0]), float(u[1])],
+            positions=[float(v) for v in states[i, 0::2]],
+            velocities=[float(v) for v in states[i, 1::2]],
+            accelerations=[float(v) for v in acc[i]],
+            effort=[float(v) for v in u],
             time_from_start=duration_msg(float(t))))
     msg.points = points
     return msg
@@ -122,22 +151,44 @@ def _yaw_quaternion(pose, yaw):
 
 
 def hand_path_msg(states, a, frame_id, stamp):
-    """nav_msgs/Path of the hand for states (rows q1, dq1, q2, dq2); yaw along the arm."""
+    """
+    nav_msgs/Path of the hand for states (rows x); yaw along the last link.
+
+    a: the RobotModel (or the cylindrical robot's hand offset [m]).
+    """
+    model = as_model(a)
     msg = Path()
     msg.header.frame_id = frame_id
     msg.header.stamp = stamp
-    states = np.asarray(states, dtype=float).reshape(-1, 4)
-    reach = a + states[:, 2]
+    states = np.asarray(states, dtype=float).reshape(-1, model.nx)
+    seg = model.link_segments(model.positions(states))[:, -1, :]
+    yaws = np.arctan2(seg[:, 3] - seg[:, 1], seg[:, 2] - seg[:, 0])
     poses = []
-    for q1, r in zip(states[:, 0], reach):
+    for (x, y), yaw in zip(seg[:, 2:4].tolist(), yaws.tolist()):
         pose = PoseStamped()
         pose.header = msg.header
-        pose.pose.position.x = float(r * math.cos(q1))
-        pose.pose.position.y = float(r * math.sin(q1))
-        _yaw_quaternion(pose.pose, float(q1))
+        pose.pose.position.x = float(x)
+        pose.pose.position.y = float(y)
+        _yaw_quaternion(pose.pose, float(yaw))
         poses.append(pose)
     msg.poses = poses
     return msg
+
+
+def arm_points(model, q):
+    """
+    Points of the arm marker for joint positions q: (points, chain).
+
+    chain True: the links form a chain (one LINE_STRIP through base, joints and hand);
+    False: two points per link (a LINE_LIST).
+    """
+    seg = model.link_segments(np.asarray(q, dtype=float))
+    chain = bool(np.allclose(seg[1:, 0:2], seg[:-1, 2:4])) if len(seg) > 1 else True
+    if chain:
+        points = [seg[0, 0:2]] + [row[2:4] for row in seg]
+    else:
+        points = [p for row in seg for p in (row[0:2], row[2:4])]
+    return [Point(x=float(p[0]), y=float(p[1])) for p in points], chain
 
 
 def _marker(frame_id, stamp, ns, marker_id, marker_type, rgba):
@@ -159,8 +210,9 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
     Build the MarkerArray for RViz: DELETEALL, then obstacles, inflated circles, hand path, arm.
 
     obstacles: rows (x, y, radius R'); the 'inflated_obstacles' marker (one LINE_LIST of all
-    circles) has radius R' + margin (what the planner keeps the arm out of).  a [m]: hand
-    offset of the robot.  path_states / arm_state: rows (q1, dq1, q2, dq2) or None.
+    circles) has radius R' + margin (what the planner keeps the arm out of).  a: the RobotModel
+    (or the cylindrical robot's hand offset [m]).  path_states / arm_state: states x or None;
+    the 'arm' marker draws every link, the 'planned_path' the hand.
     obstacles_info / plan_info: (obstacles hash, data revision) of the current obstacle set and
     of the set the path was planned for, drawn as text markers 'obstacles_info' / 'plan_info'.
     Cost: one cylinder per obstacle plus one line list, so a large set stays cheap.
@@ -192,20 +244,21 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
         seg_y = np.stack([ys[:, :-1], ys[:, 1:]], axis=2).reshape(-1)
         rings.points = [Point(x=x, y=y) for x, y in zip(seg_x.tolist(), seg_y.tolist())]
         out.markers.append(rings)
+    model = as_model(a)
     if path_states is not None and len(path_states):
-        states = np.asarray(path_states, dtype=float).reshape(-1, 4)
+        states = np.asarray(path_states, dtype=float).reshape(-1, model.nx)
         line = _marker(frame_id, stamp, 'planned_path', 0, Marker.LINE_STRIP,
                        (0.0, 0.8, 0.0, 1.0))
         line.scale.x = 0.01
-        reach = a + states[:, 2]
-        line.points = [Point(x=float(r * math.cos(q)), y=float(r * math.sin(q)))
-                       for q, r in zip(states[:, 0], reach)]
+        hand = model.hand_position(model.positions(states))
+        line.points = [Point(x=x, y=y) for x, y in hand.tolist()]
         out.markers.append(line)
     if arm_state is not None:
-        q1, q2 = float(arm_state[0]), float(arm_state[2])
-        arm = _marker(frame_id, stamp, 'arm', 0, Marker.LINE_STRIP, (0.1, 0.3, 1.0, 1.0))
+        points, chain = arm_points(model, model.positions(np.asarray(arm_state, dtype=float)))
+        arm = _marker(frame_id, stamp, 'arm', 0, Marker.LINE_STRIP if chain
+                      else Marker.LINE_LIST, (0.1, 0.3, 1.0, 1.0))
         arm.scale.x = 0.03
-        arm.points = [Point(), Point(x=(a + q2) * math.cos(q1), y=(a + q2) * math.sin(q1))]
+        arm.points = points
         out.markers.append(arm)
     for ns, info, z, text in (('obstacles_info', obstacles_info, 0.3, 'obstacles'),
                               ('plan_info', plan_info, 0.45, 'plan for obstacles')):
@@ -253,13 +306,30 @@ def _frame(frame_id):
     return frame_id[1:] if frame_id.startswith('/') else frame_id
 
 
-def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf)):
+def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf),
+                       branch=None):
     """
-    Joint goal (q1, 0, q2, 0) of a PoseStamped hand target by inverse kinematics.
+    Joint goal state (at rest) of a PoseStamped hand target by inverse kinematics.
 
-    q1 = atan2(y, x), q2 = sqrt(x^2 + y^2) - a, at rest.  The pose must be in base_frame;
-    orientation and z are ignored (the planar model fixes the hand's orientation).
+    a: a RobotModel (its inverse_kinematics with the IK branch; ConversionError with the
+    model's reason for an unreachable or ambiguous goal), or the cylindrical robot's hand
+    offset a [m]: q1 = atan2(y, x), q2 = sqrt(x^2 + y^2) - a within extension_limits.  The
+    pose must be in base_frame; orientation and z are ignored (planar models).
     """
+    if isinstance(a, RobotModel) and not isinstance(a, CylindricalRobot):
+        frame = _frame(msg.header.frame_id)
+        if frame != _frame(base_frame):
+            raise ConversionError(f"goal pose is in frame '{msg.header.frame_id}', expected "
+                                  f"'{base_frame}' (no TF lookup: send it in the base frame)")
+        p = msg.pose.position
+        x, y, _ = _finite((p.x, p.y, p.z), 'goal position')
+        try:
+            q = a.inverse_kinematics(float(x), float(y), branch)
+        except ModelError as exc:
+            raise ConversionError(str(exc))
+        return a.state(q)
+    if isinstance(a, CylindricalRobot):
+        a = float(a.params.a)
     frame = _frame(msg.header.frame_id)
     if frame != _frame(base_frame):
         raise ConversionError(f"goal pose is in frame '{msg.header.frame_id}', expected "
@@ -307,9 +377,11 @@ def joint_state_arrays(msg, joint_names, require_velocity=False):
 
 
 def joint_state_to_state(msg, joint_names):
-    """State (q1, dq1, q2, dq2) of a two-joint JointState (velocities default to zero)."""
+    """State (q1, dq1, q2, dq2, ...) of joint_names from a JointState (velocities default 0)."""
     pos, vel = joint_state_arrays(msg, joint_names)
-    return np.array([pos[0], vel[0], pos[1], vel[1]])
+    state = np.empty(2 * len(pos))
+    state[0::2], state[1::2] = pos, vel
+    return state
 
 
 def obstacle_rows_from_msg(msg):

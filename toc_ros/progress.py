@@ -23,7 +23,7 @@ strings: integers as digits, floats with 9 significant digits ('nan' when unknow
 as '[a, b, ...]'.  Keys whose value is unset are left out.
 """
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 import hashlib
 import math
 from typing import Optional, Tuple
@@ -83,6 +83,8 @@ class ProgressReport:
     data_revision: Optional[int] = None   # counter of obstacle/margin/robot/limit changes
     obstacles_hash: str = ''                   # of the obstacle set (and margin) planned for
     event: str = ''
+    robot_model: str = ''         # robot.model planned for (ready and result reports)
+    model_parameters: str = ''    # its robot.model_parameters, 'name=value' joined by ', '
 
     @property
     def solving(self):
@@ -100,10 +102,6 @@ class ProgressReport:
         if self.status is not None:
             return self.status.value
         return SOLVING if self.solving else IDLE
-
-    def with_values(self, **values):
-        """Return a copy with some fields replaced."""
-        return replace(self, **values)
 
 
 # Field -> key (the field name unless listed here).  name, message and level are the

@@ -41,8 +41,8 @@ def build_parser():
     """Argument parser of toc-solve."""
     parser = argparse.ArgumentParser(
         prog='toc-solve',
-        description='Minimum-time trajectory of the 2-DOF cylindrical robot around circular '
-                    'obstacles (BPTT). SI units, radians.',
+        description='Minimum-time trajectory of a robot model (default: the 2-DOF cylindrical '
+                    'robot of the paper) around circular obstacles. SI units, radians.',
         epilog='Exit codes: 0 solved, 1 solved inaccurately (paper mode), 2 not converged or '
                'bad arguments, 3 canceled (Ctrl-C) or timed out, 4 invalid problem, '
                '5 --json not writable, 130 interrupted twice.')
@@ -53,10 +53,21 @@ def build_parser():
                         help='fast: feasible minimum time (default); paper: section-3 heuristic')
     parser.add_argument('--integrator', choices=('euler', 'rk4'))
     parser.add_argument('--N', type=int, metavar='N', help='number of intervals')
+    parser.add_argument('--model', metavar='NAME|FILE',
+                        help="robot model: 'cylindrical' (default), 'planar_2r' or a model file "
+                             '(.yaml; a bare name is also looked up in config/models); sets '
+                             'robot.model')
+    parser.add_argument('--param', action='append', metavar='NAME=VALUE',
+                        help='model parameter, e.g. l1=0.9; repeat for several (added to '
+                             'robot.model_parameters)')
+    parser.add_argument('--gravity', type=float, metavar='G',
+                        help='gravity [m/s^2] along -y of the base frame: the model parameter g '
+                             '(refused for models without one, e.g. cylindrical)')
     parser.add_argument('--start', type=float, nargs='+', metavar='X',
-                        help='start Q1 Q2 [DQ1 DQ2] [rad, m, rad/s, m/s]; velocities 0 if omitted')
+                        help='start Q1 .. Qn [DQ1 .. DQn] for the n joints of the model '
+                             '[rad or m, rad/s or m/s]; velocities 0 if omitted')
     parser.add_argument('--goal', type=float, nargs='+', metavar='X',
-                        help='goal Q1 Q2 [DQ1 DQ2]; velocities 0 if omitted')
+                        help='goal Q1 .. Qn [DQ1 .. DQn]; velocities 0 if omitted')
     obstacles = parser.add_mutually_exclusive_group()
     obstacles.add_argument('--obstacle', type=float, nargs=3, action='append',
                            metavar=('X', 'Y', 'RADIUS'),
@@ -72,6 +83,9 @@ def build_parser():
                         help='sign of the A2/(2 A3) dq1^2 term: eq. (37) as printed or eq. (36)')
     parser.add_argument('--paper-gradient', choices=('shortcut', 'exact'),
                         help='paper mode obstacle gradient: eq. (46) shortcut or exact')
+    parser.add_argument('--initial-guess', metavar='RESULT.json',
+                        help='warm start (fast mode) from a result written by --json: its '
+                             'controls and final time, resampled to N')
     parser.add_argument('--json', metavar='PATH', help='write the result as JSON to PATH')
     parser.add_argument('--quiet', action='store_true',
                         help='no progress line and no summary (errors still go to stderr)')
@@ -121,34 +135,95 @@ def parameter_overrides(args):
             if dest.startswith(PARAMETER_DEST) and value is not None}
 
 
-def _joint_state(parser, name, values):
-    """[Q1, Q2] or [Q1, Q2, DQ1, DQ2] -> state [q1, dq1, q2, dq2]."""
+class ArgumentError(ValueError):
+    """A command-line value that does not fit the model (exit code 2, like argparse)."""
+
+
+def joint_state(name, values, n=2):
+    """[Q1 .. Qn] or [Q1 .. Qn, DQ1 .. DQn] -> state (q1, dq1, ..., qn, dqn) (ArgumentError)."""
     if values is None:
         return None
-    if len(values) == 2:
-        values = list(values) + [0.0, 0.0]
-    elif len(values) != 4:
-        parser.error(f'--{name} takes Q1 Q2 [DQ1 DQ2] (2 or 4 numbers), got {len(values)}')
-    q1, q2, dq1, dq2 = values
-    return (q1, dq1, q2, dq2)
+    values = [float(v) for v in values]
+    if len(values) == n:
+        values = values + [0.0] * n
+    elif len(values) != 2 * n:
+        raise ArgumentError(f'--{name} takes Q1 .. Q{n} [DQ1 .. DQ{n}] ({n} or {2 * n} '
+                            f'numbers for the {n} joints of the model), got {len(values)}')
+    state = [0.0] * (2 * n)
+    state[0::2], state[1::2] = values[:n], values[n:]
+    return tuple(state)
+
+
+def _joint_state(parser, name, values):
+    """State of a two-joint model from --start/--goal, or None when another n may fit."""
+    if values is None or len(values) not in (2, 4):
+        return None
+    return joint_state(name, values)
 
 
 def parse_args(argv, parser=None):
     """Parse toc-solve's arguments (parser: one from build_parser(), to reuse it)."""
     parser = build_parser() if parser is None else parser
     args = parser.parse_args(argv)
+    # Two-joint states now (both shipped models); other counts are checked against the model.
     args.x0 = _joint_state(parser, 'start', args.start)
     args.x_goal = _joint_state(parser, 'goal', args.goal)
+    for entry in args.param or ():
+        key, sep, value = entry.partition('=')
+        if not sep or not key.strip() or not value.strip():
+            parser.error(f'--param takes NAME=VALUE, got {entry!r}')
+    if args.gravity is not None and not math.isfinite(args.gravity):
+        parser.error(f'--gravity must be finite, got {args.gravity}')
     if args.timeout is not None and not (math.isfinite(args.timeout) and args.timeout >= 0.0):
         parser.error(f'--timeout must be >= 0 seconds, got {args.timeout}')
     if args.json:
         folder = os.path.dirname(os.path.abspath(args.json))
         if not os.path.isdir(folder):
             parser.error(f'--json: directory {folder} does not exist')
+    args.guess = None
+    if args.initial_guess:
+        from toc_ros.core.result import guess_from_dict
+        try:
+            with open(args.initial_guess) as stream:
+                args.guess = guess_from_dict(json.load(stream))
+        except (OSError, ValueError) as exc:
+            parser.error(f'--initial-guess {args.initial_guess}: {exc}')
     return args
 
 
 _parse = parse_args
+
+
+def model_parameter_names(model):
+    """Names of a model's parameters (robot.model_parameters may set them)."""
+    import dataclasses
+    data = model.params
+    if hasattr(data, 'as_dict'):
+        return list(data.as_dict())
+    return [f.name for f in dataclasses.fields(data)]
+
+
+def _apply_model_options(args, params):
+    """--model, --param, --gravity into params; the states of --start/--goal for its n."""
+    from toc_ros.config import model_from_parameters
+    if getattr(args, 'model', None):
+        params['robot.model'] = args.model
+    extra = list(getattr(args, 'param', None) or ())
+    if extra:
+        params['robot.model_parameters'] = list(params.get('robot.model_parameters') or ())
+        params['robot.model_parameters'] += extra
+    gravity = getattr(args, 'gravity', None)
+    if gravity is None and args.start is None and args.goal is None:
+        return None, None
+    model = model_from_parameters(params)
+    if gravity is not None:
+        if 'g' not in model_parameter_names(model):
+            raise ArgumentError(f'--gravity: robot model {model.name!r} has no gravity parameter '
+                                f'g (its parameters: {", ".join(model_parameter_names(model))})')
+        params['robot.model_parameters'] = list(params.get('robot.model_parameters') or ())
+        params['robot.model_parameters'] += [f'g={gravity!r}']
+    return (joint_state('start', args.start, model.n_joints),
+            joint_state('goal', args.goal, model.n_joints))
 
 
 def build_problem(args, parameters=None):
@@ -156,7 +231,8 @@ def build_problem(args, parameters=None):
     Build the Problem and SolverOptions from the parameter file plus the command-line overrides.
 
     parameters: the flat parameters of the file, already loaded (toc-sweep reads it once).
-    Raises ProblemError when the file or a value in it is unusable.
+    Raises ProblemError when the file or a value in it is unusable, ArgumentError (exit code
+    2) when --start, --goal or --gravity do not fit the model.
     """
     from toc_ros.config import (default_config_path, load_parameters, options_from_parameters,
                                 problem_from_parameters)
@@ -164,6 +240,7 @@ def build_problem(args, parameters=None):
     params = (load_parameters(args.config or default_config_path()) if parameters is None
               else dict(parameters))
     params.update(parameter_overrides(args))
+    x0, x_goal = _apply_model_options(args, params)
     overrides = {'solver.mode': args.mode, 'solver.integrator': args.integrator,
                  'solver.N': args.N, 'solver.max_iterations': args.max_iterations,
                  'solver.timeout': args.timeout, 'obstacles.margin': args.margin,
@@ -176,8 +253,7 @@ def build_problem(args, parameters=None):
     elif args.obstacle:
         obstacles = tuple(tuple(row) for row in args.obstacle)
     try:
-        problem = problem_from_parameters(params, x0=args.x0, x_goal=args.x_goal,
-                                          obstacles=obstacles)
+        problem = problem_from_parameters(params, x0=x0, x_goal=x_goal, obstacles=obstacles)
         options = options_from_parameters(params)
     except (TypeError, ValueError, KeyError) as exc:
         # ProblemError is a ValueError; float('abc') and the like from a bad file land here too.
@@ -224,6 +300,7 @@ def summary(result, problem):
     v = result.violations
     lines = [f'status      {result.status.value}',
              f'message     {result.message}',
+             f'model       {problem.robot_model.name}',
              f'mode        {result.mode}, {problem.integrator}, N = {problem.n_intervals}, '
              f'{len(problem.obstacles)} obstacle(s), margin {problem.margin} m',
              f't_min       {_seconds(result.final_time)}',
@@ -259,12 +336,12 @@ def write_json(path, result):
     os.replace(tmp, path)
 
 
-def _solve_interruptible(problem, options, progress):
+def _solve_interruptible(problem, options, progress, guess=None):
     """Run solve() in this thread; the first Ctrl-C cancels it, returning the best so far."""
     from toc_ros.core import solve
     cancel = threading.Event()
     if threading.current_thread() is not threading.main_thread():
-        return solve(problem, options, progress=progress, cancel=cancel)
+        return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
     previous = signal.getsignal(signal.SIGINT)
     if previous is None:      # installed outside Python: restore the default instead
         previous = signal.default_int_handler
@@ -276,7 +353,7 @@ def _solve_interruptible(problem, options, progress):
 
     signal.signal(signal.SIGINT, on_sigint)
     try:
-        return solve(problem, options, progress=progress, cancel=cancel)
+        return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
     finally:
         signal.signal(signal.SIGINT, previous)
 
@@ -295,6 +372,10 @@ def _run(args):
     from toc_ros.core import ProblemError, SolveResult, Status
     try:
         problem, options = build_problem(args)
+    except ArgumentError as exc:
+        build_parser().print_usage(sys.stderr)
+        print(f'toc-solve: error: {exc}', file=sys.stderr)
+        return 2
     except ProblemError as exc:
         result = SolveResult(status=Status.INVALID_INPUT, message=str(exc),
                              mode=args.mode or '', integrator=args.integrator or '')
@@ -303,7 +384,8 @@ def _run(args):
         show_progress = not args.quiet and sys.stderr.isatty()
         line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
         try:
-            result = _solve_interruptible(problem, options, line if show_progress else None)
+            result = _solve_interruptible(problem, options, line if show_progress else None,
+                                          getattr(args, 'guess', None))
         finally:
             line.clear()
     if result.status is Status.INVALID_INPUT:

@@ -26,9 +26,8 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 import numpy as np
 
-from toc_ros.core import hand_position
 
-from .report import tracking_errors
+from .report import hand_xy, run_model, tracking_errors
 
 DPI = 110
 # Arm drawn at this many instants of each plan (the paper's Fig. 7).
@@ -61,9 +60,11 @@ def controls(report, path):
     has_planned = any(p.efforts is not None for p in report.plans)
     if not (has_applied or has_planned):
         return 'no planned controls (trajectory effort) and no applied effort (joint_states)'
-    u_max = [float(u) for u in report.run.params['robot.u_max']]
+    model = run_model(report.run)
+    u_max = [float(u) for u in model.u_max]
+    units = ['N m' if kind == 'revolute' else 'N' for kind in model.joint_kinds]
     fig, axes = _figure(2)
-    for j, (ax, label) in enumerate(zip(axes, ('u1 [N m]', 'u2 [N]'))):
+    for j, (ax, label) in enumerate(zip(axes, (f'u1 [{units[0]}]', f'u2 [{units[1]}]'))):
         for plan in report.plans:
             if plan.efforts is not None:
                 ax.step(plan.time + plan.times, plan.efforts[:, j], where='post',
@@ -76,7 +77,8 @@ def controls(report, path):
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
     axes[0].legend(loc='upper right', fontsize='small')
-    axes[0].set_title(f'Controls with bounds ±{u_max[0]:g} N m, ±{u_max[1]:g} N')
+    axes[0].set_title(f'Controls with bounds ±{u_max[0]:g} {units[0]}, '
+                      f'±{u_max[1]:g} {units[1]} ({model.name})')
     axes[-1].set_xlabel('time [s]')
     return _save(fig, path)
 
@@ -85,7 +87,10 @@ def states(report, path):
     """q1, dq1, q2, dq2 over time: planned and measured."""
     if not report.plans and report.measured is None:
         return 'no trajectory and no joint_states of the configured joints'
-    labels = ('q1 [rad]', 'dq1 [rad/s]', 'q2 [m]', 'dq2 [m/s]')
+    kinds = run_model(report.run).joint_kinds
+    units = ['rad' if kind == 'revolute' else 'm' for kind in kinds]
+    labels = (f'q1 [{units[0]}]', f'dq1 [{units[0]}/s]', f'q2 [{units[1]}]',
+              f'dq2 [{units[1]}/s]')
     fig, axes = _figure(4, height=1.9)
     measured = report.measured
     for j, ax in enumerate(axes):
@@ -104,10 +109,10 @@ def states(report, path):
 
 
 def path(report, out_path):
-    """Hand path in the x-y plane, obstacles (radius and inflated) and the arm (Fig. 7)."""
+    """Hand path in the x-y plane, obstacles (radius and inflated), every link (Fig. 7)."""
     if not report.plans:
         return 'no trajectory: nothing planned to draw'
-    a = float(report.run.params['robot.a'])
+    model = run_model(report.run)
     fig = Figure(figsize=(7.0, 7.0), dpi=DPI, layout='constrained')
     FigureCanvasAgg(fig)
     ax = fig.subplots()
@@ -126,16 +131,17 @@ def path(report, out_path):
                             linewidth=0.9))
     for plan in report.plans:
         colour = colours[plan.index % len(colours)]
-        hx, hy = hand_position(plan.states[:, 0], plan.states[:, 2], a)
+        hx, hy = hand_xy(model, plan.states)
         ax.plot(hx, hy, color=colour, label=f'plan {plan.index} hand path', **PLANNED)
         for i in np.linspace(0, len(plan.times) - 1, ARM_INSTANTS).round().astype(int):
-            ax.plot([0.0, hx[i]], [0.0, hy[i]], color=colour, linewidth=2.2, alpha=0.35)
+            for ax_, ay, bx, by in model.link_segments(plan.states[i, 0::2]):
+                ax.plot([ax_, bx], [ay, by], color=colour, linewidth=2.2, alpha=0.35)
             ax.plot(hx[i], hy[i], 'o', color=colour, markersize=4)
     for execution in report.executions:
-        mx, my = hand_position(execution.states[:, 0], execution.states[:, 2], a)
+        mx, my = hand_xy(model, execution.states)
         ax.plot(mx, my, label='measured' if execution.plan == 0 else None, **MEASURED)
-    finish_plane_axes(ax, 'Hand path, arm at equal times; obstacles coloured by plan (dashed: '
-                      'inflated)')
+    finish_plane_axes(ax, f'Hand path, every link of {model.name} at equal times; obstacles '
+                      'coloured by plan (dashed: inflated)')
     return _save(fig, out_path)
 
 
@@ -182,7 +188,7 @@ def tracking_error(report, path):
     """Measured minus planned q1, q2 and hand position over time."""
     if not report.executions:
         return 'no execution: needs a trajectory and joint_states after it'
-    a = float(report.run.params['robot.a'])
+    a = run_model(report.run)
     fig, axes = _figure(3, height=2.0)
     for execution in report.executions:
         errors = tracking_errors(execution, a)

@@ -30,10 +30,11 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from toc_ros.config import obstacle_rows, robot_from_parameters
-from toc_ros.conversions import (ConversionError, joint_state_arrays, obstacle_rows_from_msg,
-                                 pose_to_joint_goal, trajectory_arrays)
-from toc_ros.core import arm_clearance, hand_position, Status
+from toc_ros.config import model_from_parameters, obstacle_rows
+from toc_ros.conversions import (as_model, ConversionError, joint_state_arrays,
+                                 obstacle_rows_from_msg, pose_to_joint_goal, trajectory_arrays)
+from toc_ros.core import ProblemError, Status
+from toc_ros.core.obstacles import model_clearance
 from toc_ros.progress import progress_from_msg, ProgressReport
 
 # Role -> (last name token, type). Names are matched below any namespace.
@@ -139,6 +140,8 @@ class RecordedRun:
     messages: Dict[str, list]           # role -> [(time [s], message)]
     start_ns: int
     params: dict
+    model: object = None                # the RobotModel (recorded_model), set by load_run
+    model_source: str = 'parameters'
 
 
 def load_run(recording, params, warn=None) -> RecordedRun:
@@ -153,7 +156,52 @@ def load_run(recording, params, warn=None) -> RecordedRun:
     start_ns = min(firsts) if firsts else 0
     messages = {role: [((t - start_ns) * 1e-9, m) for t, m in sorted(items, key=lambda x: x[0])]
                 for role, items in raw.items()}
-    return RecordedRun(topics, messages, start_ns, dict(params))
+    run = RecordedRun(topics, messages, start_ns, dict(params))
+    run.model, run.model_source = recorded_model(run, warn)
+    return run
+
+
+def recorded_model(run, warn=None):
+    """
+    Return (RobotModel, source) of a run.
+
+    The robot_model / model_parameters that solver_node wrote on ~/progress (ready and result
+    reports), else the parameters (--params).
+    """
+    for _, msg in run.messages.get('progress', ()):
+        report = progress_from_msg(msg)
+        if not report.robot_model:
+            continue
+        params = dict(run.params)
+        params['robot.model'] = report.robot_model
+        params['robot.model_parameters'] = [
+            p.strip() for p in report.model_parameters.split(',') if p.strip()]
+        try:
+            return model_from_parameters(params), 'solver progress'
+        except ProblemError as error:
+            if warn is not None:
+                warn(f'the recorded robot model {report.robot_model!r} cannot be built here '
+                     f'({error}); using the parameters')
+            break
+    try:
+        return model_from_parameters(run.params), 'parameters'
+    except ProblemError as error:
+        if warn is not None:
+            warn(f'robot model of the parameters: {error}; using the cylindrical robot')
+        return as_model(1.1), 'default'
+
+
+def run_model(run_or_a):
+    """Return the RobotModel of a RecordedRun, or as_model of a model / hand offset."""
+    if isinstance(run_or_a, RecordedRun):
+        return run_or_a.model if run_or_a.model is not None else recorded_model(run_or_a)[0]
+    return as_model(run_or_a)
+
+
+def hand_xy(model, states):
+    """Return the hand positions (x, y) [m] of 2-joint states (M, 4) of the model."""
+    hand = model.hand_position(np.asarray(states, dtype=float)[..., 0::2])
+    return hand[..., 0], hand[..., 1]
 
 
 # -- solves, plans, executions --------------------------------------------------------------
@@ -274,16 +322,26 @@ def _obstacles_for(run, time, previous_time, warn):
     return rows, source, margin, margin_source
 
 
-def _goal_for(run, time, previous_time, a, joint_names):
-    """Joint goal (q1, dq1, q2, dq2) sent since the previous plan, and its source."""
+def _goal_for(run, time, previous_time, a, joint_names, end=None):
+    """
+    Joint goal (q1, dq1, q2, dq2) sent since the previous plan, and its source.
+
+    a: the RobotModel (or hand offset); of several IK branches, the one nearest to end.
+    """
     candidates = []
     pose = _latest(run.messages['goal_pose'], time, previous_time)
+    model = as_model(a)
     if pose is not None:
-        try:
-            goal = pose_to_joint_goal(pose[1], pose[1].header.frame_id, a)
+        goals = []
+        for branch in getattr(model, 'ik_branches', None) or (None,):
+            try:
+                goals.append(pose_to_joint_goal(pose[1], pose[1].header.frame_id, model,
+                                                branch=branch))
+            except ConversionError:
+                pass
+        if goals:
+            goal = min(goals, key=lambda g: 0.0 if end is None else np.linalg.norm(g - end))
             candidates.append((pose[0], goal, f'{run.topics["goal_pose"]} at {pose[0]:.3f} s'))
-        except ConversionError:
-            pass
     joints = _latest(run.messages['goal_joints'], time, previous_time)
     if joints is not None:
         try:
@@ -301,7 +359,7 @@ def _goal_for(run, time, previous_time, a, joint_names):
 def build_plans(run, solves, warn) -> List[Plan]:
     """One Plan per usable trajectory message, matched with its solve's final progress."""
     plans = []
-    a = float(run.params['robot.a'])
+    model = run_model(run)
     free = [s for s in solves if s.final_time is not None]
     previous = -math.inf
     for time, msg in run.messages['trajectory']:
@@ -318,7 +376,7 @@ def build_plans(run, solves, warn) -> List[Plan]:
         states = np.column_stack([arrays.positions[:, 0], arrays.velocities[:, 0],
                                   arrays.positions[:, 1], arrays.velocities[:, 1]])
         rows, source, margin, margin_source = _obstacles_for(run, time, previous, warn)
-        goal, goal_source = _goal_for(run, time, previous, a, names)
+        goal, goal_source = _goal_for(run, time, previous, model, names, states[-1])
         plan = Plan(index=len(plans), time=time, joint_names=names, times=arrays.times,
                     states=states, efforts=arrays.efforts, obstacles=rows,
                     obstacles_source=source, margin=margin, margin_source=margin_source,
@@ -394,8 +452,8 @@ def build_executions(run, plans, warn) -> List[Execution]:
 
 
 # -- numbers --------------------------------------------------------------------------------
-def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> dict:
-    """Summary entry of a plan: solver's report and the violations recomputed here."""
+def plan_numbers(plan: Plan, u_max: np.ndarray, a, start_state=None) -> dict:
+    """Summary entry of a plan (a: RobotModel or hand offset): report and violations."""
     solve = plan.solve or Solve(status='unknown')
     report = solve.report
     excess = None
@@ -403,7 +461,7 @@ def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> d
         excess = max(float(np.max(np.abs(plan.efforts) - u_max[None, :])), 0.0)
     circles = plan.obstacles.copy()
     circles[:, 2] += plan.margin
-    clearance = (float(np.min(arm_clearance(plan.states, a, circles)))
+    clearance = (float(np.min(model_clearance(as_model(a), plan.states, circles)))
                  if len(circles) else None)
     terminal = (float(np.linalg.norm(plan.states[-1] - plan.goal))
                 if plan.goal is not None else None)
@@ -434,22 +492,23 @@ def plan_numbers(plan: Plan, u_max: np.ndarray, a: float, start_state=None) -> d
     }
 
 
-def tracking_errors(execution: Execution, a: float) -> dict:
-    """Per-sample errors: q1 [rad], q2 [m] and hand position [m] (measured - planned)."""
+def tracking_errors(execution: Execution, a) -> dict:
+    """Per-sample errors: q1, q2 [rad or m] and hand position [m] (measured - planned)."""
     meas, ref = execution.states, execution.reference
-    hand_m = np.column_stack(hand_position(meas[:, 0], meas[:, 2], a))
-    hand_r = np.column_stack(hand_position(ref[:, 0], ref[:, 2], a))
+    model = as_model(a)
+    hand_m = np.column_stack(hand_xy(model, meas))
+    hand_r = np.column_stack(hand_xy(model, ref))
     return {'q1': meas[:, 0] - ref[:, 0], 'q2': meas[:, 2] - ref[:, 2],
             'hand': np.hypot(*(hand_m - hand_r).T)}
 
 
-def execution_numbers(execution: Execution, plan: Plan, a: float, u_max: np.ndarray) -> dict:
+def execution_numbers(execution: Execution, plan: Plan, a, u_max: np.ndarray) -> dict:
     """Summary entry of an execution: final error, RMS tracking error, max effort."""
     errors = tracking_errors(execution, a)
     final = execution.states[-1]
     target = plan.states[-1]
-    hand_final = np.hypot(*(np.array(hand_position(final[0], final[2], a))
-                            - np.array(hand_position(target[0], target[2], a))))
+    model = as_model(a)
+    hand_final = np.hypot(*(np.array(hand_xy(model, final)) - np.array(hand_xy(model, target))))
     max_effort = (None if execution.efforts is None
                   else np.nanmax(np.abs(execution.efforts), axis=0))
     return {
@@ -498,8 +557,9 @@ def missing_roles(run, goal_needed=True) -> List[str]:
 
 def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
     """Plans, executions and the summary of a loaded run."""
-    robot = robot_from_parameters(run.params)
-    a, u_max = robot.a, robot.u_max
+    model = run_model(run)
+    a = float(model.params.a) if model.name == 'cylindrical' else None
+    u_max = np.asarray(model.u_max, dtype=float)
     solves = solves_from_progress(run.messages['progress'])
     plans = build_plans(run, solves, warn)
     executions = build_executions(run, plans, warn)
@@ -513,16 +573,19 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
                 start = np.array([pos[0], vel[0], pos[1], vel[1]])
             except ConversionError:
                 pass
-        plan_entries.append(plan_numbers(plan, u_max, a, start))
+        plan_entries.append(plan_numbers(plan, u_max, model, start))
     duration = max((items[-1][0] for items in run.messages.values() if items), default=0.0)
     summary = {
         **recording_info,
         'start_time_ns': run.start_ns,
         'duration_s': duration,
         'topics': run.topics,
-        'robot': {'a': a, 'u_max': u_max.tolist()},
+        'robot': {'model': model.name, 'model_source': run.model_source,
+                  'model_parameters': _model_parameters(model), 'joint_kinds':
+                  list(model.joint_kinds), 'n_links': int(model.n_links), 'a': a,
+                  'u_max': u_max.tolist()},
         'plans': plan_entries,
-        'executions': [execution_numbers(e, plans[e.plan], a, u_max) for e in executions],
+        'executions': [execution_numbers(e, plans[e.plan], model, u_max) for e in executions],
         'solves': [{'status': s.status, 'message': s.message,
                     'time_s': _num(s.final_time), 'progress_messages': len(s.points),
                     'iterations': _num(_float(s.report.iteration)),
@@ -531,6 +594,14 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
     }
     names = plans[0].joint_names if plans else list(run.params['joint_names'])
     return Report(run, solves, plans, executions, summary, measured_series(run, names))
+
+
+def _model_parameters(model):
+    """Return the model's parameter values as {name: value} (JSON-ready)."""
+    data = model.params
+    if hasattr(data, 'as_dict'):
+        return {k: float(v) for k, v in data.as_dict().items()}
+    return {f: getattr(data, f) for f in data.__dataclass_fields__}
 
 
 # -- Markdown -------------------------------------------------------------------------------
@@ -550,6 +621,12 @@ def markdown(summary: dict) -> str:
              'Times are receive times from the first message; violations are recomputed '
              'from the trajectory (min clearance of the whole arm to the inflated circles, '
              'negative = collision).', '']
+    robot = summary.get('robot') or {}
+    if robot.get('model'):
+        given = robot['model_parameters'] if 'model_parameters' in robot else {}
+        values = ', '.join(f'{k} = {v}' for k, v in (given or {}).items())
+        lines += [f'Robot model: {robot["model"]} (from the {robot.get("model_source")}): '
+                  f'{values}.', '']
     if summary['plans']:
         lines += ['## Plans', '',
                   '| # | received [s] | status | t_min [s] | solve time [s] | iterations '

@@ -13,8 +13,10 @@
 # limitations under the License.
 
 """
-Fast mode: the discrete minimum-time problem of eqs. (1)-(5) (J0 = N tau = t_f) with the
-constraints kept as constraints, solved by the interior-point method of ipm.py:
+Fast mode: the discrete minimum-time problem solved by the interior-point method of ipm.py.
+
+This is the problem of eqs. (1)-(5) (J0 = N tau = t_f) with the constraints kept as
+constraints:
 
     minimise t_f  over  x(1..N), u(0..N-1), t_f
     s.t.  x(i+1) = Phi(x(i), u(i), t_f / N)          (eq. 2, multiple shooting)
@@ -29,6 +31,7 @@ being executed) skips the coarse grid.
 """
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -42,19 +45,28 @@ COARSE_INTERVALS = 100
 # Barrier parameter of a cold start (IPOPT's default), and of a warm start on N intervals:
 # MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
 MU_COLD = 0.1
-MU_WARM = 1e-5
+MU_WARM = 1e-4
 # Tolerances: IPOPT's scaled optimality error, and the unscaled constraint violation (well
 # inside the SOLVED tolerances of result.py, so the re-integrated trajectory passes them).
 TOL = 1e-8
 CONSTR_TOL = 1e-10
 MU_MIN = 1e-11
-# Interior push of the initial controls and slacks (IPOPT's bound_push).
+# Interior push of the initial controls and slacks (IPOPT's bound_push); a warm start keeps
+# the controls of the guess on their bounds (within WARM_PUSH).
 BOUND_PUSH = 1e-2
+WARM_PUSH = 1e-6
+# A warm start whose first state lies within WARM_EXACT of the start uses MU_EXACT.
+WARM_EXACT = 1e-6
+MU_EXACT = 1e-10
+# Iterations a warm start may take before fast mode solves from scratch instead.
+WARM_BUDGET = 60
 # Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (see ipm.py).
 RHO_TERMINAL = 1e2
 # l1 weight of the obstacle constraints' elastic variables: above every obstacle multiplier
 # (they are O(1) here), so the elastic variables vanish at the solution.
 ELASTIC_WEIGHT = 100.0
+# [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
+STOP_POLL = 0.005
 # Box on t_f [s].
 T_LOW = 1e-3
 T_HIGH_FACTOR = 100.0
@@ -96,8 +108,10 @@ class InteriorPointRun:
     # Starting points ---------------------------------------------------------------------
     def start(self, states, controls, t_f, mu, duals=None, push=BOUND_PUSH):
         """
-        Set the primal point (states (N+1, nx), controls (N, nu), t_f), pushed inside the
-        bounds by push, and the duals: given ones (a dict as from duals(), resampled) or
+        Set the primal point and the duals.
+
+        The primal point (states (N+1, nx), controls (N, nu), t_f) is pushed inside the
+        bounds by push; the duals are given ones (a dict as from duals(), resampled) or
         mu / slack.  With duals, each slack is at least mu / z (complementarity mu).
         """
         ws = self.ws
@@ -129,6 +143,10 @@ class InteriorPointRun:
             ws.nu[:] = duals['nu']
         ws.zl[:] = mu / (1.0 + ws.v)
         ws.zu[:] = mu / (1.0 - ws.v)
+        if duals is not None and 'zl' in duals:
+            # Bound duals of the guess: they carry which controls sit on a bound.
+            ws.zl[:] = np.maximum(duals['zl'], ws.zl)
+            ws.zu[:] = np.maximum(duals['zu'], ws.zu)
         fs[ipm.F_ZT_LOW] = mu / (t_f - fs[ipm.F_T_LOW])
         fs[ipm.F_ZT_HIGH] = mu / (fs[ipm.F_T_HIGH] - t_f)
         fs[ipm.F_DELTA] = 0.0
@@ -147,21 +165,22 @@ class InteriorPointRun:
     def duals(self):
         """Copy of the multipliers (for a warm start of another run)."""
         ws = self.ws
-        return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy()}
+        return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy(),
+                'zl': ws.zl.copy(), 'zu': ws.zu.copy()}
 
     # Results -----------------------------------------------------------------------------
     @property
     def t_f(self):
-        """Current final time [s]."""
+        """Return the current final time [s]."""
         return float(self.ws.fscal[ipm.F_T])
 
     @property
     def iterations(self):
-        """Iterations done on this grid."""
+        """Return the number of iterations done on this grid."""
         return int(self.ws.iscal[ipm.I_ITER])
 
     def controls(self):
-        """Controls u (N, nu) of the current point."""
+        """Return the controls u (N, nu) of the current point."""
         return self.ws.v * self.u_max[None, :]
 
     def history(self):
@@ -170,30 +189,50 @@ class InteriorPointRun:
         return self.ws.hist[:k, [ipm.H_T, ipm.H_THETA]]
 
     # Driving -----------------------------------------------------------------------------
-    def run(self, check):
+    def run(self, check, stop_requested=None):
         """
-        Iterate until a stop code; check() runs between chunks of ~20 ms (progress, cancel,
-        timeout: it raises Stop).  Returns the ipm code.
+        Iterate until a stop code.
+
+        check() runs between chunks of ~20 ms (progress, cancel, timeout: it raises Stop).
+        While a chunk runs (the kernel releases the GIL), a watcher thread sets the kernel's
+        stop flag as soon as stop_requested() is true, so a stop is honoured within one phase
+        of an iteration even on long horizons.  Returns the ipm code.
         """
         chunk = 1
-        while True:
-            check(self)
-            started = time.monotonic()
-            code = self.kernels.ipm_iterate(self.ws, chunk)
-            per_iteration = (time.monotonic() - started) / chunk
-            chunk = int(max(1, min(50, 0.02 / max(per_iteration, 1e-6))))
-            if code != ipm.CONTINUE:
+        done = threading.Event()
+        watcher = None
+        if stop_requested is not None:
+            def watch():
+                while not done.wait(STOP_POLL):
+                    if stop_requested():
+                        self.ws.iscal[ipm.I_STOP] = 1
+                        return
+            watcher = threading.Thread(target=watch, name='toc_ros-stop-watch', daemon=True)
+            watcher.start()
+        try:
+            while True:
                 check(self)
-                return code
+                started = time.monotonic()
+                code = self.kernels.ipm_iterate(self.ws, chunk)
+                per_iteration = (time.monotonic() - started) / chunk
+                chunk = int(max(1, min(50, 0.02 / max(per_iteration, 1e-6))))
+                if code != ipm.CONTINUE:
+                    check(self)
+                    return code
+        finally:
+            done.set()
+            if watcher is not None:
+                watcher.join()
 
 
 def interpolation_start(problem, n):
     """
-    The cold starting point for n intervals over t_f0: each joint moves from x0 to x_goal
-    along a cubic in time (positions and velocities match both ends), and the controls are
-    that motion's inverse dynamics clipped to the bounds (least squares through df/du; exact
-    for models affine in u).  The same point is handed to the reference solvers in benchmarks/
-    so that all start alike.
+    Return the cold starting point for n intervals over t_f0.
+
+    Each joint moves from x0 to x_goal along a cubic in time (positions and velocities match
+    both ends), and the controls are that motion's inverse dynamics clipped to the bounds
+    (least squares through df/du; exact for models affine in u).  The same point is handed to
+    the reference solvers in benchmarks/ so that all start alike.
     """
     model = problem.robot_model
     t_f = float(problem.t_f0)
@@ -231,8 +270,10 @@ def interpolation_start(problem, n):
 
 def resample(states, controls, n):
     """
-    Carry a trajectory to n intervals: states linearly in time, controls piecewise constant
-    (the control of the old interval that contains the new interval's midpoint).
+    Carry a trajectory to n intervals.
+
+    States are interpolated linearly in time, controls piecewise constant (the control of the
+    old interval that contains the new interval's midpoint).
     """
     m = controls.shape[0]
     old = np.linspace(0.0, 1.0, m + 1)
@@ -255,11 +296,21 @@ def resample_duals(duals, m, n):
     z = np.column_stack([np.interp(nodes_new, nodes_old, duals['z'][:, j])
                          for j in range(duals['z'].shape[1])]) * (m / n) \
         if duals['z'].shape[1] else np.zeros((n, 0))
-    return {'lam': lam, 'nu': duals['nu'].copy(), 'z': z}
+    out = {'lam': lam, 'nu': duals['nu'].copy(), 'z': z}
+    if 'zl' in duals:
+        mid = (np.arange(n) + 0.5) / n
+        idx = np.minimum((mid * m).astype(np.int64), m - 1)
+        out['zl'] = duals['zl'][idx] * (m / n)
+        out['zu'] = duals['zu'][idx] * (m / n)
+    return out
 
 
 def warm_start_point(problem, guess, n):
-    """(states, controls, t_f, duals or None) from an initial guess for n intervals."""
+    """
+    Return (states, controls, t_f, duals or None, drift) from an initial guess for n intervals.
+
+    drift: how far [max norm] the problem's start lies from the guess's first state.
+    """
     if isinstance(guess, SolveResult):
         controls = np.asarray(guess.controls, dtype=float)
         t_f = float(guess.final_time)
@@ -278,8 +329,16 @@ def warm_start_point(problem, guess, n):
     if not (np.all(np.isfinite(controls)) and math.isfinite(t_f) and t_f > 0.0):
         raise ValueError('initial guess must have finite controls and a positive final time')
     m = controls.shape[0]
-    if states is None or states.shape != (m + 1, model.nx) \
-            or not np.allclose(states[0], problem.x0, atol=1e-9, rtol=0.0):
+    drift = 0.0
+    if states is not None and states.shape == (m + 1, model.nx) \
+            and np.all(np.isfinite(states)):
+        # A trajectory (e.g. the remainder of the plan being executed): its states and
+        # multipliers, starting from the problem's start (the robot may have drifted off it;
+        # the first shooting defect absorbs that).
+        drift = float(np.max(np.abs(states[0] - np.asarray(problem.x0, dtype=float))))
+        states = states.copy()
+        states[0] = problem.x0
+    else:
         # Roll the controls out from the problem's start: consistent states (zero defects).
         states = np.empty((m + 1, model.nx))
         model.kernels.rollout(np.asarray(problem.x0, dtype=float),
@@ -297,7 +356,14 @@ def warm_start_point(problem, guess, n):
         states, controls = resample(states, controls, n)
     elif duals is not None and duals['z'].shape[1] != model.n_links * len(problem.obstacles):
         duals = None
-    return states, controls, t_f, duals
+    return states, controls, t_f, duals, drift
+
+
+def _guess_intervals(guess):
+    if guess is None:
+        return 0
+    controls = guess.controls if isinstance(guess, SolveResult) else guess[0]
+    return int(np.shape(controls)[0])
 
 
 class FastSolve:
@@ -308,6 +374,7 @@ class FastSolve:
         self.options = options
         self.clock = clock
         self.initial_guess = initial_guess
+        self.initial_guess_intervals = _guess_intervals(initial_guess)
         self.limit = options.iteration_limit()
         self.done = 0            # iterations on finished grids
         self.history = []
@@ -323,15 +390,18 @@ class FastSolve:
             self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
             f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
 
-    def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None):
+    def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
+                  push=BOUND_PUSH):
         left = max(1, self.limit - self.done)
         run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left))
-        run.start(states, controls, t_f, mu, duals)
+        run.start(states, controls, t_f, mu, duals, push)
         self.run = run
         try:
-            code = run.run(self._check)
+            code = run.run(self._check, lambda: self.clock.stop_reason() is not None)
         finally:
             self._record(run)
+        if code == ipm.STOPPED:
+            raise Stop(self.clock.stop_reason() or Status.CANCELED)
         return run, code
 
     def _record(self, run):
@@ -344,8 +414,20 @@ class FastSolve:
         n = problem.n_intervals
         try:
             if self.initial_guess is not None:
-                states, controls, t_f, duals = warm_start_point(problem, self.initial_guess, n)
-                run, code = self._solve_on(n, states, controls, t_f, MU_WARM / n, duals)
+                states, controls, t_f, duals, drift = warm_start_point(
+                    problem, self.initial_guess, n)
+                # A guess that starts where the robot is (within ~1e-6) is kept tight against
+                # its bounds and barely re-centred; one the robot has drifted from gets room
+                # (an interior method cannot move along the bounds it is pinned to).
+                exact = self.initial_guess_intervals == n
+                if duals is None:
+                    mu, push = MU_WARM / n, BOUND_PUSH
+                elif exact and drift <= WARM_EXACT:
+                    mu, push = MU_EXACT, WARM_PUSH
+                else:
+                    mu, push = min(MU_WARM / n, max(MU_EXACT, 1e-4 * drift)), BOUND_PUSH
+                run, code = self._solve_on(n, states, controls, t_f, mu, duals,
+                                           budget=WARM_BUDGET, push=push)
                 if code != ipm.CONVERGED:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None

@@ -13,9 +13,10 @@
 # limitations under the License.
 
 """
-Model-generic discretisation kernels: one step x(i+1) = Phi(x(i), u(i), tau) of eq. (2) with
-piecewise-constant controls (explicit Euler, the paper's, or classic RK4), its Jacobians and the
-second-order terms the Newton-type solver needs.
+Model-generic discretisation kernels: one step of eq. (2), its Jacobians and second-order terms.
+
+The step is x(i+1) = Phi(x(i), u(i), tau) with piecewise-constant controls (explicit Euler,
+the paper's, or classic RK4); the second-order terms are those the Newton-type solver needs.
 
 These functions take the model's pointwise kernels (models/base.py) as arguments and are not
 cached themselves: each model module binds them in small @njit(cache=True) wrappers, so numba
@@ -29,7 +30,6 @@ import numpy as np
 EULER = 0
 RK4 = 1
 INTEGRATORS = {'euler': EULER, 'rk4': RK4}
-
 
 
 @njit(inline='always')
@@ -55,9 +55,9 @@ def step_work(nx, nu):
             np.zeros((nx, nu)), np.zeros((4, nx, nx)), np.zeros((4, nx, nu)), np.zeros((4, nx)))
 
 
-@njit
+@njit(inline='always')
 def step(rhs, x, u, tau, p, method, out, work):
-    """out = Phi(x, u, tau): one Euler or RK4 step."""
+    """Compute out = Phi(x, u, tau): one Euler or RK4 step."""
     k, y, f = work[0], work[1], work[2]
     nx = x.shape[0]
     if method == EULER:
@@ -92,10 +92,10 @@ def rollout(rhs, x0, controls, tau, p, method, states):
         step(rhs, states[i], controls[i], tau, p, method, states[i + 1], work)
 
 
-@njit
+@njit(inline='always')
 def step_jacobians(rhs_jac, x, u, tau, p, method, out, jac_x, jac_u, jac_tau, work):
     """
-    out = Phi(x, u, tau) with jac_x = dPhi/dx, jac_u = dPhi/du, jac_tau = dPhi/dtau.
+    Compute out = Phi(x, u, tau) with jac_x = dPhi/dx, jac_u = dPhi/du, jac_tau = dPhi/dtau.
 
     RK4: chain rule through the stages k_s = f(x + c_s tau k_{s-1}, u) (eqs. 21-22 for the
     one-step map); Euler: I + tau df/dx, tau df/du, f.
@@ -159,7 +159,7 @@ def step_jacobians(rhs_jac, x, u, tau, p, method, out, jac_x, jac_u, jac_tau, wo
                                  + ku[3, r, col])
 
 
-@njit
+@njit(inline='always')
 def step_lagrangian_hessian(rhs_jac, rhs_hess, x, u, tau, p, lam, hxx, hxu, huu, hxt, hut,
                             work, hwork):
     """

@@ -13,8 +13,10 @@
 # limitations under the License.
 
 """
-Fast mode's engine: a primal-dual interior-point method whose Newton steps are solved by a
-Riccati recursion, the second-order form of the BPTT recursion of eqs. (24)-(32).
+Fast mode's engine: a primal-dual interior-point method.
+
+Its Newton steps are solved by a Riccati recursion, the second-order form of the BPTT
+recursion of eqs. (24)-(32).
 
 The transcription is multiple shooting on the paper's grid: decision variables are the states
 x(1..N), the scaled controls v(i) = u(i) / u_max (|v| < 1) and the final time T (tau = T / N);
@@ -52,7 +54,8 @@ import math
 from numba import njit
 import numpy as np
 
-from .horizon import hessian_work, step, step_jacobians, step_lagrangian_hessian, step_work
+from .horizon import EULER, hessian_work, step, step_jacobians, step_lagrangian_hessian, \
+    step_work
 
 # fscal entries.
 F_T = 0              # final time [s]
@@ -93,7 +96,8 @@ I_LS_FAILS = 5       # consecutive line-search failures
 I_STATUS = 6
 I_REG_TRIES = 7      # factorizations of the last iteration
 I_BACKTRACKS = 8     # line-search trials of the last iteration
-N_ISCAL = 9
+I_STOP = 9           # set to 1 by another thread to stop the iterations (cancel, timeout)
+N_ISCAL = 10
 
 # Return codes of iterate().
 CONTINUE = 0
@@ -101,6 +105,7 @@ CONVERGED = 1
 ITERATION_LIMIT = 2
 LINE_SEARCH_FAILED = 3
 NUMERICAL_FAILURE = 4
+STOPPED = 5          # iscal[I_STOP] was set
 
 # History columns (one row per iteration).
 H_T, H_THETA, H_ERR, H_MU, H_ALPHA, H_DELTA = 0, 1, 2, 3, 4, 5
@@ -173,8 +178,10 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
 @njit(inline='always')
 def _segment_distance_sq(seg, cx, cy, g, h):
     """
-    Squared distance from segment (ax, ay, bx, by) to (cx, cy); gradient g (4) and Hessian h (4x4)
-    with respect to the endpoint coordinates.  Written with w = C - A, v = B - A.
+    Compute the squared distance from segment (ax, ay, bx, by) to (cx, cy).
+
+    Also fills the gradient g (4) and Hessian h (4x4) with respect to the endpoint
+    coordinates.  Written with w = C - A, v = B - A.
     """
     wx, wy = cx - seg[0], cy - seg[1]
     vx, vy = seg[2] - seg[0], seg[3] - seg[1]
@@ -233,11 +240,14 @@ def _segment_distance_sq(seg, cx, cy, g, h):
     return d2
 
 
-@njit
+@njit(inline='always')
 def obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess_q, work):
     """
-    Obstacle constraints of one node: cons (L K), cons_q (L K, n); hess_q (n x n) receives sum_j sigma_j grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block
-    of the condensed Newton system).
+    Evaluate the obstacle constraints of one node.
+
+    Fills cons (L K), cons_q (L K, n); hess_q (n x n) receives
+    sum_j sigma_j grad c_j grad c_j^T - z_j grad^2 c_j (the node's obstacle block of the
+    condensed Newton system).
     """
     seg, seg_q, seg_qq, ge, he = work
     n = q.shape[0]
@@ -289,7 +299,7 @@ def _segment_distance_sq_value(seg, cx, cy):
     return wx * wx + wy * wy - proj * proj / length_sq
 
 
-@njit
+@njit(inline='always')
 def obstacle_values(segments, q, p, circles, cons, work):
     """Obstacle constraints c = (d^2 - R^2) / (2 R) of one node (values only)."""
     seg, seg_q, seg_qq = work[0], work[1], work[2]
@@ -313,7 +323,7 @@ def obstacle_work(n_links, n):
 # Evaluation: derivatives, stage blocks and residuals at the current point.
 # ---------------------------------------------------------------------------------------------
 
-@njit
+@njit(inline='always')
 def _controls(v, u_max, u):
     for c in range(v.shape[0]):
         u[c] = v[c] * u_max[c]
@@ -322,8 +332,9 @@ def _controls(v, u_max, u):
 @njit
 def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
     """
-    Derivatives, the stage blocks of the Newton system and the residuals at the current point
-    (derivative_terms + barrier_terms).  Returns False when a value is not finite.
+    Compute the derivatives, Newton stage blocks and residuals at the current point.
+
+    This is derivative_terms + barrier_terms.  Returns False when a value is not finite.
     """
     derivative_terms(rhs_jac, rhs_hess, segments, ws)
     return barrier_terms(ws)
@@ -332,9 +343,11 @@ def evaluate(rhs, rhs_jac, rhs_hess, segments, ws):
 @njit
 def derivative_terms(rhs_jac, rhs_hess, segments, ws):
     """
-    The parts that do not depend on mu: step Jacobians, defects, the Hessian blocks qq, ss, rr
-    (Lagrangian curvature plus the condensed bound and obstacle terms), obstacle constraints
-    and their gradients, and the dual infeasibility fscal[F_DUAL_INF].
+    Compute the parts that do not depend on mu.
+
+    These are: step Jacobians, defects, the Hessian blocks qq, ss, rr (Lagrangian curvature
+    plus the condensed bound and obstacle terms), obstacle constraints and their gradients,
+    and the dual infeasibility fscal[F_DUAL_INF].
     """
     n = ws.iscal[I_N]
     method = ws.iscal[I_METHOD]
@@ -369,17 +382,49 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
         for a in range(nxi):
             for b in range(nxi):
                 qq[i, a, b] = 0.0
+    f, fx, fu = work[2], work[3], work[4]
+    hx_f, hxu_f, huu_f = hwork
     for i in range(n):
         _controls(ws.v[i], u_max, u)
-        step_jacobians(rhs_jac, ws.x[i], u, tau, p, method, nxt, ws.jac_x[i], jac_u,
-                       ws.jac_t[i], work)
-        for r in range(nx):
-            ws.defect[i, r] = nxt[r] - ws.x[i + 1, r]
-            ws.jac_t[i, r] /= n
-            for c in range(nu):
-                ws.jac_v[i, r, c] = jac_u[r, c] * u_max[c]
-        step_lagrangian_hessian(rhs_jac, rhs_hess, ws.x[i], u, tau, p, ws.lam[i + 1], hxx,
-                                hxu, huu, hxt, hut, work, hwork)
+        if method == EULER:
+            # Written out for Euler (Phi = x + tau f): no output views in the hot loop, which
+            # costs numba several times the arithmetic.
+            rhs_jac(ws.x[i], u, p, f, fx, fu)
+            rhs_hess(ws.x[i], u, p, ws.lam[i + 1], hx_f, hxu_f, huu_f)
+            for r in range(nx):
+                ws.defect[i, r] = ws.x[i, r] + tau * f[r] - ws.x[i + 1, r]
+                ws.jac_t[i, r] = f[r] / n
+                for c in range(nx):
+                    ws.jac_x[i, r, c] = tau * fx[r, c]
+                ws.jac_x[i, r, r] += 1.0
+                for c in range(nu):
+                    ws.jac_v[i, r, c] = tau * fu[r, c] * u_max[c]
+            for r in range(nx):
+                acc = 0.0
+                for m in range(nx):
+                    acc += fx[m, r] * ws.lam[i + 1, m]
+                hxt[r] = acc
+                for c in range(nx):
+                    hxx[r, c] = tau * hx_f[r, c]
+                for c in range(nu):
+                    hxu[r, c] = tau * hxu_f[r, c]
+            for r in range(nu):
+                acc = 0.0
+                for m in range(nx):
+                    acc += fu[m, r] * ws.lam[i + 1, m]
+                hut[r] = acc
+                for c in range(nu):
+                    huu[r, c] = tau * huu_f[r, c]
+        else:
+            step_jacobians(rhs_jac, ws.x[i], u, tau, p, method, nxt, ws.jac_x[i], jac_u,
+                           ws.jac_t[i], work)
+            for r in range(nx):
+                ws.defect[i, r] = nxt[r] - ws.x[i + 1, r]
+                ws.jac_t[i, r] /= n
+                for c in range(nu):
+                    ws.jac_v[i, r, c] = jac_u[r, c] * u_max[c]
+            step_lagrangian_hessian(rhs_jac, rhs_hess, ws.x[i], u, tau, p, ws.lam[i + 1],
+                                    hxx, hxu, huu, hxt, hut, work, hwork)
         # Stage blocks in (xi, v) with xi = (x, T): tau-derivatives divided by N, u = u_max v.
         for a in range(nx):
             for b in range(nx):
@@ -444,9 +489,11 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
 @njit
 def barrier_terms(ws):
     """
-    The parts that depend on mu, from the stored derivatives: the linear terms qv, rv, the
-    constraint violation theta, the barrier objective phi, complementarity, the scaled
-    optimality errors E_0 (fscal[F_ERR]) and the elastic maximum.
+    Compute the parts that depend on mu, from the stored derivatives.
+
+    These are: the linear terms qv, rv, the constraint violation theta, the barrier objective
+    phi, complementarity, the scaled optimality errors E_0 (fscal[F_ERR]) and the elastic
+    maximum.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -578,10 +625,12 @@ def _chol_solve(lower, b, m):
 @njit
 def factorize(ws, delta):
     """
-    Backward Riccati sweep for the current stage blocks with the shift delta on the primal
-    diagonal.  Returns False when a reduced Hessian is not positive definite (the caller then
-    raises delta).  pc holds nx + 1 right-hand sides: column 0 the Newton step's, column 1 + r
-    the derivative with respect to the terminal multiplier nu_r.
+    Run the backward Riccati sweep for the current stage blocks.
+
+    The shift delta is put on the primal diagonal.  Returns False when a reduced Hessian is
+    not positive definite (the caller then raises delta).  pc holds nx + 1 right-hand sides:
+    column 0 the Newton step's, column 1 + r the derivative with respect to the terminal
+    multiplier nu_r.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -595,6 +644,7 @@ def factorize(ws, delta):
     shat = np.zeros((nu, nxi))
     h = np.zeros(nxi)
     rcol = np.zeros(nu)
+    lower = np.zeros((nu, nu))
     for a in range(nxi):
         for b in range(nxi):
             pp[n, a, b] = ws.qq[n, a, b]
@@ -605,42 +655,40 @@ def factorize(ws, delta):
     for r in range(nx):
         pc[n, r, 1 + r] = 1.0
     for i in range(n - 1, -1, -1):
-        p1 = pp[i + 1]
-        ax = ws.jac_x[i]
-        bv = ws.jac_v[i]
-        at = ws.jac_t[i]
         # pa = P Abar, pb = P Bbar with Abar = [[A, a_T], [0, 1]], Bbar = [B; 0].
         for a in range(nxi):
             for b in range(nx):
                 acc = 0.0
                 for m in range(nx):
-                    acc += p1[a, m] * ax[m, b]
+                    acc += pp[i + 1, a, m] * ws.jac_x[i, m, b]
                 pa[a, b] = acc
-            acc = p1[a, nx]
+            acc = pp[i + 1, a, nx]
             for m in range(nx):
-                acc += p1[a, m] * at[m]
+                acc += pp[i + 1, a, m] * ws.jac_t[i, m]
             pa[a, nx] = acc
             for c in range(nu):
                 acc = 0.0
                 for m in range(nx):
-                    acc += p1[a, m] * bv[m, c]
+                    acc += pp[i + 1, a, m] * ws.jac_v[i, m, c]
                 pb[a, c] = acc
         # rhat = R + B^T P B, shat = S + B^T P Abar.
         for c in range(nu):
             for d in range(nu):
                 acc = ws.rr[i, c, d]
                 for m in range(nx):
-                    acc += bv[m, c] * pb[m, d]
+                    acc += ws.jac_v[i, m, c] * pb[m, d]
                 rhat[c, d] = acc
             rhat[c, c] += delta
             for b in range(nxi):
                 acc = ws.ss[i, c, b]
                 for m in range(nx):
-                    acc += bv[m, c] * pa[m, b]
+                    acc += ws.jac_v[i, m, c] * pa[m, b]
                 shat[c, b] = acc
-        lower = ws.chol[i]
         if not _cholesky(rhat, lower, nu):
             return False
+        for c in range(nu):
+            for d in range(nu):
+                ws.chol[i, c, d] = lower[c, d]
         # gain = -rhat^-1 shat.
         for b in range(nxi):
             for c in range(nu):
@@ -654,11 +702,11 @@ def factorize(ws, delta):
                 if a < nx:
                     acc = 0.0
                     for m in range(nx):
-                        acc += ax[m, a] * pa[m, b]
+                        acc += ws.jac_x[i, m, a] * pa[m, b]
                 else:
                     acc = pa[nx, b]
                     for m in range(nx):
-                        acc += at[m] * pa[m, b]
+                        acc += ws.jac_t[i, m] * pa[m, b]
                 acc += ws.qq[i, a, b]
                 for c in range(nu):
                     acc += shat[c, a] * ws.gain[i, c, b]
@@ -673,12 +721,12 @@ def factorize(ws, delta):
                 acc = pc[i + 1, a, col]
                 if col == 0:
                     for m in range(nx):
-                        acc += p1[a, m] * ws.defect[i, m]
+                        acc += pp[i + 1, a, m] * ws.defect[i, m]
                 h[a] = acc
             for c in range(nu):
                 acc = ws.rv[i, c] if col == 0 else 0.0
                 for m in range(nx):
-                    acc += bv[m, c] * h[m]
+                    acc += ws.jac_v[i, m, c] * h[m]
                 rcol[c] = acc
             _chol_solve(lower, rcol, nu)
             for c in range(nu):
@@ -687,11 +735,11 @@ def factorize(ws, delta):
                 if a < nx:
                     acc = 0.0
                     for m in range(nx):
-                        acc += ax[m, a] * h[m]
+                        acc += ws.jac_x[i, m, a] * h[m]
                 else:
                     acc = h[nx]
                     for m in range(nx):
-                        acc += at[m] * h[m]
+                        acc += ws.jac_t[i, m] * h[m]
                 if col == 0:
                     acc += ws.qv[i, a]
                 for c in range(nu):
@@ -704,8 +752,9 @@ def factorize(ws, delta):
 @njit
 def _forward(ws, col_weights, dt, xi, store):
     """
-    Forward sweep with feed-forward sum_c w_c ff[:, :, c] from xi(0) = (0, dt); returns xi(N)
-    in xi.  With store, writes dx, dv and the new multipliers lam_new.
+    Run the forward sweep with feed-forward sum_c w_c ff[:, :, c] from xi(0) = (0, dt).
+
+    Returns xi(N) in xi.  With store, writes dx, dv and the new multipliers lam_new.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -754,9 +803,10 @@ def _forward(ws, col_weights, dt, xi, store):
 @njit
 def newton_step(ws, delta):
     """
-    Solve for the Newton step after a successful factorize(ws, delta): nu from the nx x nx
-    terminal system, then dx, dv, dT and the new multipliers.  Returns dT, or nan when the
-    terminal system is singular.
+    Solve for the Newton step after a successful factorize(ws, delta).
+
+    First nu from the nx x nx terminal system, then dx, dv, dT and the new multipliers.
+    Returns dT, or nan when the terminal system is singular.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -1048,8 +1098,10 @@ def _t_bound_dual_limit(ws, dt, frac, ad):
 @njit
 def _update_barrier(ws):
     """
-    Monotone barrier update while the barrier problem is solved to kappa_eps mu (IPOPT's
-    rule); refreshes the mu-dependent terms.  Returns True when mu changed.
+    Update the barrier parameter monotonically.
+
+    Applied while the barrier problem is solved to kappa_eps mu (IPOPT's rule); refreshes the
+    mu-dependent terms.  Returns True when mu changed.
     """
     fs = ws.fscal
     changed = False
@@ -1067,6 +1119,7 @@ def _update_barrier(ws):
 def _regularized_step(ws):
     """
     Factorize with IPOPT's inertia correction (delta_w rules) and solve the Newton step.
+
     Returns dT (nan when no shift up to 1e40 works); fscal[F_DELTA] holds the shift used.
     """
     fs = ws.fscal
@@ -1094,8 +1147,10 @@ def _regularized_step(ws):
 @njit
 def _raise_elastic_weight(ws):
     """
-    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho): the l1 penalty is
-    then binding and would accept a violated constraint.  Returns True when rho changed.
+    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho).
+
+    The l1 penalty is then binding and would accept a violated constraint.  Returns True when
+    rho changed.
     """
     fs = ws.fscal
     rho_e = fs[F_ELASTIC]
@@ -1113,8 +1168,9 @@ def _raise_elastic_weight(ws):
 @njit
 def _line_search(rhs, segments, ws, dt, alpha_max):
     """
-    IPOPT's filter line search from alpha_max (backtracking by halves).  Returns (alpha,
-    accepted, f_type).
+    Run IPOPT's filter line search from alpha_max (backtracking by halves).
+
+    Returns (alpha, accepted, f_type).
     """
     fs = ws.fscal
     theta0 = fs[F_THETA]
@@ -1123,6 +1179,8 @@ def _line_search(rhs, segments, ws, dt, alpha_max):
     alpha = alpha_max
     backtracks = 0
     for _ls in range(MAX_BACKTRACKS):
+        if ws.iscal[I_STOP]:
+            break
         backtracks += 1
         theta, phi = trial_merit(rhs, segments, ws, alpha, dt)
         ws.iscal[I_BACKTRACKS] = backtracks
@@ -1143,12 +1201,17 @@ def _line_search(rhs, segments, ws, dt, alpha_max):
 @njit
 def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
     """
-    Run up to n_iter interior-point iterations from the current point; returns CONTINUE,
-    CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED or NUMERICAL_FAILURE.
+    Run up to n_iter interior-point iterations from the current point.
+
+    Returns CONTINUE, CONVERGED, ITERATION_LIMIT, LINE_SEARCH_FAILED, NUMERICAL_FAILURE or
+    STOPPED (another thread set iscal[I_STOP]: checked between the phases of an iteration, so
+    a stop request waits at most for one derivative evaluation or one factorization).
     """
     fs = ws.fscal
     it = ws.iscal
     for _ in range(n_iter):
+        if it[I_STOP]:
+            return STOPPED
         derivative_terms(rhs_jac, rhs_hess, segments, ws)
         if not barrier_terms(ws):
             return NUMERICAL_FAILURE
@@ -1170,7 +1233,11 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
             derivative_terms(rhs_jac, rhs_hess, segments, ws)
             barrier_terms(ws)
         _update_barrier(ws)
+        if it[I_STOP]:
+            return STOPPED
         dt = _regularized_step(ws)
+        if it[I_STOP]:
+            return STOPPED
         if not math.isfinite(dt):
             return NUMERICAL_FAILURE
         frac = max(0.99, 1.0 - fs[F_MU])
@@ -1179,6 +1246,8 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
         theta0 = fs[F_THETA]
         phi0 = fs[F_PHI]
         alpha, accepted, f_type = _line_search(rhs, segments, ws, dt, alpha_max)
+        if it[I_STOP]:
+            return STOPPED
         if not accepted:
             # No acceptable point: take the longest trial that does not blow theta up, reset
             # the filter and count the failure (IPOPT would enter feasibility restoration).
@@ -1209,7 +1278,7 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
 
 @njit(cache=True, nogil=True)
 def newton_direction(ws, delta):
-    """The Newton step at the evaluated point with shift delta: returns dT (nan if none)."""
+    """Compute the Newton step at the evaluated point with shift delta: return dT (nan if none)."""
     if not factorize(ws, delta):
         return np.nan
     dt = newton_step(ws, delta)

@@ -110,26 +110,6 @@ def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
     return total
 
 
-@njit(cache=True)
-def segment_distance_sq(q1, q2, a, cx, cy):
-    """
-    Squared distance from the arm segment to (cx, cy) and its derivatives wrt q1, q2.
-
-    The closest point is at s = clamp(c . e, 0, L), L = a + q2; the result is C1 in (q1, q2).
-    """
-    c, s = math.cos(q1), math.sin(q1)
-    proj = cx * c + cy * s
-    dproj = -cx * s + cy * c
-    reach = a + q2
-    centre_sq = cx * cx + cy * cy
-    if proj <= 0.0:
-        return centre_sq, 0.0, 0.0
-    if proj < reach:
-        return centre_sq - proj * proj, -2.0 * proj * dproj, 0.0
-    return reach * reach - 2.0 * reach * proj + centre_sq, -2.0 * reach * dproj, \
-        2.0 * (reach - proj)
-
-
 def arm_clearance(states, a, circles):
     """
     Distance from the arm segment to each circle's edge at every node: (N+1, K) [m].

@@ -75,7 +75,7 @@ class Problem:
 
     @property
     def robot_model(self):
-        """The RobotModel solved for (models/base.py)."""
+        """Return the RobotModel solved for (models/base.py)."""
         return CylindricalRobot(self.robot) if self.model is None else self.model
 
     @property

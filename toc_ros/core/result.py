@@ -116,6 +116,36 @@ class SolveResult:
         """Return True when states/controls hold a trajectory (best so far if stopped)."""
         return self.controls.shape[0] > 0
 
+    def remainder(self, elapsed):
+        """
+        Return the part of this trajectory from the node at time elapsed [s] on.
+
+        The warm start for replanning from the state the robot reached: states, controls and
+        the remaining time from node k = round(elapsed / tau) (at most N - 1), with fast mode's
+        multipliers sliced alike.  solve(problem_from_the_new_state, initial_guess=...) then
+        starts from it.
+        """
+        n = self.controls.shape[0]
+        if n == 0:
+            raise ValueError('the result has no trajectory')
+        tau = self.final_time / n
+        k = int(min(max(round(float(elapsed) / tau), 0), n - 1))
+        state = None
+        if self.solver_state and 'duals' in self.solver_state:
+            duals = self.solver_state['duals']
+            state = {'duals': {'lam': duals['lam'][k:].copy(), 'nu': duals['nu'].copy(),
+                               'z': duals['z'][k:].copy()}}
+            for name in ('zl', 'zu'):
+                if name in duals:
+                    state['duals'][name] = duals[name][k:].copy()
+        return SolveResult(
+            status=self.status, message=f'remainder from node {k} of a {self.status.value} '
+            'trajectory', mode=self.mode, integrator=self.integrator, n_intervals=n - k,
+            final_time=self.final_time - k * tau,
+            time_grid=self.time_grid[k:] - self.time_grid[k] if self.time_grid.size else
+            self.time_grid, states=self.states[k:].copy(), controls=self.controls[k:].copy(),
+            violations=self.violations, cost=self.cost, solver_state=state)
+
     def to_dict(self):
         """JSON-ready dict (the toc-solve --json contract)."""
         return {
@@ -135,6 +165,30 @@ class SolveResult:
             'history_columns': list(HISTORY_COLUMNS),
             'history': [[_num(v) for v in row] for row in self.history.tolist()],
         }
+
+
+def guess_from_dict(data):
+    """
+    Return (controls, t_f) of a to_dict() result (a toc-solve --json file).
+
+    The pair is meant for solve(initial_guess=).
+
+    Raises ValueError with a reason when the data holds no usable trajectory.
+    """
+    if not isinstance(data, dict):
+        raise ValueError('expected a JSON object as written by toc-solve --json')
+    controls = data.get('controls')
+    t_f = data.get('final_time')
+    if not controls or t_f is None:
+        raise ValueError('the result has no trajectory (controls and final_time)')
+    try:
+        controls = np.array(controls, dtype=float)
+        t_f = float(t_f)
+    except (TypeError, ValueError):
+        raise ValueError('controls must be rows of numbers and final_time a number')
+    if controls.ndim != 2:
+        raise ValueError(f'controls must be an M x nu array, got shape {controls.shape}')
+    return controls, t_f
 
 
 def _num(value):

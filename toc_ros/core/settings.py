@@ -56,6 +56,7 @@ class Setting:
     columns: Optional[Tuple[str, ...]] = None   # rows stored as one array per column
     none_value: object = None                # parameter value that means a field value None
     ros_default: object = _NOT_GIVEN         # parameter default when it differs from the field's
+    ros_type: Optional[str] = None           # e.g. 'string_array' for an empty default
 
 
 @dataclass(frozen=True)
@@ -78,14 +79,14 @@ class Parameter:
 
 def setting(default=MISSING, description='', *, unit='', low=None, high=None, choices=None,
             ros_name=None, index=None, columns=None, none_value=None, ros_default=_NOT_GIVEN,
-            default_factory=MISSING):
+            ros_type=None, default_factory=MISSING):
     """Return a dataclasses.field with a default and the Setting that describes it."""
     if not description:
         raise ValueError('a setting needs a description')
     meta = Setting(description=description, unit=unit, low=low, high=high,
                    choices=None if choices is None else tuple(choices), ros_name=ros_name,
                    index=index, columns=None if columns is None else tuple(columns),
-                   none_value=none_value, ros_default=ros_default)
+                   none_value=none_value, ros_default=ros_default, ros_type=ros_type)
     return field(default=default, default_factory=default_factory,
                  metadata={METADATA_KEY: meta})
 
@@ -164,8 +165,8 @@ def parameter_table(cls, prefix=''):
             entry['values'][meta.index] = _plain(default)
             continue
         default = _plain(default)
-        table.append(Parameter(name=name, default=default, ros_type=_type_name(default),
-                               **common))
+        table.append(Parameter(name=name, default=default,
+                               ros_type=meta.ros_type or _type_name(default), **common))
     for name, entry in shared.items():
         values = [entry['values'][k] for k in sorted(entry['values'])]
         if sorted(entry['values']) != list(range(len(values))):
@@ -261,6 +262,8 @@ def from_parameters(cls, params, prefix='', **overrides):
             continue
         if like is None:
             like = meta.none_value if meta.ros_default is _NOT_GIVEN else meta.ros_default
+        if meta.ros_type == 'string_array':
+            like = ('',)
         try:
             kwargs[f.name] = _convert(value, like)
         except (TypeError, ValueError) as exc:

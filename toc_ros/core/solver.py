@@ -32,6 +32,7 @@ from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
 from .result import Progress, SolveResult, Status
 
+
 class _Clock:
     """Deadline, cancel flag and progress throttling shared by both modes."""
 
@@ -78,7 +79,7 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
         problem.validate()
         options.validate()
         if options.mode == 'paper' and problem.model is not None:
-            raise ProblemError('paper mode is the paper\'s heuristic for the cylindrical robot '
+            raise ProblemError("paper mode is the paper's heuristic for the cylindrical robot "
                                'of eq. (37) only; use mode fast for other models')
         if initial_guess is not None:
             if options.mode != 'fast':

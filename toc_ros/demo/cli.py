@@ -25,7 +25,7 @@ import tempfile
 import time
 
 from toc_ros.demo import checks
-from toc_ros.demo.run import Demo, DemoError, Printer, STAGES
+from toc_ros.demo.run import Demo, DemoError, Printer, SCENARIOS
 from toc_ros.demo.summary import format_summary
 from toc_ros.recording.process import default_output_dir
 
@@ -51,6 +51,10 @@ def parse_args(argv):
                         help='give up after S seconds (default %(default)g; the first run '
                              'compiles the numba kernels for about a minute)')
     parser.add_argument('--quiet', action='store_true', help='print the summary only')
+    parser.add_argument('--model', choices=sorted(SCENARIOS), default='cylindrical',
+                        help="robot model of the demo: 'cylindrical' (the paper's scenario, "
+                             "config/toc_ros.yaml) or 'planar_2r' (config/toc_ros_planar_2r.yaml)"
+                             '; default %(default)s')
     args = parser.parse_args(argv)
     if not args.timeout > 0:
         parser.error('--timeout must be > 0')
@@ -84,7 +88,7 @@ def main(argv=None):
         try:
             demo.start(log_dir)
             demo.wait_ready()
-            for number, stage in enumerate(STAGES, 1):
+            for number, stage in enumerate(demo.stages, 1):
                 demo.run_stage(number, stage)
         except DemoError as error:
             demo.summary['error'] = str(error)
@@ -101,7 +105,7 @@ def main(argv=None):
             signal.signal(sig, handler)
     summary = demo.summary
     summary['wall_time_s'] = time.monotonic() - printer.start
-    summary['success'] = checks.success(summary, len(STAGES))
+    summary['success'] = checks.success(summary, len(demo.stages))
     if args.output is not None:
         os.makedirs(args.output, exist_ok=True)
         logs = os.path.join(args.output, 'logs')

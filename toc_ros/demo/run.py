@@ -21,7 +21,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
@@ -36,7 +35,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 @dataclasses.dataclass(frozen=True)
 class Stage:
-    """One goal of the demo: joint target (q1 rad, q2 m) and the obstacle set sent before."""
+    """One goal of the demo: joint target (q1, q2 [rad or m]) and the obstacle set sent before."""
 
     label: str
     q_goal: tuple
@@ -49,6 +48,16 @@ STAGES = (
     # Back past a moved circle and a new one, starting wherever the plant came to rest.
     Stage('replan', (math.pi / 12.0, 0.8), ((0.9, 1.2, 0.2), (1.5, 0.6, 0.15))),
 )
+# The planar two-link arm (config/toc_ros_planar_2r.yaml): circles beyond the reach of link 1,
+# near the free optimum's path but clear of the straight joint interpolation (fast mode is a
+# local method; these were checked to solve, t_min 0.578 s and 0.550 s).
+PLANAR_2R_STAGES = (
+    Stage('planar_2r goal', (0.9, 0.9), ((0.23, 1.09, 0.12),)),
+    Stage('replan', (-0.4, 1.3), ((0.34, 1.26, 0.11), (1.6, -0.2, 0.1))),
+)
+# toc-demo --model NAME: (parameter file in the package's config/, stages).
+SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES),
+             'planar_2r': ('toc_ros_planar_2r.yaml', PLANAR_2R_STAGES)}
 
 PROGRESS_PRINT_PERIOD_S = 0.5
 REQUIRED_TOPICS = (
@@ -101,9 +110,10 @@ def obstacles_msg(rows):
 
 
 def goal_pose_msg(q_goal, a, frame_id):
-    """Build the hand's PoseStamped at joint position (q1, q2) (conversions' kinematics)."""
-    state = np.array([[q_goal[0], 0.0, q_goal[1], 0.0]])
-    pose = conversions.hand_path_msg(state, a, frame_id, PoseStamped().header.stamp).poses[0]
+    """Build the hand's PoseStamped at joint positions q (a: RobotModel or hand offset [m])."""
+    model = conversions.as_model(a)
+    state = model.state(q_goal)[None, :]
+    pose = conversions.hand_path_msg(state, model, frame_id, PoseStamped().header.stamp).poses[0]
     pose.header.frame_id = frame_id
     return pose
 
@@ -115,8 +125,11 @@ class Demo:
         self.args = args
         self.out = printer
         self.deadline = time.monotonic() + args.timeout
-        self.params_file = config.default_config_path()
+        model_name = getattr(args, 'model', 'cylindrical') or 'cylindrical'
+        file_name, self.stages = SCENARIOS[model_name]
+        self.params_file = config.default_config_path(file_name)
         params = config.load_parameters(self.params_file, 'solver_node')
+        self.model = config.model_from_parameters(params)
         self.a = float(params['robot.a'])
         self.base_frame = str(params['base_frame'])
         self.joint_names = list(params['joint_names'])
@@ -127,6 +140,9 @@ class Demo:
         self.ready_reported = False
         self.summary = {'plans': [], 'position_tolerance': list(checks.POSITION_TOL),
                         'joint_names': self.joint_names, 'robot_a': self.a,
+                        'model': self.model.name, 'params_file': self.params_file,
+                        'joint_units': ['rad' if kind == 'revolute' else 'm'
+                                        for kind in self.model.joint_kinds],
                         'base_frame': self.base_frame, 'ros_domain_id':
                         os.environ.get('ROS_DOMAIN_ID'), 'recording': None}
 
@@ -256,7 +272,7 @@ class Demo:
         self._wait(lambda: self._solver_obstacles() == expected,
                    'solver_node to take the obstacles', timeout=30.0)
 
-        goal = goal_pose_msg(q_goal, self.a, self.base_frame)
+        goal = goal_pose_msg(q_goal, self.model, self.base_frame)
         plan['goal_pose'] = [goal.pose.position.x, goal.pose.position.y]
         progress_seen = client.count(PROGRESS)
         trajectories_seen = client.count('trajectory')
@@ -264,7 +280,7 @@ class Demo:
         self.goal_pub.publish(goal)
         out.stage(f'plan {number}: goal_pose ({goal.pose.position.x:.4f}, '
                   f'{goal.pose.position.y:.4f}) m in {self.base_frame}, i.e. q = '
-                  f'({q_goal[0]:.4f} rad, {q_goal[1]:.4f} m)')
+                  f'({", ".join(f"{q:.4f}" for q in q_goal)}) ({self.model.name})')
 
         printed = [0.0]
 
@@ -353,8 +369,9 @@ class Demo:
             f"plan {len(self.summary['plans'])}: plant "
             f"{'at rest' if at_rest else 'NOT at rest'} "
             f'{plan["settle_time_s"]:.2f} s after the trajectory end, error '
-            f'({errors[0]:.2e} rad, {errors[1]:.2e} m), max tracking error during execution '
-            f'({plan["max_tracking_error"][0]:.2e} rad, {plan["max_tracking_error"][1]:.2e} m)')
+            f'({errors[0]:.2e}, {errors[1]:.2e}), max tracking error during execution '
+            f'({plan["max_tracking_error"][0]:.2e}, {plan["max_tracking_error"][1]:.2e}) '
+            '[rad or m]')
 
     # stop ---------------------------------------------------------------------------------------
 

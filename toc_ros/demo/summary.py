@@ -35,9 +35,10 @@ def format_summary(summary):
     """Return the human-readable summary."""
     lines = ['', 'toc-demo summary']
     tol = summary['position_tolerance']
+    u1, u2 = summary.get('joint_units') or ('rad', 'm')
     for k, plan in enumerate(summary['plans'], 1):
         q = plan['goal_q']
-        lines.append(f"  plan {k} ({plan['label']}) to q = ({q[0]:.4f} rad, {q[1]:.4f} m), "
+        lines.append(f"  plan {k} ({plan['label']}) to q = ({q[0]:.4f} {u1}, {q[1]:.4f} {u2}), "
                      f"{len(plan['obstacles'])} obstacle(s): {plan.get('status', 'not finished')}")
         if 't_min' in plan:
             lines.append(f"    t_min {plan['t_min']:.4f} s, solve wall time "
@@ -46,10 +47,10 @@ def format_summary(summary):
         if 'final_error' in plan:
             e = plan['final_error']
             lines.append(
-                f'    final tracking error ({e[0]:.2e} rad, {e[1]:.2e} m), distance '
+                f'    final tracking error ({e[0]:.2e} {u1}, {e[1]:.2e} {u2}), distance '
                 f"{plan['final_distance']:.2e}: "
                 + ('within' if plan['reached'] else 'OUTSIDE')
-                + f' the tolerance ({tol[0]:g} rad, {tol[1]:g} m)'
+                + f' the tolerance ({tol[0]:g} {u1}, {tol[1]:g} {u2})'
                 + ('' if plan['at_rest'] else ', not at rest'))
     recording = summary.get('recording')
     if recording:

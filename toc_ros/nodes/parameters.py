@@ -27,6 +27,7 @@ from typing import Tuple
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
+from rclpy.parameter import Parameter
 
 from toc_ros.config import SCENARIO_TABLE
 from toc_ros.core.settings import parameter_table, setting
@@ -42,7 +43,12 @@ class SolverNodeSettings:
 
     extension_limits: Tuple[float, float] = setting(
         (-1.0, 3.0), '[q2_min, q2_max] m: reachable extension of goals (goal_pose, goal_joints, '
-        '~/plan); the paper gives none, so generous defaults')
+        '~/plan) of the cylindrical robot; the paper gives none, so generous defaults')
+    ik_branch: str = setting(
+        'elbow_up', 'inverse-kinematics branch of hand goals (goal_pose, ~/plan) for models '
+        "with several: planar_2r 'elbow_up' (q2 <= 0) or 'elbow_down' (q2 >= 0); ignored by "
+        'models with one solution', choices=('elbow_up', 'elbow_down'),
+        ros_name='robot.ik_branch')
     max_count: int = setting(
         64, 'largest obstacle set accepted (obstacles topic and obstacles.* parameters); '
         'larger sets are refused with the reason on ~/progress', low=0, high=100000,
@@ -79,6 +85,10 @@ TABLE = {p.name: p for p in (list(SCENARIO_TABLE) + parameter_table(SolverNodeSe
                              + parameter_table(PlantSettings))}
 SOLVER_NODE_NAMES = [p.name for p in SCENARIO_TABLE] + [
     p.name for p in parameter_table(SolverNodeSettings)]
+# The plant simulates the robot of the scenario: every robot.* setting, so a new robot
+# parameter reaches it without an edit here.
+PLANT_NODE_NAMES = [p.name for p in SCENARIO_TABLE if p.name.startswith('robot.')] + [
+    'joint_names', 'initial_state'] + [p.name for p in parameter_table(PlantSettings)]
 
 
 def default(name):
@@ -105,6 +115,14 @@ def descriptor(name):
 def declare(node, names):
     """Declare names on node with defaults and descriptors (overrides from --ros-args apply)."""
     for name in names:
+        spec = TABLE[name]
+        if spec.ros_type == 'string_array' and not spec.default:
+            # rclpy types an empty default as a byte array, and an empty list in a parameter
+            # file or on the command line arrives unset: declare the type, then set [].
+            node.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor(name))
+            if node.get_parameter_or(name).type_ == Parameter.Type.NOT_SET:
+                node.set_parameters([Parameter(name, Parameter.Type.STRING_ARRAY, [])])
+            continue
         node.declare_parameter(name, default(name), descriptor(name))
 
 
@@ -151,9 +169,10 @@ def vector_errors(name, value, size, minimum=None):
     return []
 
 
-def joint_name_errors(names):
-    """Errors of the joint_names parameter (two distinct non-empty names)."""
+def joint_name_errors(names, count=2, model='cylindrical'):
+    """Errors of the joint_names parameter (count distinct non-empty names for the model)."""
     names = list(names)
-    if len(names) != 2 or len(set(names)) != 2 or not all(names):
-        return [f'joint_names must be 2 distinct non-empty names, got {names}']
+    if len(names) != count or len(set(names)) != count or not all(names):
+        return [f'joint_names must be {count} distinct non-empty names (one per joint of '
+                f'robot model {model!r}), got {names}']
     return []

@@ -13,11 +13,11 @@
 # limitations under the License.
 
 """
-plant_node: simulated 2-DOF cylindrical robot (eq. 37) that executes JointTrajectory messages.
+plant_node: simulated robot (robot.model, default eq. 37) that executes JointTrajectory messages.
 
-The state is integrated with the core's RK4 step (the same model code as the solver) at a
-fixed step 1 / integration_rate, in real time: a timer at ``rate`` runs as many steps as wall
-time has advanced, then publishes ``joint_states`` (position, velocity, effort = applied u).
+The state is integrated with the RK4 step of the solver's model kernels (the same model code
+as the solver: model.kernels.rollout over one step) at a fixed step 1 / integration_rate, in
+real time: a timer at ``rate`` runs as many steps as wall time has advanced, then publishes ``joint_states`` (position, velocity, effort = applied u).
 
 Control, evaluated every step: u = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq)), saturated at
 robot.u_max.  A trajectory runs from its receipt; q_ref, dq_ref are its cubic Hermite
@@ -26,7 +26,9 @@ piecewise-constant controls).  A new trajectory preempts the old one, an empty o
 after the last point the PD holds the final position with zero feed-forward.  The subscription
 is volatile: a plan latched before the plant started is not executed (it would start from a
 state the robot is not in).
-``payload_mass_offset`` and ``inertia_scale`` make the plant differ from the solver's model.
+``payload_mass_offset`` and ``inertia_scale`` make the plant differ from the solver's model:
+cylindrical: hand_mass + offset, inertia * scale; planar_2r: m_p + offset, m1 and m2 * scale;
+other models refuse values other than 0 and 1.  kp and kd have one gain per joint.
 
 ``~/tracking`` (DiagnosticStatus, 10 Hz) reports the tracking error; ``~/reset``
 (std_srvs/Trigger) returns to ``initial_state`` and drops the trajectory.
@@ -47,41 +49,61 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from toc_ros import conversions
-from toc_ros.config import robot_from_parameters
+from toc_ros.config import model_from_parameters
 from toc_ros.core import ProblemError
-from toc_ros.core.integrators import RK4, step
+from toc_ros.core.horizon import integrator_id
+from toc_ros.core.models import CylindricalRobot, Planar2R
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node, survives_shutdown
 from trajectory_msgs.msg import JointTrajectory
 
-PARAMETER_NAMES = [
-    'robot.hand_mass', 'robot.link_mass', 'robot.inertia', 'robot.a', 'robot.u_max',
-    'robot.model_variant', 'joint_names', 'initial_state', 'rate', 'integration_rate', 'kp',
-    'kd', 'payload_mass_offset', 'inertia_scale', 'publish_clock']
+PARAMETER_NAMES = parameters.PLANT_NODE_NAMES
 TRACKING_PERIOD_S = 0.1
 # Longer stalls of the timer (suspended process, overloaded machine) are skipped, not replayed.
 MAX_CATCH_UP_S = 0.5
 
 
-def plant_robot(params):
-    """Return the plant's RobotParams: the solver's data with the mismatch knobs applied."""
-    robot = robot_from_parameters(params)
-    return dataclasses.replace(
-        robot, hand_mass=robot.hand_mass + float(params['payload_mass_offset']),
-        inertia=robot.inertia * float(params['inertia_scale']))
+RK4 = integrator_id('rk4')
+MISMATCH = {'cylindrical': 'robot.hand_mass + payload_mass_offset, robot.inertia * '
+                           'inertia_scale',
+            'planar_2r': 'm_p + payload_mass_offset, m1 and m2 * inertia_scale'}
+
+
+def plant_model(params):
+    """
+    Return the plant's RobotModel: the solver's model with the mismatch knobs applied.
+
+    Raises ProblemError for a bad model, or for mismatch knobs on a model without a mapping.
+    """
+    model = model_from_parameters(params)
+    offset, scale = float(params['payload_mass_offset']), float(params['inertia_scale'])
+    if isinstance(model, CylindricalRobot):
+        robot = model.params
+        return CylindricalRobot(dataclasses.replace(
+            robot, hand_mass=robot.hand_mass + offset, inertia=robot.inertia * scale))
+    if isinstance(model, Planar2R):
+        data = model.params
+        return Planar2R(dataclasses.replace(data, m_p=data.m_p + offset, m1=data.m1 * scale,
+                                            m2=data.m2 * scale))
+    if offset != 0.0 or scale != 1.0:
+        raise ProblemError(f'payload_mass_offset and inertia_scale have no meaning for robot '
+                           f'model {model.name!r} (defined for cylindrical and planar_2r): '
+                           'set them to 0 and 1, or give the plant other robot.model_parameters')
+    return model
 
 
 def parameter_errors(params):
     """Everything wrong with a candidate set of plant_node parameters (empty: valid)."""
-    errors = parameters.joint_name_errors(params['joint_names'])
-    errors += parameters.vector_errors('initial_state', params['initial_state'], 4)
-    errors += parameters.vector_errors('kp', params['kp'], 2, minimum=0.0)
-    errors += parameters.vector_errors('kd', params['kd'], 2, minimum=0.0)
     try:
-        errors += [e + ' (plant: robot.hand_mass + payload_mass_offset, robot.inertia * '
-                   'inertia_scale)' for e in plant_robot(params).check()]
+        model = plant_model(params)
     except (ProblemError, TypeError, ValueError) as exc:
-        errors.append(str(exc))
+        return [str(exc)]
+    n = model.n_joints
+    errors = parameters.joint_name_errors(params['joint_names'], n, model.name)
+    errors += parameters.vector_errors('initial_state', params['initial_state'], model.nx)
+    errors += parameters.vector_errors('kp', params['kp'], n, minimum=0.0)
+    errors += parameters.vector_errors('kd', params['kd'], n, minimum=0.0)
+    errors += [e + f' (plant: {MISMATCH.get(model.name, "")})' for e in model.check()]
     if not float(params['integration_rate']) >= float(params['rate']):
         errors.append(f"integration_rate ({params['integration_rate']} Hz) must be >= rate "
                       f"({params['rate']} Hz)")
@@ -104,6 +126,7 @@ class Reference:
     """Reference (q, dq, u_ff) of a trajectory over time since its start; holds the end."""
 
     def __init__(self, arrays):
+        self.n = arrays.positions.shape[1]
         self.times = arrays.times
         self.positions = arrays.positions
         self.velocities = arrays.velocities
@@ -113,14 +136,15 @@ class Reference:
     def at(self, t):
         """(q_ref, dq_ref, u_ff) at time t [s] after the start."""
         times = self.times
+        zero = np.zeros(self.n)
         if t >= self.duration:
-            return self.positions[-1], np.zeros(2), np.zeros(2)
+            return self.positions[-1], zero, zero
         if t < times[0]:
-            return self.positions[0], np.zeros(2), np.zeros(2)
+            return self.positions[0], zero, zero
         i = int(np.searchsorted(times, t, side='right')) - 1
         pos, vel = hermite(times[i], times[i + 1], self.positions[i], self.velocities[i],
                            self.positions[i + 1], self.velocities[i + 1], t)
-        return pos, vel, (np.zeros(2) if self.efforts is None else self.efforts[i])
+        return pos, vel, (zero if self.efforts is None else self.efforts[i])
 
 
 class PlantNode(Node):
@@ -144,7 +168,7 @@ class PlantNode(Node):
         self._sim_time = 0.0
         self._wall_start = time.monotonic()
         self._reset_state()
-        step(self._x, np.zeros(2), self._dt, self._p, RK4)   # compile/load before the timer
+        self._step(np.zeros(self._n))   # compile/load the model kernels before the timer
         self._timer = self.create_timer(1.0 / float(self._params['rate']), self._tick)
         self.create_timer(TRACKING_PERIOD_S, self._publish_tracking)
         self.get_logger().info(
@@ -155,9 +179,12 @@ class PlantNode(Node):
 
     def _apply_parameters(self):
         params = self._params
-        robot = plant_robot(params)
-        self._p = robot.packed()
-        self._u_max = robot.u_max
+        model = plant_model(params)
+        self._model = model
+        self._n = model.n_joints
+        self._p = model.packed()
+        self._u_max = np.asarray(model.u_max, dtype=float)
+        self._states = np.empty((2, model.nx))
         self._kp = np.asarray(params['kp'], dtype=float)
         self._kd = np.asarray(params['kd'], dtype=float)
         self._dt = 1.0 / float(params['integration_rate'])
@@ -180,14 +207,21 @@ class PlantNode(Node):
 
     # -- state and trajectory -----------------------------------------------------------------
 
+    def _step(self, u):
+        """Return the state after one RK4 step of 1 / integration_rate under control u."""
+        self._model.kernels.rollout(np.ascontiguousarray(self._x, dtype=float),
+                                    np.ascontiguousarray(u, dtype=float).reshape(1, -1),
+                                    self._dt, self._p, RK4, self._states)
+        return self._states[1].copy()
+
     def _reset_state(self):
         x0 = np.asarray(self._params['initial_state'], dtype=float)
         self._x = x0.copy()
-        self._u = np.zeros(2)
+        self._u = np.zeros(self._n)
         self._reference = None
         self._ref_start = 0.0
-        self._hold = x0[[0, 2]].copy()
-        self._max_error = np.zeros(2)
+        self._hold = x0[0::2].copy()
+        self._max_error = np.zeros(self._n)
 
     def _on_reset(self, _request, response):
         self._reset_state()
@@ -202,10 +236,10 @@ class PlantNode(Node):
         except conversions.ConversionError as exc:
             self.get_logger().error(f'ignoring trajectory: {exc}')
             return
-        self._max_error = np.zeros(2)
+        self._max_error = np.zeros(self._n)
         if len(arrays.times) == 0:
             self._reference = None
-            self._hold = self._x[[0, 2]].copy()
+            self._hold = self._x[0::2].copy()
             self.get_logger().info('empty trajectory: stopping, holding the current position')
             return
         self._reference = Reference(arrays)
@@ -216,13 +250,13 @@ class PlantNode(Node):
     def _target(self, sim_time):
         """(q_ref, dq_ref, u_ff) at sim_time."""
         if self._reference is None:
-            return self._hold, np.zeros(2), np.zeros(2)
+            return self._hold, np.zeros(self._n), np.zeros(self._n)
         return self._reference.at(sim_time - self._ref_start)
 
     def _control(self, sim_time):
         q_ref, dq_ref, u_ff = self._target(sim_time)
         x = self._x
-        u = (u_ff + self._kp * (q_ref - x[[0, 2]]) + self._kd * (dq_ref - x[[1, 3]]))
+        u = (u_ff + self._kp * (q_ref - x[0::2]) + self._kd * (dq_ref - x[1::2]))
         return np.clip(u, -self._u_max, self._u_max)
 
     # -- simulation ---------------------------------------------------------------------------
@@ -237,14 +271,14 @@ class PlantNode(Node):
             behind = MAX_CATCH_UP_S
         for _ in range(int(behind / self._dt + 1e-9)):
             self._u = self._control(self._sim_time)
-            self._x = step(self._x, self._u, self._dt, self._p, RK4)
+            self._x = self._step(self._u)
             self._sim_time += self._dt
         if not np.all(np.isfinite(self._x)):
             self.get_logger().error('state diverged (non-finite); resetting to initial_state')
             self._reset_state()
         if self._reference is not None:
             q_ref = self._target(self._sim_time)[0]
-            self._max_error = np.maximum(self._max_error, np.abs(q_ref - self._x[[0, 2]]))
+            self._max_error = np.maximum(self._max_error, np.abs(q_ref - self._x[0::2]))
         self._publish_state()
 
     def _publish_state(self):
@@ -258,16 +292,16 @@ class PlantNode(Node):
         msg = JointState()
         msg.header.stamp = stamp
         msg.name = list(self._params['joint_names'])
-        msg.position = [float(self._x[0]), float(self._x[2])]
-        msg.velocity = [float(self._x[1]), float(self._x[3])]
-        msg.effort = [float(self._u[0]), float(self._u[1])]
+        msg.position = [float(v) for v in self._x[0::2]]
+        msg.velocity = [float(v) for v in self._x[1::2]]
+        msg.effort = [float(v) for v in self._u]
         self._state_pub.publish(msg)
 
     @survives_shutdown
     def _publish_tracking(self):
         q_ref, dq_ref, _ = self._target(self._sim_time)
-        error = q_ref - self._x[[0, 2]]
-        velocity_error = dq_ref - self._x[[1, 3]]
+        error = q_ref - self._x[0::2]
+        velocity_error = dq_ref - self._x[1::2]
         if self._reference is None:
             phase, elapsed, duration = 'idle', 0.0, 0.0
         else:
@@ -275,22 +309,17 @@ class PlantNode(Node):
             duration = self._reference.duration
             phase = 'tracking' if elapsed < duration else 'holding'
         worst = float(np.max(np.abs(error)))
+        values = {'phase': phase, 'time_into_trajectory': elapsed,
+                  'trajectory_duration': duration}
+        joints = range(1, self._n + 1)
+        values.update({f'position_error_q{j}': error[j - 1] for j in joints})
+        values.update({f'velocity_error_dq{j}': velocity_error[j - 1] for j in joints})
+        values.update({f'max_position_error_q{j}': self._max_error[j - 1] for j in joints})
+        values.update({f'effort_u{j}': self._u[j - 1] for j in joints})
+        values['sim_time'] = self._sim_time
         self._tracking_pub.publish(conversions.diagnostic_msg(
             self.get_fully_qualified_name(), DiagnosticStatus.OK,
-            f'{phase}: |position error| {worst:.3g}', {
-                'phase': phase,
-                'time_into_trajectory': elapsed,
-                'trajectory_duration': duration,
-                'position_error_q1': error[0],
-                'position_error_q2': error[1],
-                'velocity_error_dq1': velocity_error[0],
-                'velocity_error_dq2': velocity_error[1],
-                'max_position_error_q1': self._max_error[0],
-                'max_position_error_q2': self._max_error[1],
-                'effort_u1': self._u[0],
-                'effort_u2': self._u[1],
-                'sim_time': self._sim_time,
-            }))
+            f'{phase}: |position error| {worst:.3g}', values))
 
 
 def main(args=None):

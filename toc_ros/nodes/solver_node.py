@@ -63,8 +63,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import conversions, progress as schema
-from toc_ros.config import obstacle_rows, options_from_parameters, problem_from_parameters
-from toc_ros.core import arm_clearance, ProblemError, Progress, solve, Status, warm_up
+from toc_ros.config import (model_from_parameters, obstacle_rows, options_from_parameters,
+                            problem_from_parameters)
+from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
+from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.result import CLEARANCE_TOL
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
@@ -101,7 +103,11 @@ def parameter_errors(params):
     Whether start and goal states clear the obstacles is checked per request, against the
     measured start state, not here.
     """
-    errors = parameters.joint_name_errors(params['joint_names'])
+    try:
+        model = model_from_parameters(params)
+    except ProblemError as exc:
+        return [str(exc)]
+    errors = parameters.joint_name_errors(params['joint_names'], model.n_joints, model.name)
     if not str(params['base_frame']).strip('/'):
         errors.append('base_frame must not be empty')
     limit_errors = parameters.vector_errors('extension_limits', params['extension_limits'], 2)
@@ -113,8 +119,9 @@ def parameter_errors(params):
     if count > limit:
         errors.append(f'{count} obstacles exceed obstacles.max_count = {limit}')
         return errors      # no per-obstacle work on a refused set
-    state_errors = (parameters.vector_errors('initial_state', params['initial_state'], 4)
-                    + parameters.vector_errors('goal_state', params['goal_state'], 4))
+    state_errors = (
+        parameters.vector_errors('initial_state', params['initial_state'], model.nx)
+        + parameters.vector_errors('goal_state', params['goal_state'], model.nx))
     errors += state_errors
     try:
         options_from_parameters(params).validate()
@@ -128,6 +135,12 @@ def parameter_errors(params):
         except (ProblemError, TypeError, ValueError) as exc:
             errors.append(str(exc))
     return errors
+
+
+def model_keys(params):
+    """Return the robot-model values of ~/progress: the recording says what was planned for."""
+    return {'robot_model': str(params['robot.model']),
+            'model_parameters': ', '.join(params['robot.model_parameters'])}
 
 
 def planning_data(params):
@@ -181,7 +194,7 @@ class _Worker:
 
     def __init__(self, run, drop, ready, logger):
         self._run = run          # run(request, cancel_event): solve and publish
-        self._drop = drop        # drop(request, reason): report a request never started
+        self._drop = drop        # drop(request, reason, event): report a request never started
         self._ready = ready      # threading.Event: the kernels are loaded
         self._logger = logger
         self._cond = threading.Condition()
@@ -224,7 +237,7 @@ class _Worker:
                 active.restart_reason = None
                 self._cancel.set()
         if dropped is not None:
-            self._drop(dropped, 'canceled by ~/cancel before its solve started')
+            self._drop(dropped, 'canceled by ~/cancel before its solve started', '')
         return active is not None and active.done.wait(CANCEL_WAIT_S)
 
     def busy(self):
@@ -318,10 +331,10 @@ class SolverNode(Node):
         self._planning = planning_data(self._params)
         self._executing = None              # dict of the last published plan
         self._plan_info = None              # (hash, revision) of the last published plan
-        self._obstacle_markers = None       # (key, markers) cache
         self._ready = threading.Event()
         self._started = time.monotonic()
         self._kernel_load_s = None
+        self._model = model_from_parameters(self._params)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
@@ -360,7 +373,7 @@ class SolverNode(Node):
     def _warm_up(self):
         started = time.monotonic()
         try:
-            warm_up()
+            warm_up(None if self._model.name == 'cylindrical' else [self._model])
         except Exception as exc:  # noqa: B902 - reported; solves then compile on demand
             self.get_logger().error(f'loading the numba kernels failed: {exc!r}')
         elapsed = time.monotonic() - started
@@ -369,7 +382,7 @@ class SolverNode(Node):
         self._ready.set()
         self._publish_progress(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
-            event=schema.EVENT_READY))
+            event=schema.EVENT_READY, **model_keys(self._params)))
         with self._lock:
             params = dict(self._params)
         self.get_logger().info(
@@ -396,6 +409,9 @@ class SolverNode(Node):
         result = parameters.result(parameter_errors(params))
         if not result.successful:
             self.get_logger().warning(f'refused parameter change: {result.reason}')
+            if any(p.name.startswith('robot.model') for p in changed):
+                self._publish_progress(schema.refusal_report(
+                    f'parameters: refused robot model: {result.reason}'))
         return result
 
     def _after_set_parameters(self, changed):
@@ -457,6 +473,9 @@ class SolverNode(Node):
                                               x_goal=plan['goal'])
         except ProblemError as exc:
             return f'cannot be checked ({exc})'
+        model = problem.robot_model
+        if model.nx != plan['states'].shape[1]:
+            return f'was planned for another robot model (now {model.name!r})'
         rest = plan['times'] >= elapsed
         if rest.any():
             rest[max(int(np.argmax(rest)) - 1, 0)] = True     # the segment being executed
@@ -465,14 +484,14 @@ class SolverNode(Node):
         states = plan['states'][rest]
         circles = problem.circles()
         if len(circles):
-            gaps = arm_clearance(states, problem.robot.a, circles)
+            gaps = model_clearance(model, states, circles)
             worst = float(np.min(gaps))
             if worst < -CLEARANCE_TOL:
-                k = int(np.argmin(np.min(gaps, axis=0)))
+                k = int(np.argmin(np.min(gaps, axis=0))) % len(circles)
                 return f'cuts obstacle {k} by {-worst:.3g} m'
         controls = plan['controls'][rest[:len(plan['controls'])]]
         if len(controls):
-            excess = float(np.max(np.abs(controls) - problem.robot.u_max[None, :]))
+            excess = float(np.max(np.abs(controls) - np.asarray(model.u_max)[None, :]))
             if excess > 0.0:
                 return f'exceeds u_max by {excess:.3g}'
         return None
@@ -498,10 +517,19 @@ class SolverNode(Node):
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
 
+    @staticmethod
+    def _pose_goal(msg, params):
+        """Joint goal of a hand pose by the model's inverse kinematics (ConversionError)."""
+        try:
+            model = model_from_parameters(params)
+        except ProblemError as exc:
+            raise conversions.ConversionError(str(exc))
+        return conversions.pose_to_joint_goal(
+            msg, params['base_frame'], model, tuple(params['extension_limits']),
+            params['robot.ik_branch'])
+
     def _on_goal_pose(self, msg):
-        self._submit(lambda params: conversions.pose_to_joint_goal(
-            msg, params['base_frame'], float(params['robot.a']),
-            tuple(params['extension_limits'])), 'goal_pose')
+        self._submit(lambda params: self._pose_goal(msg, params), 'goal_pose')
 
     def _on_goal_joints(self, msg):
         self._submit(lambda params: conversions.joint_state_to_state(
@@ -530,9 +558,7 @@ class SolverNode(Node):
     async def _on_plan(self, request, response):
         response.plan.header.frame_id = self._snapshot()[0]['base_frame']
         response.plan.header.stamp = self.get_clock().now().to_msg()
-        pending = self._submit(lambda params: conversions.pose_to_joint_goal(
-            request.goal, params['base_frame'], float(params['robot.a']),
-            tuple(params['extension_limits'])), '~/plan')
+        pending = self._submit(lambda params: self._pose_goal(request.goal, params), '~/plan')
         if pending is None:
             return response
         finished = Future()
@@ -568,7 +594,8 @@ class SolverNode(Node):
         try:
             goal = make_goal(params)
             low, high = params['extension_limits']
-            if not low <= goal[2] <= high:
+            cylindrical = params['robot.model'] == 'cylindrical'
+            if cylindrical and len(goal) == 4 and not low <= goal[2] <= high:
                 raise conversions.ConversionError(
                     f'goal extension q2 = {goal[2]:.6g} m is outside extension_limits '
                     f'[{low:.6g}, {high:.6g}] m')
@@ -621,11 +648,11 @@ class SolverNode(Node):
         progress = dataclasses.replace(progress, elapsed_s=time.monotonic() - started)
         self._publish_progress(schema.running_report(progress))
 
-    def _drop(self, request, reason):
+    def _drop(self, request, reason, event=schema.EVENT_SUPERSEDED):
         self.get_logger().warning(f'goal from {request.source} {reason}')
         self._publish_progress(schema.ProgressReport(
             status=Status.CANCELED, message=f'goal from {request.source} {reason}',
-            goal_source=request.source, event=schema.EVENT_SUPERSEDED))
+            goal_source=request.source, event=event))
         request.finish()
 
     def _run(self, request, cancel):
@@ -667,7 +694,7 @@ class SolverNode(Node):
             result, message, goal_source=request.source, start_source=start_source,
             goal=tuple(float(v) for v in np.round(request.goal, 9)),
             obstacles_hash=schema.obstacles_hash(rows, problem.margin),
-            data_revision=revision, event=request.event)
+            data_revision=revision, event=request.event, **model_keys(params))
         if result.status in schema.PUBLISHED and result.has_trajectory:
             if not self._publish_plan(request, result, problem, params, revision):
                 request.restart_reason = 'planning data changed at the end of the solve'
@@ -687,10 +714,9 @@ class SolverNode(Node):
     def _publish_plan(self, request, result, problem, params, revision):
         """Publish the plan unless its data revision is stale (then return False)."""
         stamp = self.get_clock().now().to_msg()
-        trajectory = conversions.trajectory_msg(result, params['joint_names'], problem.robot,
-                                                stamp)
-        path = conversions.hand_path_msg(result.states, problem.robot.a, params['base_frame'],
-                                         stamp)
+        model = problem.robot_model
+        trajectory = conversions.trajectory_msg(result, params['joint_names'], model, stamp)
+        path = conversions.hand_path_msg(result.states, model, params['base_frame'], stamp)
         with self._plan_lock:
             if revision != self._revision:
                 return False
@@ -734,8 +760,14 @@ class SolverNode(Node):
         except ProblemError:
             rows = ()
         margin = float(params['obstacles.margin'])
+        try:
+            model = model_from_parameters(params)
+        except ProblemError:
+            model = float(params['robot.a'])
+        if path_states is not None and np.shape(path_states)[-1] != np.shape(arm)[-1]:
+            path_states = None      # planned for another robot model
         self._marker_pub.publish(conversions.markers_msg(
-            rows, margin, float(params['robot.a']), params['base_frame'],
+            rows, margin, model, params['base_frame'],
             self.get_clock().now().to_msg(), path_states, arm,
             obstacles_info=(schema.obstacles_hash(rows, margin), revision),
             plan_info=plan_info))

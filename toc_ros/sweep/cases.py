@@ -298,7 +298,7 @@ class CaseBuilder:
         not validate, duplicate cases, or when every case is an invalid problem.
         """
         from toc_ros.core import ProblemError
-        from toc_ros.solve import build_problem, parse_args
+        from toc_ros.solve import ArgumentError, build_problem, parse_args
         out = []
         seen = {}
         n_invalid = 0
@@ -313,7 +313,7 @@ class CaseBuilder:
             try:
                 problem, options = build_problem(args, self.params)
                 options.validate()
-            except ProblemError as exc:
+            except (ProblemError, ArgumentError) as exc:
                 self._error(f'{where}: {exc}')
             try:
                 problem.validate()

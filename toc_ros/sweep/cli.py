@@ -136,6 +136,9 @@ def _run(args):
     try:
         sweep = load_spec(args.spec)
         builder = CaseBuilder(sweep)
+        if sweep.n_cases >= 10000:
+            _say(args, f'toc-sweep: checking {sweep.n_cases} cases (about '
+                       f'{sweep.n_cases * 0.4e-3:.0f} s) ...')
         cases = builder.cases()
         schema = schema_for(sweep)
     except (SpecError, DatasetError) as exc:

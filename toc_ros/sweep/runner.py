@@ -21,7 +21,10 @@ the Parquet dataset at once.  Batch sizes adapt to the measured solve time: abou
 TARGET_TASK_S seconds per task (scheduling and serialisation stay a small fraction), and
 smaller towards the end so that no worker idles while another finishes a long batch.
 A worker that dies takes its running task with it; Dask reruns that task elsewhere
-(distributed.scheduler.allowed-failures times), so no case is lost or written twice.
+(distributed.scheduler.allowed-failures times), and a finished result that died with its
+worker before it was fetched is computed again (the future is still wanted; a batch whose
+future is cancelled or lost anyway is submitted again, RESUBMIT times), so no case is lost or
+written twice.
 """
 
 from collections import deque
@@ -34,9 +37,11 @@ import uuid
 
 TARGET_TASK_S = 1.0          # aimed-for duration of one task
 MIN_TASK_S = 0.05            # tasks at the end are not made shorter than this
+WAIT_FOR_WORKERS_S = 120     # an external scheduler without workers: give up after this
 FIRST_BATCH = 1              # cases per task until solve times have been measured
 MAX_BATCH = 2000
 TASKS_PER_WORKER = 3         # tasks in flight per worker thread
+RESUBMIT = 2                 # a batch whose result was lost (not an error) goes out again
 
 
 def default_workers():
@@ -128,10 +133,17 @@ def connect(scheduler=None, workers=None, log=print):
             raise ConnectionError(f'cannot reach the Dask scheduler {scheduler}: {exc}')
         cluster = None
         what = f'scheduler {scheduler}'
+        try:
+            client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
+        except TimeoutError:
+            client.close()
+            raise ConnectionError(f'no worker joined the Dask scheduler {scheduler} within '
+                                  f'{WAIT_FOR_WORKERS_S} s (start some: dask worker '
+                                  f'{scheduler} --nthreads 1)')
     else:
         n = workers or default_workers()
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               host='127.0.0.1', dashboard_address=':0' if dashboard else None,
+                               host='127.0.0.1', dashboard_address='127.0.0.1:0',
                                silence_logs=logging.ERROR)
         client = Client(cluster)
         what = f'LocalCluster, {n} worker process(es) x 1 thread'
@@ -192,8 +204,6 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
     stats.cases = len(cases)
     if not cases:
         return stats
-    if _threads(client) == 0:
-        client.wait_for_workers(1, timeout=120)
     pending = deque(cases)
     batcher = Batcher(batch_size, target_task_s)
     batches = {}
@@ -203,25 +213,40 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
 
     threads = _Threads(client, stats)
 
+    tries = {}
+
+    def send(batch, attempt=0):
+        future = client.submit(solve_batch, batch, pure=False,
+                               key=f'toc-sweep-{run_id}-{stats.tasks}')
+        stats.tasks += 1
+        batches[future.key] = batch
+        tries[future.key] = attempt
+        stream.add(future)
+
     def submit():
         # Until a first task has been timed, two single-case tasks per thread (a case may take
         # minutes); then TASKS_PER_WORKER per thread, so that none waits for the client.
         window = (TASKS_PER_WORKER if batcher.cases else 2) * threads()
         while pending and len(batches) < window:
             n = batcher.size(len(pending), threads())
-            batch = [pending.popleft() for _ in range(n)]
-            future = client.submit(solve_batch, batch, pure=False,
-                                   key=f'toc-sweep-{run_id}-{stats.tasks}')
-            stats.tasks += 1
-            batches[future.key] = batch
-            stream.add(future)
+            send([pending.popleft() for _ in range(n)])
 
     try:
         submit()
         for future in stream:
             batch = batches.pop(future.key)
-            if future.status == 'finished':
-                out = future.result()
+            attempt = tries.pop(future.key)
+            out, reason = None, future.status
+            if future.status not in ('error', 'cancelled'):
+                try:
+                    # 'lost': the worker holding the result died before it was fetched; the
+                    # scheduler computes it again for this still-wanted future.
+                    out = future.result()
+                except Exception as exc:      # noqa: B902 - KilledWorker, CancelledError, ...
+                    reason = repr(exc)
+            elif future.status == 'error':
+                reason = repr(future.exception())
+            if out is not None:
                 batcher.record(len(batch), out['task_s'])
                 submit()            # refill first: the workers go on while the rows are written
                 dataset.write(out['rows'])
@@ -234,8 +259,9 @@ def run_cases(client, cases, dataset, batch_size=None, on_progress=None,
                 stats.workers.add(out['worker'])
                 if on_progress:
                     on_progress(out['rows'], 0)
+            elif future.status != 'error' and attempt < RESUBMIT:
+                send(batch, attempt + 1)     # not the task's fault: try it again
             else:
-                reason = repr(future.exception()) if future.status == 'error' else future.status
                 stats.lost += [(case[0], reason) for case in batch]
                 if on_progress:
                     on_progress([], len(batch))

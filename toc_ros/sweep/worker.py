@@ -21,6 +21,7 @@ INVALID_INPUT row, an unexpected exception an ERROR row.
 """
 
 import asyncio
+import math
 import time
 import traceback
 
@@ -29,6 +30,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 from .cases import command_line
 
 PLUGIN_NAME = 'toc_ros-warm-up'
+VIOLATIONS = ('max_control_excess', 'terminal_error', 'min_clearance')
 _STATE = {'warm_s': None}
 
 
@@ -79,10 +81,10 @@ def solve_case(case, worker='local'):
     row.update(values)
     row.update({
         'status': status, 'final_time': float(result.final_time),
-        'iterations': int(result.iterations), 'wall_time_s': float(result.wall_time_s),
-        'max_control_excess': float(v.max_control_excess),
-        'terminal_error': float(v.terminal_error), 'min_clearance': float(v.min_clearance),
-        'worker': worker, 'message': result.message, 'args': command_line(argv)})
+        'iterations': int(result.iterations), 'wall_time_s': float(result.wall_time_s)})
+    row.update({name: float(getattr(v, name, math.nan)) for name in VIOLATIONS})
+    row.update({'worker': worker, 'message': str(getattr(result, 'message', '')),
+                'args': command_line(argv)})
     return row
 
 

@@ -16,13 +16,43 @@
 
 import dataclasses
 import os
+from typing import Tuple
 
 from .base import ModelError, RobotModel
 from .cylindrical import CylindricalRobot
 from .planar_2r import Planar2R, Planar2RParams
+from ..settings import setting
 
 MODELS = {'cylindrical': CylindricalRobot, 'planar_2r': Planar2R}
 MODEL_FILE_SUFFIXES = ('.yaml', '.yml')
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelChoice:
+    """The robot model of a scenario: the parameters robot.model and robot.model_parameters."""
+
+    name: str = setting(
+        'cylindrical', "robot model: 'cylindrical' (eq. 37 with the robot.* data), "
+        "'planar_2r', or a model file (.yaml; a bare file name is also looked up in the "
+        "package's config/models)", ros_name='model')
+    parameters: Tuple[str, ...] = setting(
+        (), "model parameters as 'name=value' (e.g. l1=0.9, g=9.81); empty: the model's "
+        "defaults (for 'cylindrical': the robot.* values, which these override)",
+        ros_name='model_parameters', ros_type='string_array')
+
+    def parameter_values(self):
+        """{name: value text} of the parameters (ModelError for an entry without '=')."""
+        values = {}
+        for entry in self.parameters:
+            key, sep, value = str(entry).partition('=')
+            key, value = key.strip(), value.strip()
+            if not sep or not key or not value:
+                raise ModelError(f"robot.model_parameters entries must be 'name=value', got "
+                                 f'{entry!r}')
+            if key in values:
+                raise ModelError(f'robot.model_parameters gives {key} twice')
+            values[key] = value
+        return values
 
 
 def _builtin(name, params):
@@ -69,5 +99,5 @@ def load_model(name_or_path, **params):
                      f'{", ".join(sorted(MODELS))}, or give the path of a model file (.yaml)')
 
 
-__all__ = ['CylindricalRobot', 'load_model', 'ModelError', 'MODELS', 'Planar2R',
+__all__ = ['CylindricalRobot', 'load_model', 'ModelChoice', 'ModelError', 'MODELS', 'Planar2R',
            'Planar2RParams', 'RobotModel']

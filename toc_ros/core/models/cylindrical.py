@@ -26,10 +26,10 @@ import sys
 from numba import njit
 import numpy as np
 
+from .base import ModelError, RobotModel
 from .. import horizon, ipm
 from ..model import (MODEL_VARIANTS, P_A, rhs as rhs_scalar, rhs_partials,
                      rhs_second_partials, RobotParams)
-from .base import ModelError, RobotModel
 
 N_JOINTS = 2
 N_LINKS = 1
@@ -86,7 +86,7 @@ def rhs_hess(x, u, p, lam, hxx, hxu, huu):
 
 @njit(cache=True, inline='always')
 def segments(q, p, seg, seg_q, seg_qq):
-    """The arm: one segment from the base to the hand (a + q2)(cos q1, sin q1)."""
+    """Compute the arm: one segment from the base to the hand (a + q2)(cos q1, sin q1)."""
     c, s = math.cos(q[0]), math.sin(q[0])
     reach = p[P_A] + q[1]
     for r in range(4):
@@ -143,7 +143,7 @@ class CylindricalRobot(RobotModel):
 
     @property
     def kernels(self):
-        """The kernel module (this one)."""
+        """Return the kernel module (this one)."""
         return this
 
     def packed(self):
@@ -162,7 +162,7 @@ class CylindricalRobot(RobotModel):
         return self.params.check()
 
     def check_state(self, x, name='state'):
-        """The arm length a + q2 must stay positive."""
+        """Check that the arm length a + q2 stays positive."""
         length = self.params.a + float(x[2])
         if not length > 0.0:
             return [f'{name} arm length a + q2 = {length:.6g} m must be > 0']
@@ -186,5 +186,5 @@ class CylindricalRobot(RobotModel):
 
 
 def variants():
-    """The model-variant names (eq37 as printed, eq36 sign)."""
+    """Return the model-variant names (eq37 as printed, eq36 sign)."""
     return MODEL_VARIANTS

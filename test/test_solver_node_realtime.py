@@ -1,0 +1,117 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+solver_node with the millisecond fast mode, as a real process.
+
+* The node answers get_parameters while fast mode solves 100 circles at N = 8000 (the kernels
+  release the GIL, so the executor keeps running).
+* Goal -> trajectory: the time from publishing a goal to receiving its trajectory exceeds the
+  solve's own wall time (reported on ~/progress) by little (the issue's target: 20 ms; the
+  assertion leaves room for a loaded shared machine, the measured numbers are printed).
+"""
+
+import math
+import time
+
+from node_harness import LATCHED, NEAR_GOAL, PAPER_GOAL, pose_of, report, running_solver
+import numpy as np
+import pytest
+from rcl_interfaces.srv import GetParameters
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+from toc_ros.core import Status
+from trajectory_msgs.msg import JointTrajectory
+
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: I100 (message packages)
+
+COLLECT = [(DiagnosticStatus, 'solver_node/progress', 1000),
+           (JointTrajectory, 'trajectory', LATCHED)]
+
+
+@pytest.fixture(scope='module')
+def solver(tmp_path_factory):
+    with running_solver(tmp_path_factory.mktemp('realtime'), COLLECT, depth=50) as ctx:
+        yield ctx
+
+
+def _reports(ctx, since):
+    return [report(m) for m in ctx.client.messages('solver_node/progress', since)]
+
+
+def _final(ctx, since, timeout=120.0):
+    return ctx.client.wait_for(
+        lambda: [r for r in _reports(ctx, since) if r.final and r.event != 'refused'],
+        timeout, 'a final progress report')[0]
+
+
+def test_parameters_answer_while_solving_100_circles_at_n_8000(solver):
+    client = solver.client
+    far = [(4.5 * math.cos(0.06 * k), 4.5 * math.sin(0.06 * k), 0.05) for k in range(99)]
+    rows = [(1.0, 1.0, 0.2)] + far
+    assert all(r.successful for r in client.set_parameters(
+        'solver_node', {'obstacles.max_count': 128, 'solver.N': 8000, 'solver.mode': 'fast'}))
+    try:
+        solver.obstacles.publish(Float64MultiArray(data=[v for row in rows for v in row]))
+        client.wait_for(lambda: len(client.get_parameters(
+            'solver_node', ['obstacles.x'])['obstacles.x']) == 100, 10.0, '100 obstacles')
+        get = client.node.create_client(GetParameters, client.name('solver_node/get_parameters'))
+        since = time.monotonic()
+        solver.goal_pose.publish(pose_of(PAPER_GOAL))
+        client.wait_for(lambda: [r for r in _reports(solver, since) if r.solving], 60.0,
+                        'the solve to start')
+        rounds = []
+        for _ in range(10):
+            started = time.monotonic()
+            client.call(get, GetParameters.Request(names=['solver.N']), timeout=10.0)
+            rounds.append(time.monotonic() - started)
+            time.sleep(0.05)
+        still_solving = not [r for r in _reports(solver, since) if r.final]
+        client.call(solver.cancel, Trigger.Request(), timeout=10.0)
+        final = _final(solver, since)
+    finally:
+        client.call(solver.cancel, Trigger.Request(), timeout=10.0)
+        client.set_parameters('solver_node', {'solver.N': 100, 'obstacles.max_count': 64})
+        solver.obstacles.publish(Float64MultiArray(data=[1.0, 1.0, 0.2]))
+    print(f'100 circles, N = 8000: get_parameters round trips median '
+          f'{1e3 * np.median(rounds):.1f} ms, max {1e3 * max(rounds):.1f} ms '
+          f'(solving throughout: {still_solving}, final {final.status.value})')
+    assert still_solving, 'the solve ended before the measurement: make the problem longer'
+    # Promised < 100 ms; slack for a loaded 2-core machine on the worst round trip.
+    assert np.median(rounds) < 0.1 and max(rounds) < 0.3, rounds
+
+
+def test_goal_to_trajectory_adds_little_to_the_solve_time(solver):
+    client = solver.client
+    assert all(r.successful for r in client.set_parameters(
+        'solver_node', {'solver.N': 300, 'solver.mode': 'fast'}))
+    overheads = []
+    try:
+        for goal in (PAPER_GOAL, NEAR_GOAL) * 3:
+            before = client.count('trajectory')
+            since = time.monotonic()
+            solver.goal_pose.publish(pose_of(goal))
+            client.wait_for(lambda b=before: client.count('trajectory') > b, 60.0,
+                            'the trajectory')
+            received = client.stamped('trajectory', since)[-1][0]
+            final = _final(solver, since)
+            assert final.status is Status.SOLVED, final.message
+            overheads.append(received - since - final.elapsed_s)
+            time.sleep(0.2)
+    finally:
+        client.set_parameters('solver_node', {'solver.N': 100})
+    print('goal -> trajectory minus solve time [ms]: '
+          + ', '.join(f'{1e3 * o:.1f}' for o in overheads))
+    # Target 20 ms (median); a loaded shared machine gets generous slack.
+    assert np.median(overheads) < 0.1, overheads
