@@ -228,7 +228,7 @@ def run(repeat=5, ref_repeat=3, quick=False):
         warm_row['method'] = 'fast mode, warm (remainder)'
         cold_row, _ = time_fast(problem, repeat, fast_options)
         cold_row['method'] = 'fast mode, cold'
-        states, controls, t_f, _ = warm_start_point(problem, remainder, n)
+        states, controls, t_f = warm_start_point(problem, remainder, n)[:3]
         guess = (states, controls, t_f)
         warm_refs, _ = _references(problem, ref_repeat, notes, guess=guess, warm_variants=True)
         cold_refs, _ = _references(problem, 1 if quick else ref_repeat, notes)
