@@ -17,7 +17,8 @@ plant_node: simulated robot (robot.model, default eq. 37) that executes JointTra
 
 The state is integrated with the RK4 step of the solver's model kernels (the same model code
 as the solver: model.kernels.rollout over one step) at a fixed step 1 / integration_rate, in
-real time: a timer at ``rate`` runs as many steps as wall time has advanced, then publishes ``joint_states`` (position, velocity, effort = applied u).
+real time: a timer at ``rate`` runs as many steps as wall time has advanced, then publishes
+``joint_states`` (position, velocity, effort = applied u).
 
 Control, evaluated every step: u = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq)), saturated at
 robot.u_max.  A trajectory runs from its receipt; q_ref, dq_ref are its cubic Hermite
@@ -200,6 +201,8 @@ class PlantNode(Node):
         rate = self._params['rate']
         self._params = parameters.candidate(self._params, changed)
         self._apply_parameters()
+        if self._x.shape[0] != self._model.nx:     # another model: its own state size
+            self._reset_state()
         if self._params['rate'] != rate:
             self._timer.cancel()
             self.destroy_timer(self._timer)
