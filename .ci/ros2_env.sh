@@ -16,7 +16,8 @@
 # ros2_env.sh [DIR] - build the real ROS 2 Jazzy user environment (ros2 CLI, launch, colcon)
 # with ../shared/ros2-jazzy-env/make_env.sh into DIR (default: <repo>/.ros2env), plus the
 # Python packages toc_ros needs at run time that are not ROS packages (numba, mcap,
-# matplotlib: what `rosdep install` + `pip install numba mcap` give a ROS user).
+# matplotlib, sympy for model files: what `rosdep install` + `pip install numba mcap` give a ROS
+# user).
 #
 # Idempotent: a marker file makes a second run a no-op. Without the kit (e.g. a clone with no
 # ../shared beside it) it prints why and exits 0; the ROS-CLI tests then skip.
@@ -29,7 +30,7 @@ DIR=${1:-$REPO/.ros2env}
 MARKER=$DIR/.toc_ros_env_ready
 # Runtime deps of toc_ros outside ROS, pinned to the project venv's tested versions; numpy is
 # left to make_env.sh's constraints (the ROS wheels' numpy).
-EXTRA_DEPS=(numba==0.68.1 mcap==1.6.0 matplotlib==3.11.2)
+EXTRA_DEPS=(numba==0.68.1 mcap==1.6.0 matplotlib==3.11.2 sympy==1.14.0)
 
 say() { printf '[ros2_env.sh] %s\n' "$*" >&2; }
 
