@@ -79,7 +79,7 @@ class Workspace:
 
 @njit(cache=True)
 def paper_cost_gradient(x0, x_goal, controls, tau, p, method, u_max, circles, k_b, k_v_hat,
-                        k_p, grad_mode, states, jac_x, jac_u, jac_tau, grad_x, grad_u,
+                        k_p_hat, grad_mode, states, jac_x, jac_u, jac_tau, grad_x, grad_u,
                         out_grad_u):
     """
     J_T = J1 + J2 + J3 (eq. 33) and its BPTT gradient dJ_T/du (eq. 29) for fixed tau.
@@ -89,18 +89,18 @@ def paper_cost_gradient(x0, x_goal, controls, tau, p, method, u_max, circles, k_
     """
     rollout_linearized(x0, controls, tau, p, method, states, jac_x, jac_u, jac_tau)
     j1, j2, j3 = paper_penalties(states, controls, x_goal, u_max, p[3], circles, k_b,
-                                 k_v_hat, k_p, grad_mode, grad_x, grad_u)
+                                 k_v_hat, k_p_hat, grad_mode, grad_x, grad_u)
     d_tau, _ = adjoint_sweep(jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u)
     return j1, j2, j3, d_tau
 
 
-def paper_cost(x0, x_goal, controls, tau, p, method, u_max, circles, k_b, k_v_hat, k_p,
+def paper_cost(x0, x_goal, controls, tau, p, method, u_max, circles, k_b, k_v_hat, k_p_hat,
                grad_mode=GRAD_EXACT):
     """Return (J_T, dJ_T/du) with fresh buffers (for tests and one-off calls)."""
     ws = Workspace(controls.shape[0])
     j1, j2, j3, _ = paper_cost_gradient(
         np.asarray(x0, float), np.asarray(x_goal, float), np.ascontiguousarray(controls, float),
         float(tau), p, method, np.asarray(u_max, float), np.reshape(circles, (-1, 3)),
-        k_b, k_v_hat, k_p, grad_mode, ws.states, ws.jac_x, ws.jac_u, ws.jac_tau, ws.grad_x,
+        k_b, k_v_hat, k_p_hat, grad_mode, ws.states, ws.jac_x, ws.jac_u, ws.jac_tau, ws.grad_x,
         ws.grad_u, ws.out_grad_u)
     return j1 + j2 + j3, ws.out_grad_u.copy()

@@ -80,17 +80,18 @@ def rollout(x0, controls, tau, p, method, states):
 
 @njit(cache=True, inline='always')
 def _stage_jacobians(d, jx, ju):
-    """Write df/dx, df/du of eq. (37) from the rhs_partials tuple d into jx (4x4), ju (4x2)."""
+    """Write df/dx, df/du of eq. (37) from the rhs_partials tuple into jx (4x4), ju (4x2)."""
+    f1_x2, f1_x3, f1_x4, f3_x2, f3_x3, f1_u1, f3_u2 = d
     for r in range(NX):
         for c in range(NX):
             jx[r, c] = 0.0
         ju[r, 0] = 0.0
         ju[r, 1] = 0.0
     jx[0, 1] = 1.0
-    jx[1, 1], jx[1, 2], jx[1, 3] = d[0], d[1], d[2]
+    jx[1, 1], jx[1, 2], jx[1, 3] = f1_x2, f1_x3, f1_x4
     jx[2, 3] = 1.0
-    jx[3, 1], jx[3, 2] = d[3], d[4]
-    ju[1, 0], ju[3, 1] = d[5], d[6]
+    jx[3, 1], jx[3, 2] = f3_x2, f3_x3
+    ju[1, 0], ju[3, 1] = f1_u1, f3_u2
 
 
 @njit(cache=True, inline='always')
@@ -164,7 +165,8 @@ def rollout_linearized(x0, controls, tau, p, method, states, jac_x, jac_u, jac_t
             x1, x2, x3, x4 = states[i, 0], states[i, 1], states[i, 2], states[i, 3]
             u1, u2 = controls[i, 0], controls[i, 1]
             f = rhs(x1, x2, x3, x4, u1, u2, p)
-            d = rhs_partials(x1, x2, x3, x4, u1, u2, p)
+            f1_x2, f1_x3, f1_x4, f3_x2, f3_x3, f1_u1, f3_u2 = rhs_partials(
+                x1, x2, x3, x4, u1, u2, p)
             states[i + 1, 0] = x1 + tau * f[0]
             states[i + 1, 1] = x2 + tau * f[1]
             states[i + 1, 2] = x3 + tau * f[2]
@@ -173,18 +175,18 @@ def rollout_linearized(x0, controls, tau, p, method, states, jac_x, jac_u, jac_t
             # I + tau df/dx and tau df/du, every entry written once (sparsity of eq. 37).
             jac_x[i, 0, 0], jac_x[i, 0, 1], jac_x[i, 0, 2], jac_x[i, 0, 3] = 1.0, tau, 0.0, 0.0
             jac_x[i, 1, 0] = 0.0
-            jac_x[i, 1, 1] = 1.0 + tau * d[0]
-            jac_x[i, 1, 2] = tau * d[1]
-            jac_x[i, 1, 3] = tau * d[2]
+            jac_x[i, 1, 1] = 1.0 + tau * f1_x2
+            jac_x[i, 1, 2] = tau * f1_x3
+            jac_x[i, 1, 3] = tau * f1_x4
             jac_x[i, 2, 0], jac_x[i, 2, 1], jac_x[i, 2, 2], jac_x[i, 2, 3] = 0.0, 0.0, 1.0, tau
             jac_x[i, 3, 0] = 0.0
-            jac_x[i, 3, 1] = tau * d[3]
-            jac_x[i, 3, 2] = tau * d[4]
+            jac_x[i, 3, 1] = tau * f3_x2
+            jac_x[i, 3, 2] = tau * f3_x3
             jac_x[i, 3, 3] = 1.0
             jac_u[i, 0, 0], jac_u[i, 0, 1] = 0.0, 0.0
-            jac_u[i, 1, 0], jac_u[i, 1, 1] = tau * d[5], 0.0
+            jac_u[i, 1, 0], jac_u[i, 1, 1] = tau * f1_u1, 0.0
             jac_u[i, 2, 0], jac_u[i, 2, 1] = 0.0, 0.0
-            jac_u[i, 3, 0], jac_u[i, 3, 1] = 0.0, tau * d[6]
+            jac_u[i, 3, 0], jac_u[i, 3, 1] = 0.0, tau * f3_u2
     else:
         scratch = (np.zeros((4, NX, NX)), np.zeros((4, NX, 2)), np.zeros((4, NX)),
                    np.zeros((1, NX, NX)), np.zeros((1, NX, 2)), np.zeros((4, NX)))

@@ -169,14 +169,15 @@ def dynamics(x, u, p):
 def dynamics_jacobians(x, u, p):
     """Return (f, df/dx (4x4), df/du (4x2)) of eq. (37) as new arrays."""
     f = dynamics(x, u, p)
-    d = rhs_partials(x[0], x[1], x[2], x[3], u[0], u[1], p)
+    f1_x2, f1_x3, f1_x4, f3_x2, f3_x3, f1_u1, f3_u2 = rhs_partials(
+        x[0], x[1], x[2], x[3], u[0], u[1], p)
     fx = np.zeros((NX, NX))
     fx[0, 1] = 1.0
-    fx[1, 1], fx[1, 2], fx[1, 3] = d[0], d[1], d[2]
+    fx[1, 1], fx[1, 2], fx[1, 3] = f1_x2, f1_x3, f1_x4
     fx[2, 3] = 1.0
-    fx[3, 1], fx[3, 2] = d[3], d[4]
+    fx[3, 1], fx[3, 2] = f3_x2, f3_x3
     fu = np.zeros((NX, NU))
-    fu[1, 0], fu[3, 1] = d[5], d[6]
+    fu[1, 0], fu[3, 1] = f1_u1, f3_u2
     return f, fx, fu
 
 

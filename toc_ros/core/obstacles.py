@@ -58,7 +58,7 @@ def ray_penetration(q1, q2, a, cx, cy, radius):
 
 
 @njit(cache=True)
-def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
+def obstacle_penalty(states, a, circles, k_p_hat, grad_mode, grad_x):
     """
     J3 of eq. (42) summed over circles and nodes 0..N; writes dJ3/dx into grad_x (N+1 x 4).
 
@@ -101,12 +101,12 @@ def obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x):
                                               circles[k, 1], circles[k, 2])
         if not active:
             continue
-        total += k_p * gap * gap
+        total += k_p_hat * gap * gap
         if grad_mode == GRAD_EXACT:
-            grad_x[i, 0] += 2.0 * k_p * dr_dq1 * gap
-            grad_x[i, 2] += -2.0 * k_p * gap
+            grad_x[i, 0] += 2.0 * k_p_hat * dr_dq1 * gap
+            grad_x[i, 2] += -2.0 * k_p_hat * gap
         else:
-            grad_x[i, 2] += k_p
+            grad_x[i, 2] += k_p_hat
     return total
 
 

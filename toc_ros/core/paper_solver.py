@@ -31,35 +31,37 @@ from .bptt import paper_cost_gradient, Workspace
 
 
 @njit(cache=True)
-def paper_iterations(n_iter, x0, x_goal, controls, tau_box, p, method, u_max, circles, k_b,
-                     k_v_hat, k_p, grad_mode, eta, d_tau, j_eps, best_controls, best_box,
-                     hist_tf, hist_j, hist_start, states, jac_x, jac_u, jac_tau, grad_x,
+def paper_iterations(n_iter, x0, x_goal, controls, tau, p, method, u_max, circles, k_b,
+                     k_v_hat, k_p_hat, grad_mode, eta, d_tau, j_eps, best_controls, best_tau,
+                     best_cost, accepted, hist_tf, hist_j, hist_start, states, jac_x, jac_u, jac_tau, grad_x,
                      grad_u, out_grad_u):
     """
     Run n_iter iterations of eqs. (28)-(34) in place; returns the last J_T.
 
-    tau_box[0] holds tau; best_box = [tau, J_T, count] of the last accepted iteration, whose
-    controls are copied to best_controls.  hist_* receive t_f and J_T per iteration.
+    One-element arrays updated in place: tau[0] the current tau; best_tau[0], best_cost[0] the
+    tau and J_T of the last accepted iteration (J_T < J_eps), whose controls are copied to
+    best_controls; accepted[0] (integer) how many iterations were accepted.  hist_* receive t_f
+    and J_T per iteration.
     """
     n = controls.shape[0]
     j_total = np.inf
     for it in range(n_iter):
-        tau = tau_box[0]
-        j1, j2, j3, _ = paper_cost_gradient(x0, x_goal, controls, tau, p, method, u_max,
-                                            circles, k_b, k_v_hat, k_p, grad_mode, states,
+        tau_now = tau[0]
+        j1, j2, j3, _ = paper_cost_gradient(x0, x_goal, controls, tau_now, p, method, u_max,
+                                            circles, k_b, k_v_hat, k_p_hat, grad_mode, states,
                                             jac_x, jac_u, jac_tau, grad_x, grad_u, out_grad_u)
         j_total = j1 + j2 + j3
         if not np.isfinite(j_total):
             return j_total, it   # diverged (eta too large for this N): the driver reports it
-        hist_tf[hist_start + it] = n * tau
+        hist_tf[hist_start + it] = n * tau_now
         hist_j[hist_start + it] = j_total
         if j_total < j_eps:
             best_controls[:, :] = controls
-            best_box[0] = tau
-            best_box[1] = j_total
-            best_box[2] += 1.0
-            if tau - d_tau > 0.0:
-                tau_box[0] = tau - d_tau
+            best_tau[0] = tau_now
+            best_cost[0] = j_total
+            accepted[0] += 1
+            if tau_now - d_tau > 0.0:
+                tau[0] = tau_now - d_tau
         for i in range(n):
             controls[i, 0] -= eta * out_grad_u[i, 0]
             controls[i, 1] -= eta * out_grad_u[i, 1]
@@ -80,9 +82,11 @@ class PaperRun:
         self.k_v_hat = self.tau0 * po.k_v
         self.k_p_hat = self.tau0 * po.k_p
         self.controls = np.zeros((n, 2))            # u(0) = 0, section 4
-        self.tau_box = np.array([self.tau0])
+        self.tau = np.array([self.tau0])
         self.best_controls = np.zeros((n, 2))
-        self.best_box = np.array([np.nan, np.inf, 0.0])
+        self.best_tau = np.array([np.nan])
+        self.best_cost = np.array([np.inf])
+        self.accepted = np.zeros(1, dtype=np.int64)
         self.hist_tf = np.zeros(options.iteration_limit())
         self.hist_j = np.zeros(options.iteration_limit())
         self.ws = Workspace(n)
@@ -94,9 +98,10 @@ class PaperRun:
         ws = self.ws
         po = self.po
         self.last_j, ran = paper_iterations(
-            n_iter, self.x0, self.x_goal, self.controls, self.tau_box, self.p, self.method,
+            n_iter, self.x0, self.x_goal, self.controls, self.tau, self.p, self.method,
             self.u_max, self.circles, po.k_b, self.k_v_hat, self.k_p_hat, po.grad_mode(), po.eta,
-            po.d_tau, po.j_eps, self.best_controls, self.best_box, self.hist_tf, self.hist_j,
+            po.d_tau, po.j_eps, self.best_controls, self.best_tau, self.best_cost, self.accepted,
+            self.hist_tf, self.hist_j,
             self.done, ws.states, ws.jac_x, ws.jac_u, ws.jac_tau, ws.grad_x, ws.grad_u,
             ws.out_grad_u)
         self.done += ran
@@ -104,12 +109,12 @@ class PaperRun:
     @property
     def t_f(self):
         """Return the current final time N tau [s]."""
-        return self.problem.n_intervals * self.tau_box[0]
+        return self.problem.n_intervals * self.tau[0]
 
     @property
     def best_t_f(self):
         """Return t_f of the last accepted iteration (nan before the first)."""
-        return self.problem.n_intervals * self.best_box[0]
+        return self.problem.n_intervals * self.best_tau[0]
 
     def history(self):
         """Rows of result.HISTORY_COLUMNS: iteration, t_f, J_T, nan (no separate measure)."""

@@ -61,12 +61,12 @@ def control_bound_penalty(controls, u_max, k_v_hat, grad_u):
 
 
 @njit(cache=True)
-def paper_penalties(states, controls, x_goal, u_max, a, circles, k_b, k_v_hat, k_p,
+def paper_penalties(states, controls, x_goal, u_max, a, circles, k_b, k_v_hat, k_p_hat,
                     grad_mode, grad_x, grad_u):
     """J_T = J1 + J2 + J3 of eq. (33); returns (J1, J2, J3) and fills the gradient buffers."""
     n = controls.shape[0]
     # J3 and J2 overwrite their buffers entirely; J1 then adds to the last row.
-    j3 = obstacle_penalty(states, a, circles, k_p, grad_mode, grad_x)
+    j3 = obstacle_penalty(states, a, circles, k_p_hat, grad_mode, grad_x)
     j2 = control_bound_penalty(controls, u_max, k_v_hat, grad_u)
     j1 = terminal_penalty(states[n], x_goal, k_b, grad_x[n])
     return j1, j2, j3

@@ -138,7 +138,7 @@ def _solve_paper(problem, options, method, clock):
         chunk = max(1, min(5000, int(0.025 / max(per_iter, 1e-7))))
         clock.report(lambda: Progress(run.done, run.t_f, run.last_j, run.best_t_f,
                                       clock.elapsed(), 'paper'))
-    accepted = run.best_box[2] > 0
+    accepted = run.accepted[0] > 0
     controls = run.best_controls if accepted else run.controls
     final_time = run.best_t_f if accepted else run.t_f
     history = run.history()
@@ -157,6 +157,7 @@ def _solve_paper(problem, options, method, clock):
                        f'{run.done} iterations (t_f0 = {problem.t_f0} s may be below t_min)')
     result = _finish(problem, controls, final_time, run.done, history, Status.SOLVED,
                      '')
+    result.cost = float(run.best_cost[0])      # J_T of the returned (last accepted) iteration
     v = result.violations
     if v.feasible():
         result.message = f't_min = {final_time:.6f} s, feasible within tolerances'
