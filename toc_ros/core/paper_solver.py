@@ -33,8 +33,8 @@ from .bptt import paper_cost_gradient, Workspace
 @njit(cache=True)
 def paper_iterations(n_iter, x0, x_goal, controls, tau, p, method, u_max, circles, k_b,
                      k_v_hat, k_p_hat, grad_mode, eta, d_tau, j_eps, best_controls, best_tau,
-                     best_cost, accepted, hist_tf, hist_j, hist_start, states, jac_x, jac_u, jac_tau, grad_x,
-                     grad_u, out_grad_u):
+                     best_cost, accepted, hist_tf, hist_j, hist_start, states, jac_x, jac_u,
+                     jac_tau, grad_x, grad_u, out_grad_u):
     """
     Run n_iter iterations of eqs. (28)-(34) in place; returns the last J_T.
 
