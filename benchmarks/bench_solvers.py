@@ -225,7 +225,12 @@ def run(repeat=5, ref_repeat=3, quick=False):
     for n in ((n_full, n_full - node) if not quick else (n_full,)):
         problem = replace(paper, x0=start, n_intervals=n)
         warm_row, _ = time_fast(problem, repeat, fast_options, initial_guess=remainder)
-        warm_row['method'] = 'fast mode, warm (remainder)'
+        warm_row['method'] = 'fast mode, warm (remainder: controls, remaining time)'
+        # The remainder as solver_node passes it: the plan's states, controls and multipliers
+        # from that node on (SolveResult.remainder).
+        full_row, _ = time_fast(problem, repeat, fast_options,
+                                initial_guess=previous.remainder(previous.time_grid[node]))
+        full_row['method'] = 'fast mode, warm (SolveResult.remainder, with multipliers)'
         cold_row, _ = time_fast(problem, repeat, fast_options)
         cold_row['method'] = 'fast mode, cold'
         states, controls, t_f = warm_start_point(problem, remainder, n)[:3]
@@ -234,12 +239,17 @@ def run(repeat=5, ref_repeat=3, quick=False):
         cold_refs, _ = _references(problem, 1 if quick else ref_repeat, notes)
         for r in cold_refs:
             r['method'] += ', cold'
-        rows = [warm_row, cold_row] + warm_refs + cold_refs
+        rows = [warm_row, full_row, cold_row] + warm_refs + cold_refs
         shown = ', '.join(f'{v:.4f}' for v in start)
         label = f'replanning from node {node} of {n_full} (x0 = ({shown})), N = {n}'
         sections[f'replan N={n}'] = _finish(label, rows, _t_ref(warm_refs + cold_refs))
         w = warm_row['median_s']
         summary[f'replan N={n}: fast warm / fast cold'] = _ratio(w, cold_row['median_s'])
+        summary[f'replan N={n}: fast warm with multipliers / fast cold'] = _ratio(
+            full_row['median_s'], cold_row['median_s'])
+        for r in warm_refs:
+            summary[f'replan N={n}: fast warm with multipliers / {r["method"]}'] = _ratio(
+                full_row['median_s'], r['median_s'])
         for r in warm_refs:
             summary[f'replan N={n}: fast warm / {r["method"]}'] = _ratio(w, r['median_s'])
     return {'sections': sections, 'summary': summary, 'notes': notes,
