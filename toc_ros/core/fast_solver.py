@@ -47,7 +47,7 @@ COARSE_INTERVALS = 100
 MU_COLD = 0.1
 # Further cold starts of the N grid after a failure, with these barrier parameters.
 MU_COLD_RETRIES = (0.01, 1.0)
-MU_WARM = 1e-4
+MU_WARM = 1e-5
 # Tolerances: IPOPT's scaled optimality error, and the unscaled constraint violation (well
 # inside the SOLVED tolerances of result.py, so the re-integrated trajectory passes them).
 TOL = 1e-8
