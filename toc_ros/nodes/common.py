@@ -100,8 +100,13 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
         if not is_shutdown_race(node, error):  # a callback racing shutdown is no failure
             raise
     finally:
-        # A second Ctrl-C while shutting down must not abort the cleanup.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # A second Ctrl-C while shutting down must not abort the cleanup.  signal.signal()
+        # runs pending Python handlers after installing the new one: a Ctrl-C that rclpy's
+        # handler already turned into a shutdown can surface here once as KeyboardInterrupt.
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except KeyboardInterrupt:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
