@@ -28,12 +28,13 @@ from types import SimpleNamespace
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
+from rcl_interfaces.srv import GetParameters
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import harness
 from toc_ros.harness import LATCHED  # noqa: F401 - the tests import it from here
-from toc_ros.progress import progress_from_msg
+from toc_ros.progress import EVENT_REFUSED, progress_from_msg
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'toc_ros.yaml'
@@ -103,6 +104,34 @@ def level_name(status):
     """Name of a DiagnosticStatus level."""
     return {DiagnosticStatus.OK: 'OK', DiagnosticStatus.WARN: 'WARN',
             DiagnosticStatus.ERROR: 'ERROR', DiagnosticStatus.STALE: 'STALE'}[status.level]
+
+
+def reports(ctx, since):
+    """Return the ~/progress reports received since a time (ctx: a running_solver or client)."""
+    client = getattr(ctx, 'client', ctx)
+    return [report(m) for m in client.messages('solver_node/progress', since)]
+
+
+def wait_final(ctx, since, timeout=SOLVE_TIMEOUT, source=None):
+    """Wait for the first final (not refused) progress report since a time; return it."""
+    def found():
+        return [r for r in reports(ctx, since)
+                if r.final and r.event != EVENT_REFUSED
+                and (source is None or r.goal_source == source)]
+    return ctx.client.wait_for(found, timeout, 'a final progress report')[0]
+
+
+def parameter_round_trips(ctx, count, pause):
+    """Time count get_parameters calls to solver_node [s], pause seconds apart."""
+    client = ctx.client
+    get = client.node.create_client(GetParameters, client.name('solver_node/get_parameters'))
+    rounds = []
+    for _ in range(count):
+        started = time.monotonic()
+        client.call(get, GetParameters.Request(names=['solver.N']), timeout=10.0)
+        rounds.append(time.monotonic() - started)
+        time.sleep(pause)
+    return rounds
 
 
 def eq37(x, u, hand_mass=50.0, link_mass=97.0, inertia=193.0, a=A):

@@ -25,10 +25,11 @@ solver_node with the millisecond fast mode, as a real process.
 import math
 import time
 
-from node_harness import LATCHED, NEAR_GOAL, PAPER_GOAL, pose_of, report, running_solver
+from node_harness import (
+    LATCHED, NEAR_GOAL, PAPER_GOAL, parameter_round_trips, pose_of, reports, running_solver,
+    wait_final)
 import numpy as np
 import pytest
-from rcl_interfaces.srv import GetParameters
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros.core import Status
@@ -46,16 +47,6 @@ def solver(tmp_path_factory):
         yield ctx
 
 
-def _reports(ctx, since):
-    return [report(m) for m in ctx.client.messages('solver_node/progress', since)]
-
-
-def _final(ctx, since, timeout=120.0):
-    return ctx.client.wait_for(
-        lambda: [r for r in _reports(ctx, since) if r.final and r.event != 'refused'],
-        timeout, 'a final progress report')[0]
-
-
 def test_parameters_answer_while_solving_100_circles_at_n_8000(solver):
     client = solver.client
     far = [(4.5 * math.cos(0.06 * k), 4.5 * math.sin(0.06 * k), 0.05) for k in range(99)]
@@ -66,20 +57,14 @@ def test_parameters_answer_while_solving_100_circles_at_n_8000(solver):
         solver.obstacles.publish(Float64MultiArray(data=[v for row in rows for v in row]))
         client.wait_for(lambda: len(client.get_parameters(
             'solver_node', ['obstacles.x'])['obstacles.x']) == 100, 10.0, '100 obstacles')
-        get = client.node.create_client(GetParameters, client.name('solver_node/get_parameters'))
         since = time.monotonic()
         solver.goal_pose.publish(pose_of(PAPER_GOAL))
-        client.wait_for(lambda: [r for r in _reports(solver, since) if r.solving], 60.0,
+        client.wait_for(lambda: [r for r in reports(solver, since) if r.solving], 60.0,
                         'the solve to start')
-        rounds = []
-        for _ in range(10):
-            started = time.monotonic()
-            client.call(get, GetParameters.Request(names=['solver.N']), timeout=10.0)
-            rounds.append(time.monotonic() - started)
-            time.sleep(0.05)
-        still_solving = not [r for r in _reports(solver, since) if r.final]
+        rounds = parameter_round_trips(solver, 10, 0.05)
+        still_solving = not [r for r in reports(solver, since) if r.final]
         client.call(solver.cancel, Trigger.Request(), timeout=10.0)
-        final = _final(solver, since)
+        final = wait_final(solver, since, 120.0)
     finally:
         client.call(solver.cancel, Trigger.Request(), timeout=10.0)
         client.set_parameters('solver_node', {'solver.N': 100, 'obstacles.max_count': 64})
@@ -105,7 +90,7 @@ def test_goal_to_trajectory_adds_little_to_the_solve_time(solver):
             client.wait_for(lambda b=before: client.count('trajectory') > b, 60.0,
                             'the trajectory')
             received = client.stamped('trajectory', since)[-1][0]
-            final = _final(solver, since)
+            final = wait_final(solver, since, 120.0)
             assert final.status is Status.SOLVED, final.message
             overheads.append(received - since - final.elapsed_s)
             time.sleep(0.2)
@@ -132,7 +117,7 @@ def test_replanning_the_same_goal_while_moving_starts_from_the_plan_remainder(so
         time.sleep(0.2)
         solver.goal_pose.publish(pose_of(PAPER_GOAL))
         client.wait_for(lambda: client.count('trajectory') > before, 60.0, 'the first plan')
-        first = _final(solver, since)
+        first = wait_final(solver, since, 120.0)
         assert first.status is Status.SOLVED, first.message
         plan = client.messages('trajectory', since)[-1]
         # The robot follows the plan: report the planned state at 30 % of it, then re-send the
@@ -148,7 +133,7 @@ def test_replanning_the_same_goal_while_moving_starts_from_the_plan_remainder(so
         time.sleep(0.05)
         again = time.monotonic()
         solver.goal_pose.publish(pose_of(PAPER_GOAL))
-        second = _final(solver, again)
+        second = wait_final(solver, again, 120.0)
     finally:
         client.set_parameters('solver_node', {'solver.N': 100})
     print(f'replan: {second.iteration} iterations on N = {second.n_intervals} in '

@@ -27,11 +27,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
 from node_harness import (
-    A, LATCHED, NEAR_GOAL, NodeProcess, PAPER_GOAL, pose_of, report, RosClient, running_solver,
-    SOLVE_TIMEOUT)
+    A, LATCHED, NEAR_GOAL, NodeProcess, PAPER_GOAL, parameter_round_trips, pose_of, report,
+    reports, RosClient, running_solver, SOLVE_TIMEOUT, wait_final)
 import numpy as np
 import pytest
-from rcl_interfaces.srv import GetParameters
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -77,20 +76,6 @@ def set_obstacles(ctx, rows):
     ctx.client.wait_for(lambda: obstacle_parameters(ctx) == [tuple(r) for r in rows], 10.0,
                         f'obstacles {rows}')
     return time.monotonic()
-
-
-def reports(ctx, since):
-    """Return the progress reports received since a time (ctx: a running_solver or client)."""
-    client = getattr(ctx, 'client', ctx)
-    return [report(m) for m in client.messages('solver_node/progress', since)]
-
-
-def wait_final(ctx, since, timeout=SOLVE_TIMEOUT, source=None):
-    def found():
-        return [r for r in reports(ctx, since)
-                if r.final and r.event != schema.EVENT_REFUSED
-                and (source is None or r.goal_source == source)]
-    return ctx.client.wait_for(found, timeout, 'a final progress report')[0]
 
 
 def clearance(positions, rows, margin=MARGIN, a=A):
@@ -215,18 +200,12 @@ def test_responsive_at_the_obstacle_limit(solver, paper_obstacles):
     assert all(r.successful for r in client.set_parameters(
         'solver_node', {'solver.N': 1000, 'solver.mode': 'paper',
                         'solver.max_iterations': 10 ** 8}))
-    get = client.node.create_client(GetParameters, client.name('solver_node/get_parameters'))
     try:
         since = time.monotonic()
         solver.goal_pose.publish(pose_of(PAPER_GOAL))
         client.wait_for(lambda: [r for r in reports(solver, since) if r.solving], 60.0,
                         'the solve to start')
-        rounds = []
-        for _ in range(10):
-            started = time.monotonic()
-            client.call(get, GetParameters.Request(names=['solver.N']), timeout=10.0)
-            rounds.append(time.monotonic() - started)
-            time.sleep(0.1)
+        rounds = parameter_round_trips(solver, 10, 0.1)
         time.sleep(1.0)
         started = time.monotonic()
         answer = client.call(solver.cancel, Trigger.Request(), timeout=10.0)
