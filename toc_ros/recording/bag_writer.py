@@ -310,7 +310,7 @@ class BagWriter:
             try:
                 self._stream.close()
             except OSError:
-                pass
+                pass  # abandoning a broken stream: the error that got us here is reported
         self._stream = None
         self._writer = None
 

@@ -216,5 +216,5 @@ def type_description_hash(type_name: str) -> str:
             if entry.get('type_name') == full_name:
                 return str(entry.get('hash_string', ''))
     except (MessageDefinitionError, ValueError, AttributeError):
-        pass
+        pass  # no type description installed: rosbag2 records an empty hash then too
     return ''

@@ -140,7 +140,7 @@ class Dataset:
             try:
                 os.remove(self.lock_path)
             except FileNotFoundError:
-                pass
+                pass  # already gone (removed by hand): nothing left to release
 
     def case_ids(self):
         """Case ids in the dataset."""
