@@ -19,8 +19,8 @@ A ProgressReport is what one message says; ``progress_msg(name, report)`` writes
 ``progress_from_msg(msg)`` reads it back (also from messages decoded out of a recording: only
 ``level``, ``name``, ``message`` and ``values[*].key/value`` are used).  While a solve runs the
 status is None (written as ``SOLVING``); afterwards it is a core ``Status``.  Values are
-strings: integers as digits, floats with 9 significant digits ('nan' when unknown), vectors
-as '[a, b, ...]'.  Keys whose value is unset are left out.
+strings: integers as digits, floats with 9 significant digits (clock times 17; 'nan' when
+unknown), vectors as '[a, b, ...]'.  Keys whose value is unset are left out.
 """
 
 from dataclasses import dataclass, fields
@@ -55,6 +55,8 @@ EVENT_IDLE = 'idle'                  # an IDLE notice without a known event
 SOLVE_EVENTS = ('', EVENT_RESTARTED)     # events of running-solve reports
 EVENT_STOPPED = 'trajectory_stopped'     # the executing plan violates new data: stop sent
 EVENT_REPLACED = 'trajectory_replaced'   # ... and a replacement plan was published
+EVENT_REPLANNED = 'replanned'            # a replan cycle published a new plan (stamp ahead)
+EVENT_REPLAN_KEPT = 'replan_kept'        # a replan cycle failed or was late: plan kept
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,13 @@ class ProgressReport:
     event: str = ''
     robot_model: str = ''         # robot.model planned for (ready and result reports)
     model_parameters: str = ''    # its robot.model_parameters, 'name=value' joined by ', '
+    # Replan cycles: joint_states received -> trajectory published [s], the state's deviation
+    # from the executing plan [rad or m], the new plan's header.stamp and the header.stamp of
+    # the joint_states it started from [s, node clock].
+    latency_s: Optional[float] = None
+    deviation: Optional[float] = None
+    plan_stamp: Optional[float] = None
+    state_stamp: Optional[float] = None
 
     @property
     def solving(self):
@@ -110,11 +119,12 @@ _KEYS = {'n_intervals': 'N'}
 _OWN = ('name', 'message', 'level')
 _INT = ('iteration', 'n_intervals', 'data_revision')
 _FLOAT = ('t_f', 'cost', 'best_feasible_t_f', 'max_control_excess', 'terminal_error',
-          'min_clearance', 'elapsed_s')
+          'min_clearance', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp', 'state_stamp')
+_EXACT = ('plan_stamp', 'state_stamp')   # clock times: every digit (9 would lose the fraction)
 KEYS = tuple(_KEYS.get(f.name, f.name) for f in fields(ProgressReport) if f.name not in _OWN)
 
 
-def _text(value):
+def _text(value, digits=9):
     if isinstance(value, Status):
         return value.value
     if isinstance(value, str):
@@ -125,7 +135,7 @@ def _text(value):
         return str(value)
     if isinstance(value, (tuple, list)):
         return '[' + ', '.join(_text(float(v)) for v in value) + ']'
-    return f'{float(value):.9g}'
+    return f'{float(value):.{digits}g}'
 
 
 def progress_msg(name, report):
@@ -140,7 +150,8 @@ def progress_msg(name, report):
         value = getattr(report, f.name)
         if value is None or value == '':
             continue
-        values.append(KeyValue(key=_KEYS.get(f.name, f.name), value=_text(value)))
+        values.append(KeyValue(key=_KEYS.get(f.name, f.name),
+                               value=_text(value, 17 if f.name in _EXACT else 9)))
     return DiagnosticStatus(level=level, name=name, message=report.message, values=values)
 
 

@@ -53,6 +53,24 @@ class SolverNodeSettings:
         64, 'largest obstacle set accepted (obstacles topic and obstacles.* parameters); '
         'larger sets are refused with the reason on ~/progress', low=0, high=100000,
         ros_name='obstacles.max_count')
+    # Receding-horizon replanning (fast mode): see solver_node's module docstring.
+    replan_rate: float = setting(
+        20.0, 'rate of replan cycles while a fast-mode plan executes: each solves to the same '
+        'goal from the latest joint_states (predicted forward by replan.lead), warm-started '
+        'from the rest of the executing plan; 0 = off (plan once per goal)', unit='Hz',
+        low=0.0, high=200.0, ros_name='replan.rate')
+    replan_min_remaining: float = setting(
+        0.15, 'no replan cycles once less than this is left of the executing plan (the '
+        'tracker finishes it)', unit='s', low=0.0, high=1e3, ros_name='replan.min_remaining')
+    replan_deviation: float = setting(
+        0.02, 'largest |q - q_ref| over the joints (measured against the executing plan) that '
+        'starts a replan cycle at once instead of at the next replan.rate tick; 0 = off',
+        unit='rad or m', low=0.0, high=1e3, ros_name='replan.deviation')
+    replan_lead: float = setting(
+        0.03, 'a replanned trajectory starts (header.stamp) this long after the joint_states '
+        'it starts from was received, from the state predicted along the executing plan; a '
+        'cycle not published by then keeps the executing plan', unit='s', low=0.001,
+        high=1.0, ros_name='replan.lead')
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,7 @@ from toc_ros.config import (model_from_parameters, obstacle_rows, options_from_p
                             problem_from_parameters)
 from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
 from toc_ros.core.obstacles import model_clearance
+from toc_ros.core.replan import brake, predict
 from toc_ros.core.result import CLEARANCE_TOL
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
@@ -83,6 +84,11 @@ HEARTBEAT_PERIOD_S = 0.05
 MAX_PROGRESS_GAP_S = 0.15
 # Fewest remaining plan nodes for which a replan warm-starts from the executing plan.
 MIN_WARM_NODES = 20
+# A joint_states stamp further than this from the node clock is from another time base
+# (publish_clock without use_sim_time, say): its age is then taken as zero.
+MAX_STATE_AGE_S = 1.0
+MIN_CYCLE_TIMEOUT_S = 0.002
+CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # How long ~/cancel waits for the solve to stop (the core stops within ~0.1 s).
@@ -96,6 +102,10 @@ SETTLE_MAX_S = 0.5
 SERVICE_QOS = QoSProfile(depth=100)
 # A published trajectory is "executing" until its duration plus this has passed.
 EXECUTION_SLACK_S = 0.5
+# New data that puts a true (uninflated) obstacle on the executing plan within this time
+# brakes at once; later conflicts are replanned around first (braking only if that fails).
+BRAKE_HORIZON_S = 0.25
+BRAKE_STEP_S = 0.002
 
 
 def parameter_errors(params):
@@ -159,6 +169,18 @@ def obstacle_count(msg):
     return len(msg.data) // 3
 
 
+def nearest_node(states, x):
+    """
+    Return the index of the plan node nearest to state x.
+
+    The plant lags or leads the plan's clock (mismatch, tracking error), so a warm start from
+    the node nearest in state, scaled by each coordinate's spread along the plan, fits better
+    than the node at the elapsed time.
+    """
+    scale = np.maximum(np.ptp(states, axis=0), 1e-6)
+    return int(np.argmin(np.sum(((states - np.asarray(x)) / scale) ** 2, axis=1)))
+
+
 class _Request:
     """One goal on its way through the worker (a restart keeps the same request)."""
 
@@ -169,6 +191,7 @@ class _Request:
         self.restart_reason = None       # set when the planning data changed during the solve
         self.event = ''                  # schema event of its result (e.g. a replacement)
         self.result = None               # SolveResult once solved (None when dropped)
+        self.cycle = None                # a replan cycle's data (_Cycle), None for goals
         self.path = None                 # nav_msgs/Path when a trajectory was published
         self.done = threading.Event()
         self._lock = threading.Lock()
@@ -189,6 +212,28 @@ class _Request:
             callbacks, self._callbacks = self._callbacks, []
         for callback in callbacks:
             callback()
+
+
+@dataclasses.dataclass
+class _Cycle:
+    """One replan cycle: the plan it replaces and the state it starts from."""
+
+    plan: dict              # the executing plan (_executing) when the cycle started
+    start: np.ndarray       # state predicted at stamp_s
+    stamp_s: float          # the new plan's header.stamp [s, node clock]
+    received: float         # time.monotonic() when its joint_states arrived
+    state_stamp: float      # that joint_states' header.stamp [s]
+    deviation: float        # max |q - q_ref| of the measured state [rad or m]
+    reason: str             # 'rate', 'deviation' or 'data change'
+
+
+@dataclasses.dataclass
+class _Braking:
+    """A braking stop as conversions.trajectory_msg takes it (time grid, states, controls)."""
+
+    time_grid: np.ndarray
+    states: np.ndarray
+    controls: np.ndarray
 
 
 class _Worker:
@@ -220,13 +265,29 @@ class _Worker:
         if dropped is not None:
             self._drop(dropped, 'superseded by a newer goal before its solve started')
 
+    def offer(self, request):
+        """Queue a replan cycle only when idle (goals go first); True when taken."""
+        with self._cond:
+            stopped_cycle = (self._active is not None and self._active.cycle is not None
+                             and self._cancel.is_set())
+            if (self._active is not None and not stopped_cycle) or self._pending is not None \
+                    or self._stopping:
+                return False
+            self._pending = request
+            self._cond.notify_all()
+        return True
+
     def restart(self, reason):
         """Stop the running solve and solve its goal again (unless a newer goal is queued)."""
         with self._cond:
-            if self._active is not None and self._active.stop_reason is None:
-                self._active.restart_reason = reason
+            active = self._active
+            if active is not None and active.stop_reason is None:
+                if active.cycle is not None:     # its predicted start is stale: just stop it
+                    active.stop_reason = reason
+                else:
+                    active.restart_reason = reason
                 self._cancel.set()
-                return True
+                return active.cycle is None
         return False
 
     def cancel(self):
@@ -246,6 +307,11 @@ class _Worker:
         """Tell whether a request is queued or solving."""
         with self._cond:
             return self._active is not None or self._pending is not None
+
+    def goal_busy(self):
+        """Tell whether a goal (not a replan cycle) is queued or solving."""
+        with self._cond:
+            return any(r is not None and r.cycle is None for r in (self._active, self._pending))
 
     def stop(self):
         """Cancel everything and end the thread."""
@@ -269,7 +335,8 @@ class _Worker:
             while self._pending is None and not self._stopping:
                 self._cond.wait()
             settle_end = time.monotonic() + SETTLE_MAX_S
-            while not self._stopping:
+            while (not self._stopping and self._pending is not None
+                   and self._pending.cycle is None):
                 quiet = self._last_submit + QUIET_S - time.monotonic()
                 if quiet <= 0.0 or time.monotonic() >= settle_end:
                     break
@@ -333,6 +400,7 @@ class SolverNode(Node):
         self._planning = planning_data(self._params)
         self._executing = None              # dict of the last published plan
         self._plan_info = None              # (hash, revision) of the last published plan
+        self._next_cycle = 0.0              # time.monotonic() of the next replan.rate cycle
         self._ready = threading.Event()
         self._started = time.monotonic()
         self._kernel_load_s = None
@@ -437,27 +505,59 @@ class SolverNode(Node):
         self._check_executing(params, revision)
 
     def _check_executing(self, params, revision):
-        """Stop (and replan) an executing trajectory that violates the current data."""
+        """Replan around, or stop, an executing trajectory that violates the current data."""
         with self._plan_lock:
             plan = self._executing
             if plan is None or revision != self._revision:
                 return
-            elapsed = time.monotonic() - plan['published']
+            elapsed = self._now() - plan['start']
             if elapsed > plan['duration'] + EXECUTION_SLACK_S:
                 self._executing = None
                 return
             violation = self._violation(plan, params, elapsed)
             if violation is None:
                 return
-            # Stop at once: an empty trajectory makes the plant hold its position.
-            stop = JointTrajectory()
-            stop.header.stamp = self.get_clock().now().to_msg()
-            stop.joint_names = list(params['joint_names'])
+        measured = self._snapshot()[1]
+        conflict = self._true_conflict_time(plan, params, elapsed)
+        if measured is not None and (conflict is None or conflict > BRAKE_HORIZON_S) \
+                and self._maybe_replan(params, measured, self._now(), time.monotonic(),
+                                       reason='data change'):
+            self.get_logger().warning(
+                f'the executing trajectory {violation} under data revision {revision}: '
+                'replanning from the current state')
+            return
+        self._stop(plan, params, revision, violation)
+
+    def _stop(self, plan, params, revision, violation):
+        """
+        Stop the executing plan at once and plan its goal again (unless a goal is queued).
+
+        With a measured state the stop is a braking trajectory (every joint decelerates at
+        its control bound until it rests); without one an empty trajectory (the plant holds).
+        """
+        measured = self._snapshot()[1]
+        stop = JointTrajectory()
+        stop.joint_names = list(params['joint_names'])
+        braking = None
+        model = plan.get('model')
+        if measured is not None and model is not None and measured.shape[0] == model.nx:
+            times, states, controls = brake(model, measured, BRAKE_STEP_S)
+            braking = _Braking(times, states, controls)
+            stop = conversions.trajectory_msg(braking, params['joint_names'], model,
+                                              conversions.time_msg(0.0))
+        with self._plan_lock:
+            if revision != self._revision or self._executing is not plan:
+                return        # newer data or a newer plan took over meanwhile
             self._trajectory_pub.publish(stop)
-            self._executing = None
-        replan = not self._worker.busy()
+            self._executing = None if braking is None else {
+                'start': self._now(), 'duration': float(braking.time_grid[-1]),
+                'times': braking.time_grid, 'states': braking.states,
+                'controls': braking.controls, 'goal': plan['goal'], 'source': 'brake',
+                'path_states': plan['path_states'], 'result': None, 'model': model}
+        replan = not self._worker.goal_busy()
+        how = 'braking to rest' if braking is not None else 'stopped'
         reason = (f'the executing trajectory {violation} under data revision {revision}: '
-                  'stopped' + (', planning the goal again' if replan else ''))
+                  f'{how}' + (', planning the goal again' if replan else ''))
         self.get_logger().warning(reason)
         self._publish_progress(schema.ProgressReport(
             status=Status.CANCELED, message=reason, level=schema.DiagnosticStatus.WARN,
@@ -466,6 +566,25 @@ class SolverNode(Node):
             request = self._submit(lambda _params: plan['goal'], 'replan')
             if request is not None:
                 request.event = schema.EVENT_REPLACED
+
+    @staticmethod
+    def _true_conflict_time(plan, params, elapsed):
+        """Return the time [s] until the plan's rest enters a true obstacle (None: never)."""
+        model = plan.get('model')
+        try:
+            rows = obstacle_rows(params)
+        except ProblemError:
+            return None
+        if model is None or not rows or model.nx != plan['states'].shape[1]:
+            return None
+        rest = plan['times'] >= elapsed
+        if not rest.any():
+            return None
+        gaps = model_clearance(model, plan['states'][rest], np.asarray(rows, dtype=float))
+        inside = np.min(gaps, axis=1) < 0.0
+        if not inside.any():
+            return None
+        return float(plan['times'][rest][int(np.argmax(inside))] - elapsed)
 
     @staticmethod
     def _violation(plan, params, elapsed):
@@ -513,11 +632,139 @@ class SolverNode(Node):
         except conversions.ConversionError as exc:
             self.get_logger().warning(f'ignoring joint_states: {exc}', throttle_duration_sec=5.0)
             return
+        received = time.monotonic()
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self._lock:
             self._measured = state
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
+            params = self._params
+        self._maybe_replan(params, state, stamp if stamp > 0.0 else self._now(), received)
+
+    # -- replanning (receding horizon) ----------------------------------------------------------
+
+    def _now(self):
+        """Return the node clock's time [s] (simulated time under use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _maybe_replan(self, params, state, state_time, received, reason=None):
+        """
+        Start a replan cycle from a measured state when one is due; True when it was queued.
+
+        Due: at replan.rate, at once when the state deviates from the executing plan by more
+        than replan.deviation, or for a reason (new data).  The cycle's plan starts at
+        stamp = now + replan.lead from the state predicted along the executing plan, and only
+        while more than replan.min_remaining of it is left; the worker takes it only when no
+        goal is queued or solving.
+        """
+        rate = float(params['replan.rate'])
+        if rate <= 0.0 or params['solver.mode'] != 'fast' or not self._ready.is_set():
+            return False
+        with self._plan_lock:
+            plan = self._executing
+        if plan is None or plan.get('result') is None or state.shape[0] != plan['model'].nx:
+            return False
+        now = self._now()
+        if abs(now - state_time) > MAX_STATE_AGE_S:
+            state_time = now
+        stamp = now + float(params['replan.lead'])
+        measured_at, start_at = state_time - plan['start'], stamp - plan['start']
+        # A state from before the plan applies belongs to the plan it replaced (the latest
+        # cycle's plan starts replan.lead after its state): wait for the plan to apply.
+        if measured_at < 0.0 or plan['duration'] - start_at < float(
+                params['replan.min_remaining']):
+            return False
+        times = plan['times']
+        q_ref = np.array([np.interp(measured_at, times, plan['states'][:, j])
+                          for j in range(0, state.shape[0], 2)])
+        deviation = float(np.max(np.abs(state[0::2] - q_ref)))
+        limit = float(params['replan.deviation'])
+        if reason is None:
+            if limit > 0.0 and deviation > limit:
+                reason = 'deviation'
+            elif received >= self._next_cycle:
+                reason = 'rate'
+            else:
+                return False
+        start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
+        request = _Request(plan['goal'], CYCLE_SOURCE)
+        request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason)
+        if not self._worker.offer(request):
+            return False
+        self._next_cycle = received + 1.0 / rate
+        return True
+
+    def _run_cycle(self, request, cancel):
+        """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
+        cycle, plan = request.cycle, request.cycle.plan
+        params = self._snapshot()[0]
+        with self._plan_lock:
+            revision = self._revision
+            if self._executing is not plan:
+                return          # a newer plan was published meanwhile: nothing to replace
+        result, problem, why = None, None, ''
+        try:
+            guess = plan['result'].remainder(plan['times'][nearest_node(plan['states'],
+                                                                        cycle.start)])
+            problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
+            problem = dataclasses.replace(problem, n_intervals=guess.controls.shape[0])
+            # A cycle is worthless once its plan should have started: that is its time limit.
+            options = dataclasses.replace(options_from_parameters(params), timeout=max(
+                cycle.stamp_s - self._now(), MIN_CYCLE_TIMEOUT_S))
+            if guess.controls.shape[0] < MIN_WARM_NODES:
+                why = f'only {guess.controls.shape[0]} plan nodes left'
+            else:
+                result = solve(problem, options, cancel=cancel, initial_guess=guess)
+        except (ProblemError, TypeError, ValueError) as exc:
+            why = f'no plan from the predicted state: {exc}'
+        except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
+            self.get_logger().error(f'replan cycle failed: {exc!r}')
+            why = f'internal solver error: {exc!r}'
+        published = False
+        if result is not None:
+            late = self._now() - cycle.stamp_s
+            if result.status is not Status.SOLVED or not result.has_trajectory:
+                why = f'{result.status.value}: {request.stop_reason or result.message}'
+            elif late > 0.0:
+                why = (f'late: solved {1e3 * late:.1f} ms after the new plan was to start '
+                       f'(replan.lead {1e3 * float(params["replan.lead"]):.0f} ms)')
+            else:
+                published = self._publish_plan(request, result, problem, params, revision,
+                                               stamp_s=cycle.stamp_s)
+                if not published:
+                    why = 'the planning data changed during the cycle'
+        latency = time.monotonic() - cycle.received
+        values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
+                      goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
+                      data_revision=revision, latency_s=latency, deviation=cycle.deviation,
+                      plan_stamp=cycle.stamp_s, state_stamp=cycle.state_stamp,
+                      **model_keys(params))
+        if problem is not None:
+            values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
+        if published:
+            self._publish_progress(schema.result_report(
+                result, f'replanned ({cycle.reason}): {result.message}',
+                event=schema.EVENT_REPLANNED, **values))
+            return
+        message = f'replan cycle ({cycle.reason}) kept the executing plan: {why}'
+        self.get_logger().warning(message, throttle_duration_sec=1.0)
+        report = (schema.result_report(result, message, **values) if result is not None
+                  else schema.ProgressReport(status=Status.INVALID_INPUT, message=message,
+                                             **values))
+        self._publish_progress(dataclasses.replace(
+            report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
+        self._stop_if_violating(plan, params)
+
+    def _stop_if_violating(self, plan, params):
+        """After a failed cycle: stop the plan it kept if that violates the current data."""
+        with self._plan_lock:
+            revision = self._revision
+            if self._executing is not plan:
+                return
+        violation = self._violation(plan, params, self._now() - plan['start'])
+        if violation is not None:
+            self._stop(plan, params, revision, violation)
 
     @staticmethod
     def _pose_goal(msg, params):
@@ -658,6 +905,9 @@ class SolverNode(Node):
         request.finish()
 
     def _run(self, request, cancel):
+        if request.cycle is not None:
+            self._run_cycle(request, cancel)
+            return
         params, measured = self._snapshot()
         with self._plan_lock:
             revision = self._revision
@@ -731,12 +981,8 @@ class SolverNode(Node):
                 or plan.get('result') is None \
                 or not np.allclose(plan['goal'], problem.x_goal, rtol=0.0, atol=1e-9):
             return problem, None
-        elapsed = time.monotonic() - plan['published']
-        # The node of the plan nearest to the measured state (the plant may lag or lead the
-        # plan's clock), scaled by the state's spread along the plan.
-        states = plan['states']
-        scale = np.maximum(np.ptp(states, axis=0), 1e-6)
-        k = int(np.argmin(np.sum(((states - np.asarray(problem.x0)) / scale) ** 2, axis=1)))
+        elapsed = self._now() - plan['start']
+        k = nearest_node(plan['states'], problem.x0)
         remainder = plan['result'].remainder(plan['times'][k])
         nodes = remainder.controls.shape[0]
         if elapsed >= plan['duration'] or nodes < MIN_WARM_NODES \
@@ -744,9 +990,16 @@ class SolverNode(Node):
             return problem, None
         return dataclasses.replace(problem, n_intervals=nodes), remainder
 
-    def _publish_plan(self, request, result, problem, params, revision):
-        """Publish the plan unless its data revision is stale (then return False)."""
-        stamp = self.get_clock().now().to_msg()
+    def _publish_plan(self, request, result, problem, params, revision, stamp_s=None):
+        """
+        Publish the plan unless its data revision is stale (then return False).
+
+        stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
+        cycles: ahead of now); None: now.
+        """
+        now = self._now()
+        start = now if stamp_s is None else float(stamp_s)
+        stamp = conversions.time_msg(start)
         model = problem.robot_model
         trajectory = conversions.trajectory_msg(result, params['joint_names'], model, stamp)
         path = conversions.hand_path_msg(result.states, model, params['base_frame'], stamp)
@@ -755,17 +1008,21 @@ class SolverNode(Node):
                 return False
             self._trajectory_pub.publish(trajectory)
             self._executing = {
-                'published': time.monotonic(), 'duration': float(result.time_grid[-1]),
+                'start': start, 'duration': float(result.time_grid[-1]),
                 'times': np.asarray(result.time_grid, dtype=float),
                 'states': np.asarray(result.states, dtype=float),
                 'controls': np.asarray(result.controls, dtype=float),
                 'goal': request.goal.copy(), 'source': request.source,
-                'path_states': result.states, 'result': result}
+                'path_states': result.states, 'result': result, 'model': model}
             self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
         request.path = path
         self._path_pub.publish(path)
-        self._publish_markers()
+        if request.cycle is None:
+            self._publish_markers()   # cycles: the marker timer redraws (no solve delay)
+        else:
+            with self._lock:
+                self._arm_dirty = True
         return True
 
     # -- markers ------------------------------------------------------------------------------

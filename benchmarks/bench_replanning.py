@@ -1,0 +1,167 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Online replanning in the closed loop (issue 12): open loop against replanning, real nodes.
+
+solver_node and plant_node run as processes on a private ROS domain (the shipped parameter
+file, solver.N = --N); each scenario is executed once with replan.rate = 0 (plan once, the
+plant's PD tracks it) and once with replan.rate = --rate, from the paper's start to its goal
+around its circle:
+
+* mismatch: the plant's payload +20 % (hand_mass 50 -> 60 kg) and inertia x 1.2;
+* lag: a 10 ms first-order actuator lag on the plant (plant_node actuator_lag);
+* moving: a second circle moves into the path during the execution (the plant matches the
+  model); the arm must keep clear of it and still arrive.
+
+Reported per run (toc_ros.analysis.closed_loop.execution_metrics, from the joint_states,
+trajectory and ~/progress messages received): the final position error 0.2 s after the end of
+the last plan, the arrival time (every joint within 1e-3 of the goal from then on) against
+the minimum time of the true plant (fast mode on the plant's own parameters; for the lag the
+model's), the executed clearance to every true circle (no margin) over all joint_states, and
+the replan cycle latency (joint_states received -> trajectory published, measured in
+solver_node) median / p99 / max over the whole execution.
+
+    PYTHONPATH=. python benchmarks/bench_replanning.py [--N 300] [--rate 20]
+        [--scenarios mismatch lag moving] [--markdown FILE] [--json FILE]
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64MultiArray  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from toc_ros import config, harness  # noqa: E402
+from toc_ros.core import solve  # noqa: E402
+from toc_ros.demo.closed_loop import MovingObstacle, run_execution  # noqa: E402
+from trajectory_msgs.msg import JointTrajectory  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
+
+PAPER_GOAL_Q = (5.0 * math.pi / 12.0, 1.0)
+PAPER_OBSTACLES = ((1.0, 1.0, 0.2),)
+# A circle that enters the paper plan's path from outside while the arm moves towards it.
+MOVING_OBSTACLES = PAPER_OBSTACLES + ((2.45, 1.55, 0.12),)
+MOVING = MovingObstacle(index=1, velocity=(-0.5, -0.05), start=0.3, stop=1.0)
+SCENARIOS = {
+    'mismatch': {'plant': {'payload_mass_offset': 10.0, 'inertia_scale': 1.2},
+                 'true': {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}},
+    'lag': {'plant': {'actuator_lag': 0.01}, 'true': {}},
+    'moving': {'plant': {}, 'true': {}, 'moving': MOVING, 'obstacles': MOVING_OBSTACLES},
+}
+NOMINAL_PLANT = {'payload_mass_offset': 0.0, 'inertia_scale': 1.0}
+
+
+def true_t_min(params, changes, n):
+    """Return fast mode's t_min on the true plant's parameters (same N, paper start/goal)."""
+    values = dict(params, **changes)
+    values['solver.N'] = n
+    problem = config.problem_from_parameters(values)
+    result = solve(problem, config.options_from_parameters(values))
+    return result.final_time if result.success else math.nan
+
+
+def _table(rows):
+    lines = ['| scenario | loop | planned t_min [s] | true t_min [s] | arrival [s] | '
+             'arrival / true | final error (end + 0.2 s) | min clearance [m] | plans | kept | '
+             'latency median / p99 / max [ms] |', '|' + '---|' * 11]
+    for r in rows:
+        m = r['metrics']
+        lat = ('-' if not m['latencies'] else
+               f"{1e3 * m['latency_median_s']:.1f} / {1e3 * m['latency_p99_s']:.1f} / "
+               f"{1e3 * m['latency_max_s']:.1f}")
+        ratio = m['arrival_s'] / r['true_t_min'] if r['true_t_min'] else math.nan
+        lines.append(
+            f"| {r['scenario']} | {r['loop']} | {m['planned_t_min']:.4f} | "
+            f"{r['true_t_min']:.4f} | {m['arrival_s']:.4f} | {ratio:.4f} | "
+            f"{m['final_error']:.2e} | {m['min_clearance']:.4f} | {m['plans']} | "
+            f"{m['replans_kept']} | {lat} |")
+    return '\n'.join(lines)
+
+
+def main(argv=None):
+    """Run the scenarios and print the table."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[1])
+    parser.add_argument('--N', type=int, default=300)
+    parser.add_argument('--rate', type=float, default=20.0)
+    parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS),
+                        choices=list(SCENARIOS))
+    parser.add_argument('--markdown')
+    parser.add_argument('--json')
+    args = parser.parse_args(argv)
+    params_file = config.default_config_path()
+    params = config.load_parameters(params_file, 'solver_node')
+    model = config.model_from_parameters(params)
+    joint_names = list(params['joint_names'])
+    log_dir = tempfile.mkdtemp(prefix='bench_replanning_')
+    client = harness.RosClient('bench_replanning')
+    nodes = [harness.NodeProcess('solver_node', client.namespace, log_dir,
+                                 {'solver.N': args.N, 'solver.timeout': 30.0}, params_file),
+             harness.NodeProcess('plant_node', client.namespace, log_dir, None, params_file)]
+    rows = []
+    try:
+        client.collect(DiagnosticStatus, 'solver_node/progress', 100, keep=20000)
+        client.collect(JointState, 'joint_states', 100, keep=20000)
+        client.collect(JointTrajectory, 'trajectory', harness.LATCHED, keep=2000)
+        goal_pub = client.node.create_publisher(JointState, client.name('goal_joints'), 10)
+        obstacles_pub = client.node.create_publisher(
+            Float64MultiArray, client.name('obstacles'), 10)
+        ready = client.node.create_client(Trigger, client.name('solver_node/ready'))
+        client.wait_for(lambda: client.call(ready, Trigger.Request(), 300.0).success, 600.0,
+                        'solver_node ready')
+        client.wait_for(lambda: goal_pub.get_subscription_count() > 0
+                        and obstacles_pub.get_subscription_count() > 0
+                        and client.count('joint_states') > 10, 60.0, 'the nodes')
+        for name in args.scenarios:
+            spec = SCENARIOS[name]
+            reference = true_t_min(params, spec['true'], args.N)
+            for loop, rate in (('open loop', 0.0), ('replanning', args.rate)):
+                plant = dict(NOMINAL_PLANT, **{'actuator_lag': 0.0} if name == 'lag' else {},
+                             **spec['plant'])
+                execution = run_execution(
+                    client, (goal_pub, obstacles_pub), model, joint_names, PAPER_GOAL_Q,
+                    spec.get('obstacles', PAPER_OBSTACLES), plant=plant, replan_rate=rate,
+                    moving=spec.get('moving'))
+                row = {'scenario': name, 'loop': loop, 'true_t_min': reference,
+                       'metrics': execution.metrics}
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+                time.sleep(0.5)
+    finally:
+        for node in nodes:
+            node.stop()
+        client.close()
+    load = os.getloadavg()
+    text = (f'bench_replanning: N = {args.N}, replan.rate = {args.rate} Hz, load '
+            f'{load[0]:.2f}\n\n' + _table(rows))
+    print(text)
+    if args.markdown:
+        with open(args.markdown, 'w') as stream:
+            stream.write(text + '\n')
+    if args.json:
+        with open(args.json, 'w') as stream:
+            json.dump({'N': args.N, 'rate': args.rate, 'rows': rows}, stream, indent=1,
+                      default=lambda v: None)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

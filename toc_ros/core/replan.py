@@ -1,0 +1,96 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Receding-horizon helpers (ROS-free): predict the state along a plan, and a braking stop.
+
+A replan cycle starts the new plan a little in the future (the solve and transport latency),
+so it must start from where the robot will be then: ``predict`` integrates the measured state
+forward under the executing plan's piecewise-constant controls with the model's RK4 step.
+``brake`` is the stop for an infeasible situation: every joint decelerates at its full
+control bound until it rests, the fastest stop a bang-bang control allows per joint.
+"""
+
+import math
+
+import numpy as np
+
+from toc_ros.core.horizon import integrator_id
+
+RK4 = integrator_id('rk4')
+# Largest RK4 step of a prediction [s]: well below the plans' tau (~2 ms at N = 1000).
+PREDICT_STEP_S = 1e-3
+# The braking control is bang-bang away from rest and linear below this joint speed, so that
+# it comes to rest without chattering [rad/s or m/s].
+BRAKE_SMOOTHING_SPEED = 0.02
+BRAKE_REST_SPEED = 1e-4
+BRAKE_MAX_S = 5.0
+
+
+def control_at(times, controls, t):
+    """Return the plan's piecewise-constant control at plan time t (zero outside the plan)."""
+    if t < times[0] or t >= times[-1]:
+        return np.zeros(controls.shape[1])
+    i = min(int(np.searchsorted(times, t, side='right')) - 1, controls.shape[0] - 1)
+    return controls[i]
+
+
+def predict(model, x, times, controls, t0, t1):
+    """
+    Return the state at plan time t1 from state x at plan time t0 under the plan's controls.
+
+    times (N + 1,) and controls (N, nu) are the executing plan's grid and controls; outside
+    the plan the control is zero (the tracker holds the end).  t1 <= t0 returns x.
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    span = float(t1) - float(t0)
+    if not span > 0.0:
+        return x.copy()
+    steps = max(1, math.ceil(span / PREDICT_STEP_S))
+    dt = span / steps
+    mids = float(t0) + dt * (np.arange(steps) + 0.5)
+    u = np.array([control_at(times, controls, t) for t in mids], dtype=float)
+    states = np.empty((steps + 1, model.nx))
+    model.kernels.rollout(x, np.ascontiguousarray(u), dt, model.packed(), RK4, states)
+    return states[-1].copy()
+
+
+def brake(model, x, dt):
+    """
+    Return (times, states, controls) of the fastest per-joint stop from state x.
+
+    Each joint's control is -u_max sign(velocity), linear below BRAKE_SMOOTHING_SPEED; the
+    rollout ends once every joint speed is below BRAKE_REST_SPEED (at most BRAKE_MAX_S), and
+    the last state is the rest state (zero velocity).  controls has one row per interval.
+    """
+    u_max = np.asarray(model.u_max, dtype=float)
+    state = np.ascontiguousarray(x, dtype=float).copy()
+    p = model.packed()
+    pair = np.empty((2, model.nx))
+    states, controls = [state.copy()], []
+    for _ in range(int(BRAKE_MAX_S / dt)):
+        speed = state[1::2]
+        if np.max(np.abs(speed)) < BRAKE_REST_SPEED:
+            break
+        u = -u_max * np.clip(speed / BRAKE_SMOOTHING_SPEED, -1.0, 1.0)
+        model.kernels.rollout(state, u.reshape(1, -1), dt, p, RK4, pair)
+        state = pair[1].copy()
+        states.append(state.copy())
+        controls.append(u)
+    if not controls:         # already at rest: hold for one step
+        states.append(state.copy())
+        controls.append(np.zeros(model.nu))
+    states = np.array(states)
+    states[-1, 1::2] = 0.0
+    return dt * np.arange(len(states)), states, np.array(controls)

@@ -1,0 +1,170 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+One closed-loop execution against running solver_node and plant_node, and its numbers.
+
+``run_execution`` sets the plant's mismatch and the solver's ``replan.rate``, resets the
+plant, sends the obstacles and a joint goal, moves an obstacle during the execution when
+told to, waits until the plant rests (or the time is up) and returns
+``closed_loop.execution_metrics`` of what it received.  The demo's mismatch stage and
+``benchmarks/bench_replanning.py`` both run it.
+"""
+
+from dataclasses import dataclass, field
+import time
+from typing import Optional, Tuple
+
+import numpy as np
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from toc_ros import conversions
+from toc_ros.analysis.closed_loop import execution_metrics, PlanSpan
+from toc_ros.progress import EVENT_REPLAN_KEPT, EVENT_REPLANNED, progress_from_msg
+
+PROGRESS = 'solver_node/progress'
+OBSTACLE_PERIOD_S = 0.1       # a moving obstacle is re-sent at 10 Hz
+REST_SPEED = 1e-3             # [rad/s, m/s]: at rest
+
+
+@dataclass(frozen=True)
+class MovingObstacle:
+    """Obstacle row `index` moves at `velocity` [m/s] from `start` to `stop` [s after t0]."""
+
+    index: int
+    velocity: Tuple[float, float]
+    start: float
+    stop: float
+
+    def rows(self, base, t):
+        """Return the obstacle rows at time t [s after t0]."""
+        rows = [list(r) for r in base]
+        span = min(max(t - self.start, 0.0), self.stop - self.start)
+        rows[self.index][0] += self.velocity[0] * span
+        rows[self.index][1] += self.velocity[1] * span
+        return tuple(tuple(r) for r in rows)
+
+
+@dataclass
+class Execution:
+    """What run_execution saw: the numbers and the raw series for plots."""
+
+    metrics: dict
+    plans: list = field(default_factory=list)        # PlanSpan per published plan
+    times: Optional[np.ndarray] = None               # joint_states stamps [s]
+    positions: Optional[np.ndarray] = None
+    schedule: list = field(default_factory=list)     # [(stamp, rows)] obstacles sent
+    reports: list = field(default_factory=list)      # ProgressReport of the replan cycles
+
+
+def _stamp(msg_stamp):
+    return msg_stamp.sec + 1e-9 * msg_stamp.nanosec
+
+
+def _now(client):
+    return client.node.get_clock().now().nanoseconds * 1e-9
+
+
+def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
+                  plant=None, replan_rate=20.0, moving=None, timeout=20.0, send=None):
+    """
+    Run one goal in the loop and return an Execution.
+
+    client: a harness.RosClient collecting 'joint_states', 'trajectory' and PROGRESS;
+    publishers: (goal_joints, obstacles) publishers; plant: plant_node parameter values for
+    this run (mismatch knobs); moving: a MovingObstacle or None; send(rows): publishes an
+    obstacle set (default: conversions-free Float64MultiArray rows on publishers[1]).
+    """
+    goal_pub, obstacles_pub = publishers
+    send = send or (lambda rows: obstacles_pub.publish(_obstacles_msg(rows)))
+    _set(client, 'solver_node', {'replan.rate': float(replan_rate)})
+    if plant:
+        _set(client, 'plant_node', plant)
+    reset = client.node.create_client(Trigger, client.name('plant_node/reset'))
+    try:
+        client.call(reset, Trigger.Request(), timeout=10.0)
+    finally:
+        client.node.destroy_client(reset)
+    schedule = [(_now(client), tuple(tuple(r) for r in obstacles))]
+    send(obstacles)
+    _wait_obstacles(client, obstacles)
+    time.sleep(0.3)      # the solver sees the reset state on joint_states
+    since = time.monotonic()
+    goal = JointState(name=list(joint_names), position=[float(q) for q in goal_q],
+                      velocity=[0.0] * len(goal_q))
+    goal_pub.publish(goal)
+    first = client.wait_for(lambda: client.stamped('trajectory', since), 60.0,
+                            'the first trajectory')[0][1]
+    t0 = _stamp(first.header.stamp)
+    duration = conversions.duration_seconds(first.points[-1].time_from_start)
+    deadline = time.monotonic() + min(timeout, 3.0 * duration + 3.0)
+    next_move = 0.0
+    while time.monotonic() < deadline:
+        now = _now(client)
+        if moving is not None and now - t0 <= moving.stop + OBSTACLE_PERIOD_S \
+                and time.monotonic() >= next_move:
+            rows = moving.rows(obstacles, now - t0)
+            schedule.append((now, rows))
+            send(rows)
+            next_move = time.monotonic() + OBSTACLE_PERIOD_S
+        if now - t0 > duration and _at_rest(client, joint_names, goal_q, since):
+            break
+        time.sleep(0.01)
+    time.sleep(0.3)      # the final error is taken 0.2 s after the last plan's end
+    plans = [PlanSpan(_stamp(m.header.stamp) or t, conversions.duration_seconds(
+        m.points[-1].time_from_start)) for t, m in client.stamped('trajectory', since)
+        if m.points]
+    states = [m for _, m in client.stamped('joint_states', since)]
+    times = np.array([_stamp(m.header.stamp) for m in states])
+    positions = np.array([conversions.joint_state_arrays(m, joint_names)[0] for m in states])
+    reports = [progress_from_msg(m) for m in client.messages(PROGRESS, since)]
+    cycles = [r for r in reports if r.event in (EVENT_REPLANNED, EVENT_REPLAN_KEPT)]
+    latencies = [r.latency_s for r in cycles if r.event == EVENT_REPLANNED]
+    kept = sum(r.event == EVENT_REPLAN_KEPT for r in cycles)
+    metrics = execution_metrics(model, goal_q, plans, times, positions, schedule,
+                                latencies, kept)
+    return Execution(metrics, plans, times, positions, schedule, cycles)
+
+
+def _set(client, node, values):
+    results = client.set_parameters(node, values)
+    refused = [r.reason for r in results if not r.successful]
+    if refused:
+        raise RuntimeError(f'{node} refused {values}: {refused}')
+
+
+def _obstacles_msg(rows):
+    from std_msgs.msg import Float64MultiArray
+    return Float64MultiArray(data=[float(v) for row in rows for v in row])
+
+
+def _wait_obstacles(client, rows):
+    expected = [[float(v) for v in row] for row in rows]
+
+    def taken():
+        values = client.get_parameters(
+            'solver_node', ['obstacles.x', 'obstacles.y', 'obstacles.radius'], timeout=5.0)
+        got = [list(r) for r in zip(values['obstacles.x'], values['obstacles.y'],
+                                    values['obstacles.radius'])]
+        return got == expected
+    client.wait_for(taken, 30.0, 'solver_node to take the obstacles')
+
+
+def _at_rest(client, joint_names, goal_q, since):
+    msgs = client.messages('joint_states', since)
+    if not msgs:
+        return False
+    q, dq = conversions.joint_state_arrays(msgs[-1], joint_names)
+    return (float(np.max(np.abs(q - np.asarray(goal_q)))) < 1e-3
+            and float(np.max(np.abs(dq))) < REST_SPEED)
