@@ -58,9 +58,13 @@ from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
 
 PAPER_GOAL_Q = (5.0 * math.pi / 12.0, 1.0)
 PAPER_OBSTACLES = ((1.0, 1.0, 0.2),)
-# A circle that enters the paper plan's path from outside while the arm moves towards it.
-MOVING_OBSTACLES = PAPER_OBSTACLES + ((2.45, 1.55, 0.12),)
-MOVING = MovingObstacle(index=1, velocity=(-0.5, -0.05), start=0.3, stop=1.0)
+# A circle that moves into the paper plan's path while the arm approaches: from 1.8 m to
+# 1.3 m from the base along the bearing 0.98 rad at 0.5 m/s; the first plan's arm sweeps
+# through its final place from t = 1.24 s on.
+BEARING = (math.cos(0.98), math.sin(0.98))
+MOVING_OBSTACLES = PAPER_OBSTACLES + ((1.8 * BEARING[0], 1.8 * BEARING[1], 0.1),)
+MOVING = MovingObstacle(index=1, velocity=(-0.5 * BEARING[0], -0.5 * BEARING[1]), start=0.0,
+                        stop=1.0)
 SCENARIOS = {
     'mismatch': {'plant': {'payload_mass_offset': 10.0, 'inertia_scale': 1.2},
                  'true': {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}},

@@ -430,7 +430,7 @@ class FastSolve:
                     mu, push = min(MU_WARM / n, max(MU_EXACT, 1e-4 * drift)), BOUND_PUSH
                 run, code = self._solve_on(n, states, controls, t_f, mu, duals,
                                            budget=WARM_BUDGET, push=push)
-                if code != ipm.CONVERGED:
+                if code != ipm.CONVERGED and self.done < self.limit:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None
                     return self.solve()
@@ -463,27 +463,29 @@ class FastSolve:
         """
         problem = self.problem
         code = None
+        last = None      # the latest (run, code): the answer when the iterations run out
         if n > 2 * COARSE_INTERVALS:
             states, controls, t_f = interpolation_start(problem, COARSE_INTERVALS)
             coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD,
-                                          budget=self.limit // 4)
-            if code == ipm.CONVERGED:
+                                          budget=max(1, self.limit // 4))
+            last = coarse, code
+            if code == ipm.CONVERGED and self.done < self.limit:
                 states, controls = resample(coarse.ws.x, coarse.controls(), n)
                 duals = resample_duals(coarse.duals(), COARSE_INTERVALS, n)
-                run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
-                                           budget=self.limit // 4)
-                if code == ipm.CONVERGED:
-                    return run, code
+                last = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
+                                      budget=max(1, self.limit // 4))
+                if last[1] == ipm.CONVERGED:
+                    return last
         first = None
         for mu in MU_COLD_RETRIES if code is not None else (MU_COLD,) + MU_COLD_RETRIES:
-            if self.done >= self.limit:
+            if self.done >= self.limit and last is not None:
                 break
             states, controls, t_f = interpolation_start(problem, n)
-            run, code = self._solve_on(n, states, controls, t_f, mu)
-            first = first or (run, code)
-            if code == ipm.CONVERGED:
-                return run, code
-        return first if first is not None else (run, code)
+            last = self._solve_on(n, states, controls, t_f, mu)
+            first = first or last
+            if last[1] == ipm.CONVERGED:
+                return last
+        return first if first is not None else last
 
     def _history(self):
         return np.array(self.history, dtype=float).reshape(-1, 4)

@@ -88,6 +88,7 @@ MIN_WARM_NODES = 20
 # (publish_clock without use_sim_time, say): its age is then taken as zero.
 MAX_STATE_AGE_S = 1.0
 MIN_CYCLE_TIMEOUT_S = 0.002
+DATA_CHANGE_LEAD_S = 0.1
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
@@ -265,15 +266,21 @@ class _Worker:
         if dropped is not None:
             self._drop(dropped, 'superseded by a newer goal before its solve started')
 
-    def offer(self, request):
-        """Queue a replan cycle only when idle (goals go first); True when taken."""
+    def offer(self, request, behind_cycle=False):
+        """
+        Queue a replan cycle when idle (goals go first); True when taken.
+
+        behind_cycle: also queue it behind a running cycle (new data cannot wait for the
+        next regular cycle).
+        """
         with self._cond:
-            stopped_cycle = (self._active is not None and self._active.cycle is not None
-                             and self._cancel.is_set())
-            if (self._active is not None and not stopped_cycle) or self._pending is not None \
-                    or self._stopping:
+            active = self._active
+            waits = active is not None and active.cycle is not None and (
+                behind_cycle or self._cancel.is_set())
+            pending_goal = self._pending is not None and self._pending.cycle is None
+            if (active is not None and not waits) or pending_goal or self._stopping:
                 return False
-            self._pending = request
+            self._pending = request      # a newer cycle replaces a queued one
             self._cond.notify_all()
         return True
 
@@ -281,13 +288,12 @@ class _Worker:
         """Stop the running solve and solve its goal again (unless a newer goal is queued)."""
         with self._cond:
             active = self._active
-            if active is not None and active.stop_reason is None:
-                if active.cycle is not None:     # its predicted start is stale: just stop it
-                    active.stop_reason = reason
-                else:
-                    active.restart_reason = reason
+            # A replan cycle runs on: its plan is checked against the data current when it
+            # ends (obstacles may change faster than a cycle solves).
+            if active is not None and active.stop_reason is None and active.cycle is None:
+                active.restart_reason = reason
                 self._cancel.set()
-                return active.cycle is None
+                return True
         return False
 
     def cancel(self):
@@ -668,13 +674,20 @@ class SolverNode(Node):
         now = self._now()
         if abs(now - state_time) > MAX_STATE_AGE_S:
             state_time = now
-        stamp = now + float(params['replan.lead'])
+        lead = float(params['replan.lead'])
+        # New data: the plan in force stays clear for > BRAKE_HORIZON_S, so the solve may
+        # take longer than a regular cycle (its start moves out accordingly).
+        stamp = now + (max(lead, DATA_CHANGE_LEAD_S) if reason == 'data change' else lead)
         measured_at, start_at = state_time - plan['start'], stamp - plan['start']
-        # A state from before the plan applies belongs to the plan it replaced (the latest
-        # cycle's plan starts replan.lead after its state): wait for the plan to apply.
-        if measured_at < 0.0 or plan['duration'] - start_at < float(
-                params['replan.min_remaining']):
+        if plan['duration'] - start_at < float(params['replan.min_remaining']):
             return False
+        if measured_at < 0.0:
+            # The plan starts replan.lead after the state of the cycle that made it, and the
+            # state is from before that: wait for it to apply, unless new data cannot wait;
+            # then start from the plan's own start (that cycle's prediction).
+            if reason is None:
+                return False
+            state, measured_at = plan['states'][0], 0.0
         times = plan['times']
         q_ref = np.array([np.interp(measured_at, times, plan['states'][:, j])
                           for j in range(0, state.shape[0], 2)])
@@ -690,7 +703,7 @@ class SolverNode(Node):
         start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
         request = _Request(plan['goal'], CYCLE_SOURCE)
         request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason)
-        if not self._worker.offer(request):
+        if not self._worker.offer(request, behind_cycle=reason == 'data change'):
             return False
         self._next_cycle = received + 1.0 / rate
         return True
@@ -710,8 +723,9 @@ class SolverNode(Node):
             problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
             problem = dataclasses.replace(problem, n_intervals=guess.controls.shape[0])
             # A cycle is worthless once its plan should have started: that is its time limit.
-            options = dataclasses.replace(options_from_parameters(params), timeout=max(
-                cycle.stamp_s - self._now(), MIN_CYCLE_TIMEOUT_S))
+            options = options_from_parameters(params)
+            options = dataclasses.replace(options, timeout=max(min(
+                cycle.stamp_s - self._now(), options.timeout or math.inf), MIN_CYCLE_TIMEOUT_S))
             if guess.controls.shape[0] < MIN_WARM_NODES:
                 why = f'only {guess.controls.shape[0]} plan nodes left'
             else:
@@ -733,7 +747,8 @@ class SolverNode(Node):
                 published = self._publish_plan(request, result, problem, params, revision,
                                                stamp_s=cycle.stamp_s)
                 if not published:
-                    why = 'the planning data changed during the cycle'
+                    why = 'the planning data changed during the cycle and the plan ' \
+                          'violates the new data'
         latency = time.monotonic() - cycle.received
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
                       goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
@@ -742,7 +757,9 @@ class SolverNode(Node):
                       **model_keys(params))
         if problem is not None:
             values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
-        if published:
+        if published:       # the data it was checked against
+            with self._plan_lock:
+                values['obstacles_hash'], values['data_revision'] = self._plan_info
             self._publish_progress(schema.result_report(
                 result, f'replanned ({cycle.reason}): {result.message}',
                 event=schema.EVENT_REPLANNED, **values))
@@ -754,17 +771,31 @@ class SolverNode(Node):
                                              **values))
         self._publish_progress(dataclasses.replace(
             report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
-        self._stop_if_violating(plan, params)
+        self._stop_if_violating(plan, self._snapshot()[0], cycle)
 
-    def _stop_if_violating(self, plan, params):
-        """After a failed cycle: stop the plan it kept if that violates the current data."""
+    def _stop_if_violating(self, plan, params, cycle):
+        """
+        After a failed cycle: act on the plan it kept if that violates the current data.
+
+        A data-change cycle is tried first unless this cycle was one or the true obstacles
+        are within BRAKE_HORIZON_S of the plan; else the plan is stopped.
+        """
         with self._plan_lock:
             revision = self._revision
             if self._executing is not plan:
                 return
-        violation = self._violation(plan, params, self._now() - plan['start'])
-        if violation is not None:
-            self._stop(plan, params, revision, violation)
+        elapsed = self._now() - plan['start']
+        violation = self._violation(plan, params, elapsed)
+        if violation is None:
+            return
+        conflict = self._true_conflict_time(plan, params, elapsed)
+        measured = self._snapshot()[1]
+        if cycle.reason != 'data change' and measured is not None \
+                and (conflict is None or conflict > BRAKE_HORIZON_S) \
+                and self._maybe_replan(params, measured, self._now(), time.monotonic(),
+                                       reason='data change'):
+            return
+        self._stop(plan, params, revision, violation)
 
     @staticmethod
     def _pose_goal(msg, params):
@@ -995,7 +1026,8 @@ class SolverNode(Node):
         Publish the plan unless its data revision is stale (then return False).
 
         stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
-        cycles: ahead of now); None: now.
+        cycles: ahead of now); None: now.  A replan cycle's plan whose data changed meanwhile
+        is published when it also satisfies the current data (checked as executing plans are).
         """
         now = self._now()
         start = now if stamp_s is None else float(stamp_s)
@@ -1005,7 +1037,16 @@ class SolverNode(Node):
         path = conversions.hand_path_msg(result.states, model, params['base_frame'], stamp)
         with self._plan_lock:
             if revision != self._revision:
-                return False
+                with self._lock:
+                    current = dict(self._params)
+                candidate = {'states': np.asarray(result.states), 'goal': request.goal,
+                             'times': np.asarray(result.time_grid),
+                             'controls': np.asarray(result.controls)}
+                if request.cycle is None or self._violation(candidate, current, 0.0):
+                    return False
+                problem = problem_from_parameters(current, x0=problem.x0,
+                                                  x_goal=problem.x_goal)
+                revision = self._revision
             self._trajectory_pub.publish(trajectory)
             self._executing = {
                 'start': start, 'duration': float(result.time_grid[-1]),

@@ -1,0 +1,260 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Receding-horizon replanning with real nodes (issue 12): solver_node + plant_node.
+
+Every check is recomputed here from the raw messages: trajectory stamps and points, the
+joint_states, an independent arm-to-circle distance, and the ~/progress reports.
+"""
+
+import math
+import time
+from types import SimpleNamespace
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from node_harness import A, JOINTS, LATCHED, NodeProcess, PAPER_GOAL, RosClient
+import numpy as np
+import pytest
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+from toc_ros import progress as schema
+from toc_ros.core import Status
+from trajectory_msgs.msg import JointTrajectory
+
+MARGIN = 0.01
+PAPER_OBSTACLES = [(1.0, 1.0, 0.2)]
+PARAMS = {'solver.N': 200, 'solver.timeout': 60.0}
+GOAL_Q = (PAPER_GOAL[0], PAPER_GOAL[2])
+
+
+@pytest.fixture(scope='module')
+def loop(tmp_path_factory):
+    client = RosClient()
+    log_dir = tmp_path_factory.mktemp('replanning')
+    plant = NodeProcess('plant_node', client.namespace, log_dir)
+    solver = NodeProcess('solver_node', client.namespace, log_dir, PARAMS)
+    try:
+        plant.wait_for_log('ready:')
+        solver.wait_for_log('ready:')
+        client.collect(JointState, 'joint_states', 1000, keep=5000)
+        client.collect(DiagnosticStatus, 'solver_node/progress', 1000, keep=5000)
+        client.collect(JointTrajectory, 'trajectory', LATCHED, keep=1000)
+        create = client.node.create_publisher
+        ctx = SimpleNamespace(
+            client=client, solver=solver, plant=plant,
+            goal=create(JointState, client.name('goal_joints'), 10),
+            obstacles=create(Float64MultiArray, client.name('obstacles'), 10),
+            reset=client.node.create_client(Trigger, client.name('plant_node/reset')),
+            ready=client.node.create_client(Trigger, client.name('solver_node/ready')))
+        client.wait_for(lambda: client.call(ctx.ready, Trigger.Request()).success, 300.0,
+                        'solver_node ready')
+        client.wait_for(lambda: ctx.goal.get_subscription_count() > 0
+                        and ctx.obstacles.get_subscription_count() > 0
+                        and 'solver_node' in client.subscribers('joint_states'), 30.0,
+                        'the nodes to connect')
+        yield ctx
+        assert solver.stop() == 0, solver.log()
+        assert plant.stop() == 0, plant.log()
+    finally:
+        solver.stop()
+        plant.stop()
+        client.close()
+
+
+def arm_clearance(q, rows, margin=0.0, a=A):
+    """Smallest distance [m] of the arm segment (base to hand) at q to the circles."""
+    e = np.array([math.cos(q[0]), math.sin(q[0])])
+    best = math.inf
+    for cx, cy, radius in rows:
+        s = min(max(float(e @ np.array([cx, cy])), 0.0), a + q[1])
+        best = min(best, math.hypot(s * e[0] - cx, s * e[1] - cy) - radius - margin)
+    return best
+
+
+def stamp_of(msg):
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
+def set_params(ctx, node, values):
+    results = ctx.client.set_parameters(node, values)
+    assert all(r.successful for r in results), [r.reason for r in results]
+
+
+def set_obstacles(ctx, rows):
+    ctx.obstacles.publish(Float64MultiArray(data=[float(v) for row in rows for v in row]))
+
+    def taken():
+        values = ctx.client.get_parameters(
+            'solver_node', ['obstacles.x', 'obstacles.y', 'obstacles.radius'])
+        return [tuple(r) for r in zip(values['obstacles.x'], values['obstacles.y'],
+                                      values['obstacles.radius'])] == [tuple(r) for r in rows]
+    ctx.client.wait_for(taken, 10.0, f'obstacles {rows}')
+
+
+def start(ctx, rate, obstacles=PAPER_OBSTACLES, **solver):
+    """Reset the plant, set replan.rate, send the paper goal; return (since, first plan)."""
+    set_params(ctx, 'solver_node', dict({'replan.rate': rate}, **solver))
+    set_obstacles(ctx, obstacles)
+    assert ctx.client.call(ctx.reset, Trigger.Request()).success
+    time.sleep(0.5)
+    since = time.monotonic()
+    ctx.goal.publish(JointState(name=JOINTS, position=list(GOAL_Q), velocity=[0.0, 0.0]))
+    first = ctx.client.wait_for(lambda: ctx.client.stamped('trajectory', since), 60.0,
+                                'the first plan')[0][1]
+    return since, first
+
+
+def duration_of(msg):
+    end = msg.points[-1].time_from_start
+    return end.sec + 1e-9 * end.nanosec
+
+
+def cycle_reports(ctx, since):
+    return [schema.progress_from_msg(m) for m in ctx.client.messages('solver_node/progress',
+                                                                     since)
+            if schema.progress_from_msg(m).goal_source == 'replan_cycle']
+
+
+def settle(ctx, first, extra=1.5):
+    time.sleep(duration_of(first) + extra)
+
+
+def positions_since(ctx, since):
+    return np.array([list(m.position) for m in ctx.client.messages('joint_states', since)])
+
+
+def test_replanning_off_plans_once(loop):
+    since, first = start(loop, 0.0)
+    settle(loop, first)
+    assert len(loop.client.messages('trajectory', since)) == 1
+    assert not cycle_reports(loop, since)
+    final = positions_since(loop, since)[-1]
+    assert np.max(np.abs(final - GOAL_Q)) < 1e-3
+
+
+def test_replanning_on_publishes_stamped_plans_to_the_same_goal(loop):
+    since, first = start(loop, 20.0)
+    settle(loop, first)
+    plans = loop.client.stamped('trajectory', since)
+    reports = cycle_reports(loop, since)
+    replanned = [r for r in reports if r.event == schema.EVENT_REPLANNED]
+    assert len(plans) >= 5 and len(replanned) == len(plans) - 1, [r.message for r in reports]
+    for report in replanned:
+        assert report.status is Status.SOLVED and report.latency_s > 0.0
+        assert report.plan_stamp > report.state_stamp     # the plan starts ahead of its state
+    stamps = np.array([r.plan_stamp for r in replanned])
+    for _, plan in plans[1:]:
+        # Each replanned trajectory starts at its stamp (replan.lead after its joint_states)
+        # and ends at rest at the goal.
+        assert np.min(np.abs(stamps - stamp_of(plan))) < 1e-6
+        assert plan.points[0].time_from_start.sec == 0 == plan.points[0].time_from_start.nanosec
+        assert np.max(np.abs(np.array(plan.points[-1].positions) - GOAL_Q)) < 1e-6
+        assert np.max(np.abs(plan.points[-1].velocities)) < 1e-6
+        rows = PAPER_OBSTACLES
+        assert min(arm_clearance(p.positions, rows, MARGIN) for p in plan.points) >= -1e-6
+    # The stamps follow replan.rate (20 Hz, or slower when a cycle is skipped).
+    stamps = np.diff([stamp_of(p) for _, p in plans[1:]])
+    assert np.all(stamps > 0.0) and np.median(stamps) >= 0.045
+    final = positions_since(loop, since)[-1]
+    assert np.max(np.abs(final - GOAL_Q)) < 1e-3
+
+
+def test_failed_replan_keeps_the_plan(loop):
+    try:
+        since, first = start(loop, 20.0)
+        # From now on every cycle stops after one iteration: MAX_ITERATIONS.
+        set_params(loop, 'solver_node', {'solver.max_iterations': 1})
+        changed = time.monotonic()
+        settle(loop, first)
+    finally:
+        set_params(loop, 'solver_node', {'solver.max_iterations': 0})
+    kept = [r for r in cycle_reports(loop, changed + 0.1)
+            if r.event == schema.EVENT_REPLAN_KEPT and r.status is Status.MAX_ITERATIONS]
+    assert len(kept) >= 5
+    assert all(r.level == schema.DiagnosticStatus.WARN for r in kept)
+    assert 'kept the executing plan' in kept[0].message
+    # Nothing was published after the first kept cycle, and the robot still arrives.
+    first_kept = min(t for t, m in loop.client.stamped('solver_node/progress', changed)
+                     if schema.progress_from_msg(m).event == schema.EVENT_REPLAN_KEPT)
+    assert not loop.client.stamped('trajectory', first_kept + 0.05)
+    final = positions_since(loop, since)[-1]
+    assert np.max(np.abs(final - GOAL_Q)) < 1e-3
+
+
+def test_moving_obstacle_is_avoided_and_the_goal_reached(loop):
+    """A circle moves into the path while the arm executes; the arm never enters it."""
+    # From 1.8 m to 1.3 m from the base along the bearing 0.98 rad, at 0.5 m/s (10 Hz):
+    # the first plan's arm sweeps through its final place from t = 1.24 s on.
+    bearing = np.array([math.cos(0.98), math.sin(0.98)])
+    moving = [*(1.8 * bearing), 0.1]
+    rows = PAPER_OBSTACLES + [tuple(moving)]
+    since, first = start(loop, 20.0, rows)
+    t0 = time.monotonic()
+    schedule = [(t0, list(rows))]
+    for _ in range(10):
+        time.sleep(0.1)
+        moving[0] -= 0.05 * bearing[0]
+        moving[1] -= 0.05 * bearing[1]
+        rows = PAPER_OBSTACLES + [tuple(moving)]
+        loop.obstacles.publish(Float64MultiArray(data=[v for r in rows for v in r]))
+        schedule.append((time.monotonic(), list(rows)))
+    settle(loop, first, 2.0)
+    # The first plan cuts the circle's final place: the plan had to change.
+    assert min(arm_clearance(p.positions, rows, MARGIN) for p in first.points) < 0.0
+    worst = (math.inf, None)
+    for t, msg in loop.client.stamped('joint_states', since):
+        in_force = [r for s, r in schedule if s <= t]
+        current = in_force[-1] if in_force else schedule[0][1]
+        worst = min(worst, (arm_clearance(msg.position, current), t - t0, list(msg.position),
+                            current))
+    events = [(round(t - t0, 3), r.event, r.message[:80]) for t, r in (
+        (t, schema.progress_from_msg(m)) for t, m in
+        loop.client.stamped('solver_node/progress', since)) if r.event != 'replanned']
+    open("/tmp/exp/events.txt", "w").write(repr(worst) + "\n" + "\n".join(map(str, events)))
+    assert worst[0] >= 0.0, (worst, events)
+    final = positions_since(loop, since)[-1]
+    assert np.max(np.abs(final - GOAL_Q)) < 1e-3
+
+
+def test_stop_when_no_plan_exists(loop):
+    """A circle on the goal: the replan fails, the solver brakes the arm to rest."""
+    since, first = start(loop, 20.0)
+    time.sleep(0.4 * duration_of(first))
+    hand = (A + GOAL_Q[1]) * np.array([math.cos(GOAL_Q[0]), math.sin(GOAL_Q[0])])
+    changed = time.monotonic()
+    set_obstacles(loop, PAPER_OBSTACLES + [(hand[0], hand[1], 0.1)])
+    time.sleep(duration_of(first))
+    reports = [schema.progress_from_msg(m)
+               for m in loop.client.messages('solver_node/progress', changed)]
+    stops = [r for r in reports if r.event == schema.EVENT_STOPPED]
+    assert stops and 'braking to rest' in stops[0].message, [(r.event, r.message)
+                                                             for r in reports]
+    brakes = [m for t, m in loop.client.stamped('trajectory', changed) if m.points]
+    assert brakes, 'no braking trajectory'
+    brake = brakes[0]
+    assert np.max(np.abs(brake.points[-1].velocities)) == 0.0
+    # The braking efforts are at the bounds until the joints come to rest.
+    efforts = np.array([p.effort for p in brake.points[:-2]])
+    assert np.all(np.abs(efforts) <= np.array([600.0, 500.0]) + 1e-9)
+    # The goal replan is refused (the goal is inside the new circle), the arm rests short.
+    refused = [r for r in reports if r.event == schema.EVENT_REFUSED
+               and r.message.startswith('replan: goal state puts the arm inside obstacle 1')]
+    assert refused and refused[-1].status is Status.INVALID_INPUT
+    last = loop.client.messages('joint_states')[-1]
+    assert np.max(np.abs(last.velocity)) < 1e-2
+    assert np.max(np.abs(np.array(last.position) - GOAL_Q)) > 1e-2
+    set_obstacles(loop, PAPER_OBSTACLES)
+
