@@ -78,8 +78,8 @@ def time_msg(seconds):
 
 
 def duration_seconds(duration):
-    """Seconds of a builtin_interfaces/Duration."""
-    return duration.sec + duration.nanosec * 1e-9
+    """Seconds of a builtin_interfaces/Duration (the double nearest to the nanoseconds)."""
+    return (duration.sec * 1_000_000_000 + duration.nanosec) / 1e9
 
 
 def as_model(robot):

@@ -62,7 +62,7 @@ SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES),
 PROGRESS_PRINT_PERIOD_S = 0.5
 REQUIRED_TOPICS = (
     '/goal_pose', '/goal_joints', '/obstacles', '/trajectory', '/planned_path', '/markers',
-    '/solver_node/progress', '/joint_states', '/plant_node/tracking')
+    '/solver_node/progress', '/joint_states', '/plant_node/tracking', '/plant_node/reference')
 # Topics that must be recorded before the first goal (/goal_joints has no publisher here).
 WATCHED_TOPICS = tuple(t for t in REQUIRED_TOPICS if t != '/goal_joints')
 RECORDER_NODE = 'recorder_node'

@@ -73,6 +73,12 @@ class SolverNodeSettings:
         high=1.0, ros_name='replan.lead')
 
 
+# Largest plant actuator_lag and control_delay [s]: the delay's ring buffer holds
+# control_delay * integration_rate commands.
+MAX_ACTUATOR_LAG_S = 10.0
+MAX_CONTROL_DELAY_S = 1.0
+
+
 @dataclass(frozen=True)
 class PlantSettings:
     """plant_node's own parameters (beyond the robot data and joint names)."""
@@ -95,6 +101,13 @@ class PlantSettings:
     inertia_scale: float = setting(
         1.0, 'factor on robot.inertia in the simulated plant only (model mismatch)', low=0.0,
         high=100.0)
+    actuator_lag: float = setting(
+        0.0, 'time constant of a first-order lag on the control applied to the simulated plant '
+        '(du/dt = (u_cmd - u) / actuator_lag; model mismatch); 0: off', unit='s', low=0.0,
+        high=MAX_ACTUATOR_LAG_S)
+    control_delay: float = setting(
+        0.0, 'pure delay of the commanded control in the simulated plant, rounded to the '
+        'integration step (model mismatch); 0: off', unit='s', low=0.0, high=MAX_CONTROL_DELAY_S)
     publish_clock: bool = setting(False, 'publish the simulated time on /clock')
 
 

@@ -16,31 +16,77 @@
 plant_node: simulated robot (robot.model, default eq. 37) that executes JointTrajectory messages.
 
 The state is integrated with the RK4 step of the solver's model kernels (the same model code
-as the solver: model.kernels.rollout over one step) at a fixed step 1 / integration_rate, in
-real time: a timer at ``rate`` runs as many steps as wall time has advanced, then publishes
-``joint_states`` (position, velocity, effort = applied u).
+as the solver: model.kernels.rollout over one step) at a fixed step 1 / integration_rate
+(rounded to whole nanoseconds), in real time: a timer at ``rate`` runs as many steps as wall
+time has advanced, then publishes ``joint_states`` (position, velocity, effort = the u applied
+to the plant over the last step) and ``~/reference``.
 
-Control, evaluated every step: u = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq)), saturated at
-robot.u_max.  A trajectory runs from its receipt; q_ref, dq_ref are its cubic Hermite
-interpolation and u_ff its effort held from each point to the next (the solver's
-piecewise-constant controls).  A new trajectory preempts the old one, an empty one stops it;
-after the last point the PD holds the final position with zero feed-forward.  The subscription
-is volatile: a plan latched before the plant started is not executed (it would start from a
-state the robot is not in).
-``payload_mass_offset`` and ``inertia_scale`` make the plant differ from the solver's model:
-cylindrical: hand_mass + offset, inertia * scale; planar_2r: m_p + offset, m1 and m2 * scale;
-other models refuse values other than 0 and 1.  kp and kd have one gain per joint.
+*Time base.*  The plant counts its own simulated time ``_sim_time`` (whole steps, in integer
+nanoseconds).  With ``publish_clock`` true it publishes it on /clock and stamps everything with
+it (the other nodes then run with use_sim_time), so a stamp is a simulated time.  With
+``publish_clock`` false the stamps are in the node's ROS clock: stamp = _sim_time + offset,
+the offset (integer nanoseconds) being taken from the ROS clock at start-up, when publish_clock
+changes, when the timer skips a stall (see MAX_CATCH_UP_S) and when the ROS clock jumps by
+more than CLOCK_JUMP_S; a received stamp maps back to simulated time as stamp - offset.  So
+joint_states stamps are the exact time of the published state, and a trajectory stamped with
+a joint_states stamp + d starts exactly d after that state, on the integration step grid.
 
-``~/tracking`` (DiagnosticStatus, 10 Hz) reports the tracking error; ``~/reset``
-(std_srvs/Trigger) returns to ``initial_state`` and drops the trajectory.
+*Trajectories* (ros2_controllers JointTrajectoryController semantics).  A trajectory's
+``header.stamp`` is the time of its time_from_start = 0:
+
+- a zero stamp means "now": it starts at the first step after receipt;
+- a stamp in the future is pending: the current trajectory (or hold) goes on until the first
+  step at or after the stamp, then the new one replaces it.  A newer trajectory (of any stamp,
+  or an empty one) replaces a pending one, which is then never executed;
+- a stamp in the past is trimmed: the trajectory starts at once, at the point that
+  corresponds to now (partway).  A trajectory that ends before now is refused with a log
+  message (as JTC does) and the current one goes on;
+- an empty trajectory stops at once: hold the current position (a pending one is dropped).
+
+q_ref, dq_ref are the cubic Hermite interpolation of the points and u_ff their effort held from
+each point to the next (the solver's piecewise-constant controls); after the last point the PD
+holds the final position with zero feed-forward.  The reference is a function of time only,
+evaluated at the step times with the same interpolation before and after a switch: a new
+trajectory whose first point equals the old reference at its stamp continues it without a jump.
+If the first point has time_from_start > 0, the reference goes (Hermite, zero u_ff) from the
+old reference at the activation instant (the stamp, or the receipt for a past or zero stamp) to
+that point, as JTC interpolates from the current state.  The subscription is volatile: a plan
+latched before the plant started is not executed (it would start from a state the robot is not
+in).
+
+*Control*, evaluated every step: u_cmd = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq)),
+saturated at robot.u_max, then the actuator model gives the applied u:
+
+- ``control_delay`` [s] (0: off): u_cmd is delayed by round(control_delay * integration_rate)
+  steps (a ring buffer on the step grid, at most MAX_CONTROL_DELAY_S);
+- ``actuator_lag`` [s] (0: off): a first-order lag du/dt = (u_in - u) / actuator_lag on the
+  delayed command u_in, discretised exactly with u_in held over the step; the u applied over a
+  step is the lag's output at the end of that step.  A command step of height U at time T (the
+  delay included) thus gives the effort U (1 - exp(-(t - T) / actuator_lag)) in the joint_states
+  stamped t.
+
+Both may change at run time (a longer delay repeats the oldest buffered command, a shorter one
+drops the oldest commands); ``~/reset`` clears their state (zero commands, zero lag output).
+``payload_mass_offset`` and ``inertia_scale`` make the plant's dynamics differ from the
+solver's model: cylindrical: hand_mass + offset, inertia * scale; planar_2r: m_p + offset, m1
+and m2 * scale; other models refuse values other than 0 and 1.  kp and kd have one gain per
+joint.
+
+``~/reference`` (sensor_msgs/JointState, with joint_states and the same stamp): position =
+q_ref, velocity = dq_ref, effort = u_ff at the stamp.  ``~/tracking`` (DiagnosticStatus,
+10 Hz) reports the tracking error and the trajectory's start stamp; ``~/reset``
+(std_srvs/Trigger) returns to ``initial_state`` and drops the trajectories.
 
 Run: ``ros2 run toc_ros plant_node --ros-args --params-file config/toc_ros.yaml``
 """
 
+from collections import deque
 import dataclasses
+import math
 import sys
 import time
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -62,6 +108,11 @@ PARAMETER_NAMES = parameters.PLANT_NODE_NAMES
 TRACKING_PERIOD_S = 0.1
 # Longer stalls of the timer (suspended process, overloaded machine) are skipped, not replayed.
 MAX_CATCH_UP_S = 0.5
+# Without publish_clock: a ROS clock this far from _sim_time + offset re-takes the offset.
+CLOCK_JUMP_S = 1.0
+MAX_CONTROL_DELAY_S = parameters.MAX_CONTROL_DELAY_S
+MAX_ACTUATOR_LAG_S = parameters.MAX_ACTUATOR_LAG_S
+NS = 1_000_000_000
 
 
 RK4 = integrator_id('rk4')
@@ -93,6 +144,21 @@ def plant_model(params):
     return model
 
 
+def actuator_errors(params):
+    """Errors of actuator_lag and control_delay (finite, >= 0, at most their maximum)."""
+    errors = []
+    for name, maximum in (('actuator_lag', MAX_ACTUATOR_LAG_S),
+                          ('control_delay', MAX_CONTROL_DELAY_S)):
+        try:
+            value = float(params[name])
+        except (TypeError, ValueError):
+            errors.append(f'{name} must be a number of seconds, got {params[name]!r}')
+            continue
+        if not (math.isfinite(value) and 0.0 <= value <= maximum):
+            errors.append(f'{name} must be finite, >= 0 and <= {maximum} s, got {value}')
+    return errors
+
+
 def parameter_errors(params):
     """Everything wrong with a candidate set of plant_node parameters (empty: valid)."""
     try:
@@ -104,6 +170,7 @@ def parameter_errors(params):
     errors += parameters.vector_errors('initial_state', params['initial_state'], model.nx)
     errors += parameters.vector_errors('kp', params['kp'], n, minimum=0.0)
     errors += parameters.vector_errors('kd', params['kd'], n, minimum=0.0)
+    errors += actuator_errors(params)
     errors += [e + f' (plant: {MISMATCH.get(model.name, "")})' for e in model.check()]
     if not float(params['integration_rate']) >= float(params['rate']):
         errors.append(f"integration_rate ({params['integration_rate']} Hz) must be >= rate "
@@ -123,16 +190,41 @@ def hermite(t0, t1, p0, v0, p1, v1, t):
     return pos, vel
 
 
+def stamp_ns(stamp):
+    """Integer nanoseconds of a builtin_interfaces/Time."""
+    return int(stamp.sec) * NS + int(stamp.nanosec)
+
+
+def time_of_ns(total):
+    """builtin_interfaces/Time of integer nanoseconds (>= 0)."""
+    return Time(sec=total // NS, nanosec=total % NS)
+
+
 class Reference:
     """Reference (q, dq, u_ff) of a trajectory over time since its start; holds the end."""
 
-    def __init__(self, arrays):
-        self.n = arrays.positions.shape[1]
-        self.times = arrays.times
-        self.positions = arrays.positions
-        self.velocities = arrays.velocities
-        self.efforts = arrays.efforts
+    def __init__(self, times, positions, velocities, efforts=None):
+        self.n = positions.shape[1]
+        self.times = times
+        self.positions = positions
+        self.velocities = velocities
+        self.efforts = efforts
         self.duration = float(self.times[-1])
+
+    @classmethod
+    def of(cls, arrays):
+        """Build the Reference of conversions.TrajectoryArrays."""
+        return cls(arrays.times, arrays.positions, arrays.velocities, arrays.efforts)
+
+    def starting_from(self, t, q, dq):
+        """Return this reference led in from (q, dq) at time t when its first point is later."""
+        if not self.times[0] > t:
+            return self
+        zero = np.zeros((1, self.n))
+        efforts = None if self.efforts is None else np.vstack([zero, self.efforts])
+        return Reference(np.concatenate([[t], self.times]),
+                         np.vstack([np.reshape(q, (1, -1)), self.positions]),
+                         np.vstack([np.reshape(dq, (1, -1)), self.velocities]), efforts)
 
     def at(self, t):
         """(q_ref, dq_ref, u_ff) at time t [s] after the start."""
@@ -148,6 +240,15 @@ class Reference:
         return pos, vel, (zero if self.efforts is None else self.efforts[i])
 
 
+@dataclasses.dataclass
+class Scheduled:
+    """A trajectory and its start (stamp) and activation time, in simulated nanoseconds."""
+
+    reference: Reference
+    start_ns: int          # simulated time of time_from_start = 0
+    activate_ns: int       # first step at or after this runs it: max(stamp, receipt)
+
+
 class PlantNode(Node):
     """Simulated robot; see the module docstring."""
 
@@ -158,16 +259,21 @@ class PlantNode(Node):
         errors = parameter_errors(self._params)
         if errors:
             raise parameters.ParameterError('; '.join(errors))
+        self._delay = deque()
+        self._u_lag = None
         self._apply_parameters()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self._state_pub = self.create_publisher(JointState, 'joint_states', 10)
+        self._reference_pub = self.create_publisher(JointState, '~/reference', 10)
         self._clock_pub = None    # created when publish_clock is first true
         self._tracking_pub = self.create_publisher(DiagnosticStatus, '~/tracking', 10)
         self.create_subscription(JointTrajectory, 'trajectory', self._on_trajectory, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
+        self._sim_ns = 0
         self._sim_time = 0.0
         self._wall_start = time.monotonic()
+        self._sync_clock()
         self._reset_state()
         self._step(np.zeros(self._n))   # compile/load the model kernels before the timer
         self._timer = self.create_timer(1.0 / float(self._params['rate']), self._tick)
@@ -188,7 +294,24 @@ class PlantNode(Node):
         self._states = np.empty((2, model.nx))
         self._kp = np.asarray(params['kp'], dtype=float)
         self._kd = np.asarray(params['kd'], dtype=float)
-        self._dt = 1.0 / float(params['integration_rate'])
+        self._dt_ns = max(1, int(round(NS / float(params['integration_rate']))))
+        self._dt = self._dt_ns / NS
+        lag = float(params['actuator_lag'])
+        self._lag_decay = math.exp(-self._dt / lag) if lag > 0.0 else 0.0
+        self._delay_steps = int(round(float(params['control_delay']) / self._dt))
+        if self._u_lag is not None and self._u_lag.shape[0] != self._n:
+            self._u_lag = None              # another model: _reset_state follows
+        if self._u_lag is not None:
+            self._resize_delay()
+
+    def _resize_delay(self):
+        """Give the delay buffer _delay_steps commands: repeat the oldest, or drop the oldest."""
+        delay = self._delay
+        while len(delay) > self._delay_steps:
+            delay.popleft()
+        oldest = delay[0] if delay else self._u_lag
+        while len(delay) < self._delay_steps:
+            delay.appendleft(oldest.copy())
 
     def _on_set_parameters(self, changed):
         result = parameters.result(parameter_errors(parameters.candidate(self._params,
@@ -198,15 +321,40 @@ class PlantNode(Node):
         return result
 
     def _after_set_parameters(self, changed):
-        rate = self._params['rate']
+        rate, clock = self._params['rate'], self._params['publish_clock']
         self._params = parameters.candidate(self._params, changed)
         self._apply_parameters()
-        if self._x.shape[0] != self._model.nx:     # another model: its own state size
-            self._reset_state()
+        if self._u_lag is None or self._x.shape[0] != self._model.nx:
+            self._reset_state()               # another model: its own state size
+        if self._params['publish_clock'] != clock:
+            self._sync_clock()
         if self._params['rate'] != rate:
             self._timer.cancel()
             self.destroy_timer(self._timer)
             self._timer = self.create_timer(1.0 / float(self._params['rate']), self._tick)
+
+    # -- time base ----------------------------------------------------------------------------
+
+    def _sync_clock(self):
+        """Take the offset stamp - _sim_time: 0 with publish_clock, else from the ROS clock."""
+        if self._params['publish_clock']:
+            self._offset_ns = 0
+        else:
+            self._offset_ns = self.get_clock().now().nanoseconds - self._sim_ns
+
+    def _check_clock(self):
+        """Re-take the offset when the ROS clock jumped (e.g. another /clock source)."""
+        if self._params['publish_clock']:
+            return
+        drift = self.get_clock().now().nanoseconds - self._sim_ns - self._offset_ns
+        if abs(drift) > CLOCK_JUMP_S * NS:
+            self.get_logger().warning(f'ROS clock jumped by {drift / NS:.3f} s against the '
+                                      'simulated time: stamps follow it')
+            self._offset_ns += drift
+
+    def _stamp(self):
+        """Stamp of the current simulated time."""
+        return time_of_ns(self._sim_ns + self._offset_ns)
 
     # -- state and trajectory -----------------------------------------------------------------
 
@@ -221,8 +369,10 @@ class PlantNode(Node):
         x0 = np.asarray(self._params['initial_state'], dtype=float)
         self._x = x0.copy()
         self._u = np.zeros(self._n)
-        self._reference = None
-        self._ref_start = 0.0
+        self._u_lag = np.zeros(self._n)
+        self._delay = deque(np.zeros(self._n) for _ in range(self._delay_steps))
+        self._active = None                  # the Scheduled trajectory being executed
+        self._pending = None                 # a Scheduled trajectory with a future stamp
         self._hold = x0[0::2].copy()
         self._max_error = np.zeros(self._n)
 
@@ -239,28 +389,63 @@ class PlantNode(Node):
         except conversions.ConversionError as exc:
             self.get_logger().error(f'ignoring trajectory: {exc}')
             return
-        self._max_error = np.zeros(self._n)
         if len(arrays.times) == 0:
-            self._reference = None
+            self._active = self._pending = None
             self._hold = self._x[0::2].copy()
+            self._max_error = np.zeros(self._n)
             self.get_logger().info('empty trajectory: stopping, holding the current position')
             return
-        self._reference = Reference(arrays)
-        self._ref_start = self._sim_time
+        reference = Reference.of(arrays)
+        now = self._sim_ns
+        received = stamp_ns(msg.header.stamp)
+        start = now if received == 0 else received - self._offset_ns
+        end = start + int(round(reference.duration * NS))
+        if end < now:
+            self.get_logger().error(
+                f'ignoring trajectory: stamped {received / NS:.6f} s, it ended '
+                f'{(now - end) / NS:.4f} s ago (a trajectory entirely in the past)')
+            return
+        when = ('now' if received == 0 else f'in {(start - now) / NS:.4f} s' if start > now
+                else f'trimmed: started {(now - start) / NS:.4f} s ago')
+        if self._pending is not None:
+            self.get_logger().info('a newer trajectory replaces the pending one')
+        self._pending = Scheduled(reference, start, max(start, now))
         self.get_logger().info(f'executing a trajectory of {len(arrays.times)} points, '
-                               f'{self._reference.duration:.4f} s')
+                               f'{reference.duration:.4f} s, stamp '
+                               f'{(start + self._offset_ns) / NS:.9f} ({when})')
+        self._activate_due()
 
-    def _target(self, sim_time):
-        """(q_ref, dq_ref, u_ff) at sim_time."""
-        if self._reference is None:
+    def _activate_due(self):
+        """Switch to the pending trajectory when the current step reached its activation."""
+        pending = self._pending
+        if pending is None or self._sim_ns < pending.activate_ns:
+            return
+        q, dq, _ = self._target(pending.activate_ns)
+        pending.reference = pending.reference.starting_from(
+            (pending.activate_ns - pending.start_ns) / NS, q, dq)
+        self._active, self._pending = pending, None
+        self._max_error = np.zeros(self._n)
+
+    def _target(self, sim_ns):
+        """(q_ref, dq_ref, u_ff) at simulated time sim_ns [ns]."""
+        if self._active is None:
             return self._hold, np.zeros(self._n), np.zeros(self._n)
-        return self._reference.at(sim_time - self._ref_start)
+        return self._active.reference.at((sim_ns - self._active.start_ns) / NS)
 
-    def _control(self, sim_time):
-        q_ref, dq_ref, u_ff = self._target(sim_time)
+    def _command(self):
+        """Saturated PD + feed-forward command at the current step."""
+        q_ref, dq_ref, u_ff = self._target(self._sim_ns)
         x = self._x
         u = (u_ff + self._kp * (q_ref - x[0::2]) + self._kd * (dq_ref - x[1::2]))
         return np.clip(u, -self._u_max, self._u_max)
+
+    def _actuate(self, u_cmd):
+        """Return the u applied over this step: u_cmd delayed, then through the lag."""
+        if self._delay_steps:
+            self._delay.append(u_cmd)
+            u_cmd = self._delay.popleft()
+        self._u_lag = u_cmd + (self._u_lag - u_cmd) * self._lag_decay
+        return self._u_lag.copy()
 
     # -- simulation ---------------------------------------------------------------------------
 
@@ -270,50 +455,70 @@ class PlantNode(Node):
         if behind > MAX_CATCH_UP_S:
             self.get_logger().warning(f'simulation {behind:.3f} s behind real time: skipping',
                                       throttle_duration_sec=5.0)
-            self._wall_start += behind - MAX_CATCH_UP_S
+            skipped = behind - MAX_CATCH_UP_S
+            self._wall_start += skipped
+            if not self._params['publish_clock']:
+                self._offset_ns += int(round(skipped * NS))
             behind = MAX_CATCH_UP_S
+        self._check_clock()
         for _ in range(int(behind / self._dt + 1e-9)):
-            self._u = self._control(self._sim_time)
+            self._activate_due()
+            self._u = self._actuate(self._command())
             self._x = self._step(self._u)
-            self._sim_time += self._dt
+            self._sim_ns += self._dt_ns
+            self._sim_time = self._sim_ns / NS
         if not np.all(np.isfinite(self._x)):
             self.get_logger().error('state diverged (non-finite); resetting to initial_state')
             self._reset_state()
-        if self._reference is not None:
-            q_ref = self._target(self._sim_time)[0]
+        self._activate_due()
+        if self._active is not None:
+            q_ref = self._target(self._sim_ns)[0]
             self._max_error = np.maximum(self._max_error, np.abs(q_ref - self._x[0::2]))
         self._publish_state()
 
     def _publish_state(self):
+        stamp = self._stamp()
         if self._params['publish_clock']:
             if self._clock_pub is None:
                 self._clock_pub = self.create_publisher(Clock, '/clock', 10)
-            stamp = conversions.time_msg(self._sim_time)
             self._clock_pub.publish(Clock(clock=stamp))
-        else:
-            stamp = self.get_clock().now().to_msg()
+        names = list(self._params['joint_names'])
         msg = JointState()
         msg.header.stamp = stamp
-        msg.name = list(self._params['joint_names'])
+        msg.name = names
         msg.position = [float(v) for v in self._x[0::2]]
         msg.velocity = [float(v) for v in self._x[1::2]]
         msg.effort = [float(v) for v in self._u]
         self._state_pub.publish(msg)
+        q_ref, dq_ref, u_ff = self._target(self._sim_ns)
+        reference = JointState()
+        reference.header.stamp = stamp
+        reference.name = names
+        reference.position = [float(v) for v in q_ref]
+        reference.velocity = [float(v) for v in dq_ref]
+        reference.effort = [float(v) for v in u_ff]
+        self._reference_pub.publish(reference)
 
     @survives_shutdown
     def _publish_tracking(self):
-        q_ref, dq_ref, _ = self._target(self._sim_time)
+        q_ref, dq_ref, _ = self._target(self._sim_ns)
         error = q_ref - self._x[0::2]
         velocity_error = dq_ref - self._x[1::2]
-        if self._reference is None:
+        start = ''
+        if self._active is None:
             phase, elapsed, duration = 'idle', 0.0, 0.0
         else:
-            elapsed = self._sim_time - self._ref_start
-            duration = self._reference.duration
+            elapsed = (self._sim_ns - self._active.start_ns) / NS
+            duration = self._active.reference.duration
             phase = 'tracking' if elapsed < duration else 'holding'
+            start = self._active.start_ns + self._offset_ns
+            start = f'{start // NS}.{start % NS:09d}'
+        pending = self._pending
         worst = float(np.max(np.abs(error)))
         values = {'phase': phase, 'time_into_trajectory': elapsed,
-                  'trajectory_duration': duration}
+                  'trajectory_duration': duration, 'trajectory_start': start,
+                  'pending_in': ('' if pending is None
+                                 else (pending.activate_ns - self._sim_ns) / NS)}
         joints = range(1, self._n + 1)
         values.update({f'position_error_q{j}': error[j - 1] for j in joints})
         values.update({f'velocity_error_dq{j}': velocity_error[j - 1] for j in joints})
