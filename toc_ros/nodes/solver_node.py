@@ -170,6 +170,28 @@ def obstacle_count(msg):
     return len(msg.data) // 3
 
 
+def recovery_params(params, start):
+    """
+    Return params with obstacles.margin reduced so that start clears the inflated circles.
+
+    For the replan after a stop: braking may end inside the margin (never inside a true
+    circle, which the plans keep out of), and the plan out of there may use half the start's
+    true clearance as its margin.  None when start clears the margin or is inside a circle.
+    """
+    try:
+        model = model_from_parameters(params)
+        rows = np.asarray(obstacle_rows(params), dtype=float).reshape(-1, 3)
+    except ProblemError:
+        return None
+    if not len(rows) or np.shape(start) != (model.nx,):
+        return None
+    gap = float(np.min(model_clearance(model, np.asarray(start)[None, :], rows)))
+    margin = float(params['obstacles.margin'])
+    if gap >= margin or gap <= 0.0:
+        return None
+    return dict(params, **{'obstacles.margin': 0.5 * gap})
+
+
 def nearest_node(states, x):
     """
     Return the index of the plan node nearest to state x.
@@ -879,6 +901,8 @@ class SolverNode(Node):
                 raise conversions.ConversionError(
                     f'goal extension q2 = {goal[2]:.6g} m is outside extension_limits '
                     f'[{low:.6g}, {high:.6g}] m')
+            if source == 'replan':
+                params = recovery_params(params, start) or params
             problem_from_parameters(params, x0=start, x_goal=goal).validate()
         except conversions.ConversionError as exc:
             self._refuse(source, str(exc))
@@ -943,6 +967,13 @@ class SolverNode(Node):
         with self._plan_lock:
             revision = self._revision
         start, start_source = self._start_state(params, measured)
+        if request.source == 'replan':
+            recovery = recovery_params(params, start)
+            if recovery is not None:
+                self.get_logger().warning(
+                    f"replanning from inside the obstacle margin with margin "
+                    f"{recovery['obstacles.margin']:.4g} m")
+                params = recovery
         try:
             problem = problem_from_parameters(params, x0=start, x_goal=request.goal)
             options = options_from_parameters(params)
