@@ -51,36 +51,18 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from toc_ros import config, harness  # noqa: E402
-from toc_ros.core import solve  # noqa: E402
-from toc_ros.demo.closed_loop import MovingObstacle, run_execution  # noqa: E402
+from toc_ros.demo.closed_loop import (  # noqa: E402
+    MISMATCH, MOVING, MOVING_MARGIN, MOVING_OBSTACLES, NOMINAL_PLANT, PAPER_GOAL_Q,
+    PAPER_OBSTACLES, run_execution, TRUE_ROBOT, true_t_min)
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
 
-PAPER_GOAL_Q = (5.0 * math.pi / 12.0, 1.0)
-PAPER_OBSTACLES = ((1.0, 1.0, 0.2),)
-# A circle that moves into the paper plan's path while the arm approaches: from 1.8 m to
-# 1.3 m from the base along the bearing 0.98 rad at 0.5 m/s; the first plan's arm sweeps
-# through its final place from t = 1.24 s on.
-BEARING = (math.cos(0.98), math.sin(0.98))
-MOVING_OBSTACLES = PAPER_OBSTACLES + ((1.8 * BEARING[0], 1.8 * BEARING[1], 0.1),)
-MOVING = MovingObstacle(index=1, velocity=(-0.5 * BEARING[0], -0.5 * BEARING[1]), start=0.0,
-                        stop=1.0)
 SCENARIOS = {
-    'mismatch': {'plant': {'payload_mass_offset': 10.0, 'inertia_scale': 1.2},
-                 'true': {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}},
+    'mismatch': {'plant': MISMATCH, 'true': TRUE_ROBOT},
     'lag': {'plant': {'actuator_lag': 0.01}, 'true': {}},
-    'moving': {'plant': {}, 'true': {}, 'moving': MOVING, 'obstacles': MOVING_OBSTACLES},
+    'moving': {'plant': {}, 'true': {}, 'moving': MOVING, 'obstacles': MOVING_OBSTACLES,
+               'margin': MOVING_MARGIN},
 }
-NOMINAL_PLANT = {'payload_mass_offset': 0.0, 'inertia_scale': 1.0}
-
-
-def true_t_min(params, changes, n):
-    """Return fast mode's t_min on the true plant's parameters (same N, paper start/goal)."""
-    values = dict(params, **changes)
-    values['solver.N'] = n
-    problem = config.problem_from_parameters(values)
-    result = solve(problem, config.options_from_parameters(values))
-    return result.final_time if result.success else math.nan
 
 
 def _table(rows):
@@ -136,14 +118,13 @@ def main(argv=None):
                         and client.count('joint_states') > 10, 60.0, 'the nodes')
         for name in args.scenarios:
             spec = SCENARIOS[name]
-            reference = true_t_min(params, spec['true'], args.N)
+            reference = true_t_min(dict(params, **{'solver.N': args.N}), spec['true'])
             for loop, rate in (('open loop', 0.0), ('replanning', args.rate)):
-                plant = dict(NOMINAL_PLANT, **{'actuator_lag': 0.0} if name == 'lag' else {},
-                             **spec['plant'])
+                plant = dict(NOMINAL_PLANT, **spec['plant'])
                 execution = run_execution(
                     client, (goal_pub, obstacles_pub), model, joint_names, PAPER_GOAL_Q,
                     spec.get('obstacles', PAPER_OBSTACLES), plant=plant, replan_rate=rate,
-                    moving=spec.get('moving'))
+                    moving=spec.get('moving'), margin=spec.get('margin'))
                 row = {'scenario': name, 'loop': loop, 'true_t_min': reference,
                        'metrics': execution.metrics}
                 rows.append(row)

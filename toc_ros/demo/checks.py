@@ -56,6 +56,13 @@ def reached(errors):
 def success(summary, stages):
     """Return the demo's verdict: every plan SOLVED and reached, every process exited 0."""
     plans = summary['plans']
+    loop = summary.get('closed_loop')
+    if loop is not None:
+        replanned = loop['runs'].get('replanning')
+        # The replanning run must arrive and keep the arm out of every true circle.
+        if not replanned or not replanned['arrival_s'] == replanned['arrival_s'] \
+                or not replanned['min_clearance'] >= 0.0:
+            return False
     return (len(plans) == stages and all(
         p.get('status') == Status.SOLVED.value and p.get('reached') for p in plans)
         and summary.get('error') is None

@@ -55,6 +55,9 @@ def parse_args(argv):
                         help="robot model of the demo: 'cylindrical' (the paper's scenario, "
                              "config/toc_ros.yaml) or 'planar_2r' (config/toc_ros_planar_2r.yaml)"
                              '; default %(default)s')
+    parser.add_argument('--no-closed-loop', dest='closed_loop', action='store_false',
+                        help='skip the closed-loop stage (cylindrical model: model mismatch '
+                             'and a moving circle, open loop against replanning)')
     args = parser.parse_args(argv)
     if not args.timeout > 0:
         parser.error('--timeout must be > 0')
@@ -90,6 +93,8 @@ def main(argv=None):
             demo.wait_ready()
             for number, stage in enumerate(demo.stages, 1):
                 demo.run_stage(number, stage)
+            if demo.closed_loop and args.closed_loop:
+                demo.run_closed_loop()
         except DemoError as error:
             demo.summary['error'] = str(error)
             print(f'toc-demo: error: {error}', file=sys.stderr)

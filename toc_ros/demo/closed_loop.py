@@ -23,6 +23,7 @@ told to, waits until the plant rests (or the time is up) and returns
 """
 
 from dataclasses import dataclass, field
+import math
 import time
 from typing import Optional, Tuple
 
@@ -56,6 +57,25 @@ class MovingObstacle:
         return tuple(tuple(r) for r in rows)
 
 
+# The paper's scenario in the loop (cylindrical robot): start and goal of section 4.
+PAPER_GOAL_Q = (5.0 * math.pi / 12.0, 1.0)
+PAPER_OBSTACLES = ((1.0, 1.0, 0.2),)
+# A circle that moves into the paper plan's path while the arm approaches: from 1.8 m to
+# 1.3 m from the base along the bearing 0.98 rad at 1 m/s from t = 0.2 s to 0.7 s; the first
+# plan's arm sweeps through its final place from t = 1.24 s on.
+_BEARING = (math.cos(0.98), math.sin(0.98))
+MOVING_OBSTACLES = PAPER_OBSTACLES + ((1.8 * _BEARING[0], 1.8 * _BEARING[1], 0.1),)
+MOVING = MovingObstacle(index=1, velocity=(-_BEARING[0], -_BEARING[1]), start=0.2, stop=0.7)
+# The plant's mismatch of issue 12: payload +20 % (hand_mass 50 -> 60 kg), inertia x 1.2;
+# TRUE_ROBOT is the same change as solver parameters (for the true plant's t_min).
+MISMATCH = {'payload_mass_offset': 10.0, 'inertia_scale': 1.2}
+TRUE_ROBOT = {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}
+NOMINAL_PLANT = {'payload_mass_offset': 0.0, 'inertia_scale': 1.0, 'actuator_lag': 0.0,
+                 'control_delay': 0.0}
+# A margin that covers the plant's tracking error around a moving circle [m].
+MOVING_MARGIN = 0.03
+
+
 @dataclass
 class Execution:
     """What run_execution saw: the numbers and the raw series for plots."""
@@ -77,18 +97,35 @@ def _now(client):
 
 
 def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
-                  plant=None, replan_rate=20.0, moving=None, timeout=20.0, send=None):
+                  plant=None, replan_rate=20.0, moving=None, margin=None, timeout=20.0,
+                  send=None):
     """
     Run one goal in the loop and return an Execution.
 
     client: a harness.RosClient collecting 'joint_states', 'trajectory' and PROGRESS;
     publishers: (goal_joints, obstacles) publishers; plant: plant_node parameter values for
     this run (mismatch knobs); moving: a MovingObstacle or None; send(rows): publishes an
-    obstacle set (default: conversions-free Float64MultiArray rows on publishers[1]).
+    obstacle set (default: Float64MultiArray rows on publishers[1]); margin: the solver's
+    obstacles.margin for this run (restored afterwards).
     """
     goal_pub, obstacles_pub = publishers
     send = send or (lambda rows: obstacles_pub.publish(_obstacles_msg(rows)))
-    _set(client, 'solver_node', {'replan.rate': float(replan_rate)})
+    solver = {'replan.rate': float(replan_rate)}
+    restore = {}
+    if margin is not None:
+        restore = client.get_parameters('solver_node', ['obstacles.margin'])
+        solver['obstacles.margin'] = float(margin)
+    _set(client, 'solver_node', solver)
+    try:
+        return _execute(client, goal_pub, send, model, joint_names, goal_q, obstacles, plant,
+                        moving, timeout)
+    finally:
+        if restore:
+            _set(client, 'solver_node', restore)
+
+
+def _execute(client, goal_pub, send, model, joint_names, goal_q, obstacles, plant, moving,
+             timeout):
     if plant:
         _set(client, 'plant_node', plant)
     reset = client.node.create_client(Trigger, client.name('plant_node/reset'))
@@ -121,10 +158,12 @@ def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
         if now - t0 > duration and _at_rest(client, joint_names, goal_q, since):
             break
         time.sleep(0.01)
-    time.sleep(0.3)      # the final error is taken 0.2 s after the last plan's end
-    plans = [PlanSpan(_stamp(m.header.stamp) or t, conversions.duration_seconds(
-        m.points[-1].time_from_start)) for t, m in client.stamped('trajectory', since)
-        if m.points]
+    plans = _plans(client, since)
+    # The final error is taken 0.2 s after the last plan's end.
+    wait_end = time.monotonic() + 5.0
+    while _now(client) < plans[-1].end + 0.25 and time.monotonic() < wait_end:
+        time.sleep(0.02)
+    plans = _plans(client, since)
     states = [m for _, m in client.stamped('joint_states', since)]
     times = np.array([_stamp(m.header.stamp) for m in states])
     positions = np.array([conversions.joint_state_arrays(m, joint_names)[0] for m in states])
@@ -135,6 +174,21 @@ def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
     metrics = execution_metrics(model, goal_q, plans, times, positions, schedule,
                                 latencies, kept)
     return Execution(metrics, plans, times, positions, schedule, cycles)
+
+
+def _plans(client, since):
+    return [PlanSpan(_stamp(m.header.stamp), conversions.duration_seconds(
+        m.points[-1].time_from_start)) for _, m in client.stamped('trajectory', since)
+        if m.points]
+
+
+def true_t_min(params, changes):
+    """Return fast mode's t_min for the solver parameters params with changes (the true plant)."""
+    from toc_ros import config
+    from toc_ros.core import solve
+    values = dict(params, **changes)
+    result = solve(config.problem_from_parameters(values), config.options_from_parameters(values))
+    return result.final_time if result.success else math.nan
 
 
 def _set(client, node, values):

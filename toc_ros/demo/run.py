@@ -26,7 +26,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 from toc_ros import config, conversions, harness
 from toc_ros.core import Status
-from toc_ros.demo import checks
+from toc_ros.demo import checks, closed_loop
 from toc_ros.demo.summary import recording_facts
 from toc_ros.progress import EVENT_READY, progress_from_msg
 from toc_ros.recording.process import recorder_command
@@ -55,9 +55,11 @@ PLANAR_2R_STAGES = (
     Stage('planar_2r goal', (0.9, 0.9), ((0.23, 1.09, 0.12),)),
     Stage('replan', (-0.4, 1.3), ((0.34, 1.26, 0.11), (1.6, -0.2, 0.1))),
 )
-# toc-demo --model NAME: (parameter file in the package's config/, stages).
-SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES),
-             'planar_2r': ('toc_ros_planar_2r.yaml', PLANAR_2R_STAGES)}
+# toc-demo --model NAME: (parameter file in the package's config/, stages, with the closed-loop
+# stage: the paper's goal under model mismatch and a moving circle, open loop and replanning).
+SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES, True),
+             'planar_2r': ('toc_ros_planar_2r.yaml', PLANAR_2R_STAGES, False)}
+CLOSED_LOOP_RUNS = (('open loop', 0.0), ('replanning', 20.0))   # (name, replan.rate [Hz])
 
 PROGRESS_PRINT_PERIOD_S = 0.5
 REQUIRED_TOPICS = (
@@ -126,7 +128,7 @@ class Demo:
         self.out = printer
         self.deadline = time.monotonic() + args.timeout
         model_name = getattr(args, 'model', 'cylindrical') or 'cylindrical'
-        file_name, self.stages = SCENARIOS[model_name]
+        file_name, self.stages, self.closed_loop = SCENARIOS[model_name]
         self.params_file = config.default_config_path(file_name)
         params = config.load_parameters(self.params_file, 'solver_node')
         self.model = config.model_from_parameters(params)
@@ -136,7 +138,7 @@ class Demo:
         self.solver_timeout = float(params['solver.timeout'])
         self.children = {}
         self.client = None
-        self.goal_pub = self.obstacles_pub = None
+        self.goal_pub = self.obstacles_pub = self.goal_joints_pub = None
         self.ready_reported = False
         self.summary = {'plans': [], 'position_tolerance': list(checks.POSITION_TOL),
                         'joint_names': self.joint_names, 'robot_a': self.a,
@@ -203,6 +205,7 @@ class Demo:
         self.goal_pub = client.node.create_publisher(PoseStamped, '/goal_pose', harness.LATCHED)
         self.obstacles_pub = client.node.create_publisher(Float64MultiArray, '/obstacles',
                                                           harness.LATCHED)
+        self.goal_joints_pub = client.node.create_publisher(JointState, '/goal_joints', 10)
         if self.args.record:
             argv = recorder_command(self.args.output, extra_ros_args=[
                 '-r', f'__node:={RECORDER_NODE}'])
@@ -372,6 +375,46 @@ class Demo:
             f'({errors[0]:.2e}, {errors[1]:.2e}), max tracking error during execution '
             f'({plan["max_tracking_error"][0]:.2e}, {plan["max_tracking_error"][1]:.2e}) '
             '[rad or m]')
+
+    # the closed-loop stage ----------------------------------------------------------------------
+
+    def run_closed_loop(self):
+        """
+        The paper's goal with a mismatched plant and a moving circle: open loop, then replanning.
+
+        The plant gets payload +20 % and inertia x 1.2, a circle moves into the path during
+        the execution; each run starts from the plant's initial_state (~/reset).  The numbers
+        (closed_loop.execution_metrics) go to summary['closed_loop'].
+        """
+        out, client = self.out, self.client
+        out.stage('closed loop: plant with payload +20 % and inertia x 1.2, a circle moving '
+                  'into the path; open loop, then replanning')
+        params = config.load_parameters(self.params_file, 'solver_node')
+        reference = closed_loop.true_t_min(params, closed_loop.TRUE_ROBOT)
+        rate = client.get_parameters('solver_node', ['replan.rate'], timeout=5.0)
+        runs = {}
+        self.summary['closed_loop'] = {'true_t_min': reference, 'runs': runs,
+                                       'mismatch': closed_loop.MISMATCH,
+                                       'margin': closed_loop.MOVING_MARGIN}
+        try:
+            for name, replan_rate in CLOSED_LOOP_RUNS:
+                execution = closed_loop.run_execution(
+                    client, (self.goal_joints_pub, self.obstacles_pub), self.model,
+                    self.joint_names, closed_loop.PAPER_GOAL_Q, closed_loop.MOVING_OBSTACLES,
+                    plant=dict(closed_loop.NOMINAL_PLANT, **closed_loop.MISMATCH),
+                    replan_rate=replan_rate, moving=closed_loop.MOVING,
+                    margin=closed_loop.MOVING_MARGIN)
+                m = runs[name] = dict(execution.metrics, replan_rate=replan_rate)
+                latency = ('' if not m['latencies'] else
+                           f", replan latency median {1e3 * m['latency_median_s']:.1f} ms, "
+                           f"p99 {1e3 * m['latency_p99_s']:.1f} ms")
+                out.stage(f"closed loop, {name}: {m['plans']} plan(s), arrival "
+                          f"{m['arrival_s']:.3f} s (true plant t_min {reference:.3f} s), final "
+                          f"error {m['final_error']:.2e}, min clearance "
+                          f"{m['min_clearance']:.4f} m{latency}")
+        finally:
+            self.client.set_parameters('plant_node', closed_loop.NOMINAL_PLANT)
+            self.client.set_parameters('solver_node', rate)
 
     # stop ---------------------------------------------------------------------------------------
 

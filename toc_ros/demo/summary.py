@@ -52,6 +52,17 @@ def format_summary(summary):
                 + ('within' if plan['reached'] else 'OUTSIDE')
                 + f' the tolerance ({tol[0]:g} {u1}, {tol[1]:g} {u2})'
                 + ('' if plan['at_rest'] else ', not at rest'))
+    loop = summary.get('closed_loop')
+    if loop:
+        lines.append(f"  closed loop (paper goal; plant payload +20 %, inertia x 1.2; a circle "
+                     f"moving into the path; true plant t_min {loop['true_t_min']:.4f} s):")
+        for name, m in loop['runs'].items():
+            latency = ('' if not m['latencies'] else
+                       f", replan latency median/p99 {1e3 * m['latency_median_s']:.1f}/"
+                       f"{1e3 * m['latency_p99_s']:.1f} ms")
+            lines.append(f"    {name}: {m['plans']} plan(s), arrival {m['arrival_s']:.4f} s, "
+                         f"final error {m['final_error']:.2e} (0.2 s after the last plan), "
+                         f"min clearance {m['min_clearance']:.4f} m{latency}")
     recording = summary.get('recording')
     if recording:
         count = recording['messages']

@@ -66,6 +66,10 @@ class SolverNodeSettings:
         0.02, 'largest |q - q_ref| over the joints (measured against the executing plan) that '
         'starts a replan cycle at once instead of at the next replan.rate tick; 0 = off',
         unit='rad or m', low=0.0, high=1e3, ros_name='replan.deviation')
+    replan_max_nodes: int = setting(
+        300, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
+        'most this many intervals (fewer intervals, faster cycles)', low=20, high=100000,
+        ros_name='replan.max_nodes')
     replan_lead: float = setting(
         0.03, 'a replanned trajectory starts (header.stamp) this long after the joint_states '
         'it starts from was received, from the state predicted along the executing plan; a '

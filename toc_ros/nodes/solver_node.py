@@ -743,7 +743,8 @@ class SolverNode(Node):
             guess = plan['result'].remainder(plan['times'][nearest_node(plan['states'],
                                                                         cycle.start)])
             problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
-            problem = dataclasses.replace(problem, n_intervals=guess.controls.shape[0])
+            nodes = min(guess.controls.shape[0], int(params['replan.max_nodes']))
+            problem = dataclasses.replace(problem, n_intervals=nodes)
             # A cycle is worthless once its plan should have started: that is its time limit.
             options = options_from_parameters(params)
             options = dataclasses.replace(options, timeout=max(min(
