@@ -79,6 +79,21 @@ def recorded(demo):
     return messages
 
 
+def stage_part(recorded, summary):
+    """Return the recorded messages of the goal stages (before the closed-loop stage)."""
+    obstacles = recorded['/obstacles']
+    count = len(summary['plans'])
+    end = obstacles[count][0] if len(obstacles) > count else math.inf
+    return {topic: [(t, m) for t, m in items if t < end] for topic, items in recorded.items()}
+
+
+def plans_per_goal(goal_times, trajectories):
+    """Group (log time, trajectory) by the goal each follows: [[first plan, replans...]]."""
+    ends = goal_times[1:] + [math.inf]
+    return [[(t, m) for t, m in trajectories if start <= t < end]
+            for start, end in zip(goal_times, ends)]
+
+
 def printed_tolerance(stdout):
     """Return the (rad, m) tolerance the demo printed in its summary."""
     found = re.findall(r'tolerance \(([-+.e0-9]+) rad, ([-+.e0-9]+) m\)', stdout)
@@ -105,6 +120,7 @@ def test_demo_succeeds_and_reports_each_plan(demo):
 def test_recording_holds_what_was_sent(demo, recorded):
     _, _, summary = demo
     plans = summary['plans']
+    recorded = stage_part(recorded, summary)
     goals = [m for _, m in recorded['/goal_pose']]
     assert [(g.pose.position.x, g.pose.position.y) for g in goals] == [
         tuple(p['goal_pose']) for p in plans]
@@ -118,25 +134,28 @@ def test_recording_holds_what_was_sent(demo, recorded):
     assert obstacles == [p['obstacles'] for p in plans]
     assert obstacles[0] == [[1.0, 1.0, 0.2]]          # the paper's scenario
 
-    trajectories = [m for _, m in recorded['/trajectory']]
-    assert len(trajectories) == 2
-    for trajectory, plan in zip(trajectories, plans):
-        assert list(trajectory.joint_names) == JOINTS
-        end = trajectory.points[-1]
-        assert end.positions.tolist() == pytest.approx(plan['goal_q'], abs=1e-6)
-        assert end.velocities.tolist() == pytest.approx([0.0, 0.0], abs=1e-6)
-        duration = end.time_from_start.sec + 1e-9 * end.time_from_start.nanosec
-        assert duration == pytest.approx(plan['t_min'], rel=1e-6)
+    # Each goal's plan, then the replan cycles' plans (replan.rate) to the same goal.
+    groups = plans_per_goal([t for t, _ in recorded['/goal_pose']], recorded['/trajectory'])
+    assert len(groups) == 2 and all(groups)
+    for group, plan in zip(groups, plans):
+        for k, (_, trajectory) in enumerate(group):
+            assert list(trajectory.joint_names) == JOINTS
+            end = trajectory.points[-1]
+            assert end.positions.tolist() == pytest.approx(plan['goal_q'], abs=1e-6)
+            assert end.velocities.tolist() == pytest.approx([0.0, 0.0], abs=1e-6)
+            if k == 0:
+                duration = end.time_from_start.sec + 1e-9 * end.time_from_start.nanosec
+                assert duration == pytest.approx(plan['t_min'], rel=1e-6)
 
     reports = [progress_from_msg(m) for _, m in recorded['/solver_node/progress']]
-    final = [r for r in reports if r.final]
+    final = [r for r in reports if r.final and r.goal_source != 'replan_cycle']
     assert [r.status for r in final] == [Status.SOLVED] * 2
     assert [r.t_f for r in final] == pytest.approx([p['t_min'] for p in plans])
     assert sum(r.solving for r in reports) >= 2
     # Each result names the obstacle set it was planned for.
     assert [r.obstacles_hash for r in final] == [
         obstacles_hash(p['obstacles'], 0.01) for p in plans]
-    assert len(recorded['/planned_path']) == 2
+    assert len(recorded['/planned_path']) == sum(len(g) for g in groups)
 
     drawn = []   # obstacle sets drawn by the solver's markers, in order of change
     for _, marker_array in recorded['/markers']:
@@ -154,19 +173,25 @@ def test_recorded_joint_states_reach_each_goal(demo):
     proc, output, summary = demo
     tolerance = printed_tolerance(proc.stdout)
     [bag] = output.glob('*.mcap')
-    goals, trajectories, states = [], [], []
+    goals, trajectories, states, obstacles = [], [], [], []
     for item in read_ros2_messages(str(bag), topics=['/goal_pose', '/trajectory',
-                                                     '/joint_states']):
+                                                     '/joint_states', '/obstacles']):
         topic, msg = item.channel.topic, item.ros_msg
         if topic == '/goal_pose':
             goals.append(item.log_time_ns)
         elif topic == '/trajectory':
             trajectories.append((item.log_time_ns, msg))
+        elif topic == '/obstacles':
+            obstacles.append(item.log_time_ns)
         else:
             assert list(msg.name) == JOINTS
             states.append((item.log_time_ns, list(msg.position), list(msg.velocity)))
+    stages_end = obstacles[2] if len(obstacles) > 2 else math.inf
+    trajectories = [g[0] for g in plans_per_goal(
+        goals, [(t, m) for t, m in trajectories if t < stages_end])]
+    states = [s for s in states if s[0] < stages_end]
     assert len(goals) == len(trajectories) == 2
-    ends = goals[1:] + [math.inf]
+    ends = goals[1:] + [stages_end]
     for k, ((start, trajectory), end) in enumerate(zip(trajectories, ends)):
         goal = list(trajectory.points[-1].positions)
         during = [s for s in states if start <= s[0] < end]
@@ -182,6 +207,45 @@ def test_recorded_joint_states_reach_each_goal(demo):
     _, position, velocity = [s for s in states if s[0] <= goals[1]][-1]
     assert list(first.positions) == pytest.approx(position, abs=1e-3)
     assert list(first.velocities) == pytest.approx(velocity, abs=1e-2)
+
+
+def arm_clearance(q, rows, a):
+    """Smallest distance [m] of the cylindrical robot's arm (base to hand) to the circles."""
+    e = (math.cos(q[0]), math.sin(q[0]))
+    best = math.inf
+    for cx, cy, radius in rows:
+        s = min(max(e[0] * cx + e[1] * cy, 0.0), a + q[1])
+        best = min(best, math.hypot(s * e[0] - cx, s * e[1] - cy) - radius)
+    return best
+
+
+def test_closed_loop_stage_recomputed_from_the_recording(demo, recorded):
+    """Replanning keeps the arm out of the moving circle and arrives; from the raw messages."""
+    _, _, summary = demo
+    loop = summary['closed_loop']
+    assert list(loop['runs']) == ['open loop', 'replanning']
+    goals = [t for t, _ in recorded['/goal_joints']]
+    assert len(goals) == 2
+    start, end = goals[1], math.inf              # the replanning run
+    schedule = [(t, m.data.reshape(-1, 3).tolist()) for t, m in recorded['/obstacles']]
+    states = [(t, list(m.position)) for t, m in recorded['/joint_states'] if t >= start]
+    assert states
+    worst = math.inf
+    for t, q in states:
+        rows = [r for s, r in schedule if s <= t][-1]
+        worst = min(worst, arm_clearance(q, rows, summary['robot_a']))
+    assert worst >= 0.0
+    replans = [m for t, m in recorded['/trajectory'] if start <= t < end and m.points]
+    assert len(replans) >= 5
+    goal = list(recorded['/goal_joints'][1][1].position)
+    assert max(abs(p - g) for p, g in zip(states[-1][1], goal)) < 1e-3
+    # Every replan cycle's report names a recorded trajectory by its header.stamp.
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in replans]
+    cycles = [progress_from_msg(m) for t, m in recorded['/solver_node/progress'] if t >= start]
+    replanned = [r for r in cycles if r.event == 'replanned']
+    assert replanned
+    for report in replanned:
+        assert min(abs(report.plan_stamp - s) for s in stamps) < 1e-6
 
 
 def test_bad_arguments_exit_2_before_starting_anything(tmp_path):

@@ -42,6 +42,7 @@ holds) is published at once and the goal is planned again from the measured stat
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
 
+import collections
 import dataclasses
 import math
 import sys
@@ -88,7 +89,10 @@ MIN_WARM_NODES = 20
 # (publish_clock without use_sim_time, say): its age is then taken as zero.
 MAX_STATE_AGE_S = 1.0
 MIN_CYCLE_TIMEOUT_S = 0.002
-DATA_CHANGE_LEAD_S = 0.1
+# The lead grows with the measured cycle latency (p90 of the last LATENCY_WINDOW cycles, x 1.5)
+# up to MAX_LEAD_S; new data may take up to half the time until the plan would hit a circle.
+LATENCY_WINDOW = 20
+MAX_LEAD_S = 0.2
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
@@ -248,6 +252,7 @@ class _Cycle:
     state_stamp: float      # that joint_states' header.stamp [s]
     deviation: float        # max |q - q_ref| of the measured state [rad or m]
     reason: str             # 'rate', 'deviation' or 'data change'
+    revision: int = -1      # the data revision when it started
 
 
 @dataclasses.dataclass
@@ -429,6 +434,7 @@ class SolverNode(Node):
         self._executing = None              # dict of the last published plan
         self._plan_info = None              # (hash, revision) of the last published plan
         self._next_cycle = 0.0              # time.monotonic() of the next replan.rate cycle
+        self._latencies = collections.deque(maxlen=LATENCY_WINDOW)   # of recent cycles [s]
         self._ready = threading.Event()
         self._started = time.monotonic()
         self._kernel_load_s = None
@@ -549,12 +555,17 @@ class SolverNode(Node):
         conflict = self._true_conflict_time(plan, params, elapsed)
         if measured is not None and (conflict is None or conflict > BRAKE_HORIZON_S) \
                 and self._maybe_replan(params, measured, self._now(), time.monotonic(),
-                                       reason='data change'):
+                                       reason='data change', lead=self._data_lead(conflict)):
             self.get_logger().warning(
                 f'the executing trajectory {violation} under data revision {revision}: '
                 'replanning from the current state')
             return
         self._stop(plan, params, revision, violation)
+
+    @staticmethod
+    def _data_lead(conflict):
+        """Return the lead of a data-change cycle: half the time the old plan stays clear."""
+        return MAX_LEAD_S if conflict is None else min(MAX_LEAD_S, 0.5 * conflict)
 
     def _stop(self, plan, params, revision, violation):
         """
@@ -676,7 +687,7 @@ class SolverNode(Node):
         """Return the node clock's time [s] (simulated time under use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _maybe_replan(self, params, state, state_time, received, reason=None):
+    def _maybe_replan(self, params, state, state_time, received, reason=None, lead=None):
         """
         Start a replan cycle from a measured state when one is due; True when it was queued.
 
@@ -696,10 +707,10 @@ class SolverNode(Node):
         now = self._now()
         if abs(now - state_time) > MAX_STATE_AGE_S:
             state_time = now
-        lead = float(params['replan.lead'])
-        # New data: the plan in force stays clear for > BRAKE_HORIZON_S, so the solve may
-        # take longer than a regular cycle (its start moves out accordingly).
-        stamp = now + (max(lead, DATA_CHANGE_LEAD_S) if reason == 'data change' else lead)
+        # The lead covers the solve: replan.lead, or more when recent cycles took longer
+        # (a loaded machine); new data may allow more still (lead given by the caller).
+        lead = max(float(params['replan.lead']), self._cycle_latency(), lead or 0.0)
+        stamp = now + lead
         measured_at, start_at = state_time - plan['start'], stamp - plan['start']
         if plan['duration'] - start_at < float(params['replan.min_remaining']):
             return False
@@ -724,11 +735,20 @@ class SolverNode(Node):
                 return False
         start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
         request = _Request(plan['goal'], CYCLE_SOURCE)
-        request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason)
+        with self._plan_lock:
+            revision = self._revision
+        request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason,
+                               revision)
         if not self._worker.offer(request, behind_cycle=reason == 'data change'):
             return False
         self._next_cycle = received + 1.0 / rate
         return True
+
+    def _cycle_latency(self):
+        """Return 1.5 x the 90th percentile of recent cycle latencies (0 without any) [s]."""
+        with self._lock:
+            recent = list(self._latencies)
+        return 1.5 * float(np.percentile(recent, 90)) if len(recent) >= 5 else 0.0
 
     def _run_cycle(self, request, cancel):
         """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
@@ -773,6 +793,9 @@ class SolverNode(Node):
                     why = 'the planning data changed during the cycle and the plan ' \
                           'violates the new data'
         latency = time.monotonic() - cycle.received
+        if result is not None and result.status is not Status.INVALID_INPUT:
+            with self._lock:
+                self._latencies.append(min(latency, MAX_LEAD_S / 1.5))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
                       goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
                       data_revision=revision, latency_s=latency, deviation=cycle.deviation,
@@ -813,10 +836,12 @@ class SolverNode(Node):
             return
         conflict = self._true_conflict_time(plan, params, elapsed)
         measured = self._snapshot()[1]
-        if cycle.reason != 'data change' and measured is not None \
+        # Try again unless this was a data-change cycle on the same data (it would fail alike).
+        again = cycle.reason != 'data change' or cycle.revision != revision
+        if again and measured is not None \
                 and (conflict is None or conflict > BRAKE_HORIZON_S) \
                 and self._maybe_replan(params, measured, self._now(), time.monotonic(),
-                                       reason='data change'):
+                                       reason='data change', lead=self._data_lead(conflict)):
             return
         self._stop(plan, params, revision, violation)
 
