@@ -82,6 +82,8 @@ MARKER_DELAY_S = 1.0
 MARKER_SPHERE, MARKER_CYLINDER, MARKER_LINE_STRIP = 2, 3, 4
 # Header stamps written in ~/progress (plan_stamp, state_stamp) match a message's within [s].
 STAMP_MATCH_S = 1e-6
+# A header.stamp mapped farther than this from the plan's receipt is not trusted [s].
+STAMP_SANITY_S = 10.0
 # Plans whose goals differ by at most this belong to one closed-loop execution [rad or m].
 GOAL_TOL = 1e-6
 # Events of ~/progress that are not the solve of a published plan matched by time.
@@ -471,6 +473,10 @@ def build_plans(run, solves, warn) -> List[Plan]:
                     obstacles_source=source, margin=margin, margin_source=margin_source,
                     goal=goal, goal_source=goal_source, stamp=run.stamp_time(msg.header.stamp),
                     stamp_abs=stamp_ns * 1e-9 if stamp_ns else None)
+        if plan.stamp is not None and abs(plan.stamp - time) > STAMP_SANITY_S:
+            warn(f'trajectory at {time:.3f} s: its header.stamp maps to {plan.stamp:.3f} s '
+                 f'(clock offset {run.clock_offset_ns * 1e-9:.6g} s); using its receipt')
+            plan.stamp = None
         # A replan cycle's report names its plan by stamp; other solves are matched by time.
         near = [s for s in free if plan.stamp_abs is not None
                 and abs(_float(s.report.plan_stamp) - plan.stamp_abs) <= STAMP_MATCH_S]
@@ -636,19 +642,20 @@ def obstacle_clearance(model, times, positions, schedule):
 
 
 def _by_stamp(items):
-    """Sorted [(header.stamp [s, node clock], log time [s])] of stamped messages."""
-    return sorted((_stamp_ns(m.header.stamp) * 1e-9, t) for t, m in items
-                  if _stamp_ns(m.header.stamp) > 0)
+    """Return (stamps, log times): header.stamp [s, node clock] sorted, log time [s]."""
+    pairs = sorted((_stamp_ns(m.header.stamp) * 1e-9, t) for t, m in items
+                   if _stamp_ns(m.header.stamp) > 0)
+    return [k for k, _ in pairs], [t for _, t in pairs]
 
 
 def _log_time_of(index, stamp):
     """Log time [s] of the first message in index whose stamp is within STAMP_MATCH_S."""
     if stamp is None or not math.isfinite(stamp):
         return None
-    keys = [k for k, _ in index]
+    keys, times = index
     k = bisect.bisect_left(keys, stamp - STAMP_MATCH_S)
-    if k < len(index) and abs(index[k][0] - stamp) <= STAMP_MATCH_S:
-        return index[k][1]
+    if k < len(keys) and abs(keys[k] - stamp) <= STAMP_MATCH_S:
+        return times[k]
     return None
 
 
