@@ -255,6 +255,7 @@ def test_closed_loop_numbers_from_the_raw_messages(analysed):
         assert got['p99_s'] == pytest.approx(float(np.percentile(want, 99)), abs=1e-9)
         assert got['max_s'] == pytest.approx(max(want), abs=1e-9)
     assert first['latency_recorded']['unmatched'] == 0
+    assert first['late_receipts'] == {'count': 0, 'max_s': None}
     assert second['latency_node']['count'] == 0 and second['latency_node']['median_s'] is None
     assert '## Closed-loop executions' in md
     row = next(line for line in md.splitlines() if line.startswith('| 0 | 6 (5) |'))

@@ -726,6 +726,7 @@ def closed_loop_numbers(loop: ClosedLoop, plans: List[Plan]) -> dict:
     """Summary entry of a closed-loop execution (times from its t0 unless said otherwise)."""
     m = loop.metrics
     mine = [plans[i] for i in loop.plans]
+    late = [p.time - p.start for p in mine if p.stamp is not None and p.time > p.start]
 
     def latency(prefix, count):
         return {'median_s': _num(m[f'{prefix}_median_s']), 'p99_s': _num(m[f'{prefix}_p99_s']),
@@ -745,6 +746,8 @@ def closed_loop_numbers(loop: ClosedLoop, plans: List[Plan]) -> dict:
         'last_plan_end_s': _num(m['last_plan_end_s']),
         'final_error': _num(m['final_error']),
         'min_clearance': _num(m['min_clearance']),
+        # plans the recorder received after their stamp (the plant trims their start)
+        'late_receipts': {'count': len(late), 'max_s': max(late) if late else None},
         'planned_arrivals': [{'plan': p.index, 'received_s': p.time - loop.t0,
                               'arrival_s': p.start + p.duration - loop.t0,
                               'executed': p.executed} for p in mine],
@@ -1016,6 +1019,12 @@ def _ms(latency):
     return ' / '.join('n/a' if v is None else f'{1e3 * v:.3g}' for v in values)
 
 
+def _late(late):
+    if not late.get('count'):
+        return '0'
+    return f'{late["count"]} ({1e3 * late["max_s"]:.3g})'
+
+
 def _closed_loop_markdown(loops):
     """Lines of the closed-loop table (one row per execution)."""
     if not loops:
@@ -1027,12 +1036,13 @@ def _closed_loop_markdown(loops):
              'clearance: every link to the true (uninflated) obstacles in force, every '
              'joint_states sample. Latency node: latency_s of the replanned reports; '
              'recorded: log time of the trajectory minus that of the joint_states the cycle '
-             'started from (its state_stamp).', '',
+             'started from (its state_stamp). Received after stamp: plans the recorder '
+             'received after their header.stamp (the plant trims their start).', '',
              '| # | plans (executed) | replanned | kept | stopped | planned t_min [s] '
              '| arrival [s] | last plan end [s] | final error | min clearance [m] '
              '| latency node median / p99 / max [ms] | latency recorded median / p99 / max '
-             '[ms] |',
-             '|---|---|---|---|---|---|---|---|---|---|---|---|']
+             '[ms] | received after stamp (max [ms]) |',
+             '|---|---|---|---|---|---|---|---|---|---|---|---|---|']
     for c in loops:
         ev = c['events']
         recorded = _ms(c['latency_recorded'])
@@ -1043,6 +1053,7 @@ def _closed_loop_markdown(loops):
             f'| {ev["replan_kept"]} | {ev["trajectory_stopped"]} '
             f'| {_fmt(c["planned_t_min"], 5)} | {_fmt(c["arrival_s"], 5)} '
             f'| {_fmt(c["last_plan_end_s"], 5)} | {_fmt(c["final_error"], 3)} '
-            f'| {_fmt(c["min_clearance"], 4)} | {_ms(c["latency_node"])} | {recorded} |')
+            f'| {_fmt(c["min_clearance"], 4)} | {_ms(c["latency_node"])} | {recorded} '
+            f'| {_late(c.get("late_receipts") or {})} |')
     lines.append('')
     return lines
