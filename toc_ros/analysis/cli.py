@@ -41,7 +41,10 @@ def build_parser():
         prog='toc-analyze',
         description='Plots and a summary of a recorded toc_ros run (rosbag2 bag directory or '
                     '.mcap file): controls, states, hand path with obstacles, solver '
-                    'convergence, tracking error; per plan and per execution numbers.',
+                    'convergence, tracking error; per plan and per execution numbers; per '
+                    'closed-loop execution (successive plans to one goal: replan cycles, '
+                    'braking, replacements) the replanned paths, executed clearance, arrival '
+                    'against the planned t_min and replan latencies.',
         epilog='Exit codes: 0 report written, 1 report written but the recording is damaged '
                '(cut off or undecodable messages), 2 no report.')
     parser.add_argument('path', help='bag directory, its metadata.yaml, or a .mcap file')
@@ -132,6 +135,14 @@ def _print_summary(summary, out_dir):
         print(f'execution of plan {execution["plan"]}: final error '
               f'{execution["final_error"]:.3g}, RMS hand error '
               f'{execution["rms_error"]["hand"]:.3g} m')
+    for loop in summary.get('closed_loop', []):
+        events = loop['events']
+        arrival = loop['arrival_s']
+        print(f'closed-loop execution {loop["index"]}: {loop["plan_count"]} plan(s), '
+              f'{events["replanned"]} replanned, {events["replan_kept"]} kept, '
+              f'{events["trajectory_stopped"]} stopped; planned t_min '
+              f'{loop["planned_t_min"]:.4f} s, arrival '
+              + ('never' if arrival is None else f'{arrival:.4f} s'))
     for missing in summary['missing']:
         print(f'missing: {missing}')
     print(f'report: {os.path.join(out_dir, "summary.md")}')

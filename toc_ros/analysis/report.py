@@ -13,14 +13,31 @@
 # limitations under the License.
 
 """
-The numbers of a recorded run: per plan and per execution, from the raw messages.
+The numbers of a recorded run: per plan, per execution and per closed-loop execution.
 
-A plan is one trajectory message; its execution is the joint_states from its receipt until
-the next trajectory or the end of the recording. Times are log (receive) times, in seconds
-from the first message read. Everything a plan is checked against is what was in force when
-it arrived: the latest obstacles message before it (else the solver's obstacle markers, else
-the parameter file), the latest goal since the previous plan. Missing topics leave the
-numbers that need them at None and are listed in ``missing``.
+Time base: seconds from the first message read, on the recorder's log (receive) time axis.
+Header stamps (node clock: joint_states, trajectories, the stamps in ~/progress) are mapped
+onto it by the clock offset: the median of log time - header.stamp over the joint_states
+with a stamp (0 when none has one: the node clock is taken to be the recorder's).
+
+A plan is one trajectory message. Its execution starts at its header.stamp when that is
+nonzero (JTC semantics: a plan received after its stamp is trimmed, i.e. runs from its
+receipt at the stamp's elapsed time), else at its receipt; a plan replaced (a later plan
+received) before its stamp never executed. An executed plan runs until the next executed
+plan starts or the recording ends. Everything a plan is checked against is what was in force
+when it arrived: the latest obstacles message before it (else the solver's obstacle markers,
+else the parameter file), the latest goal since the previous plan (or the goal its solve
+reported). Missing topics leave the numbers that need them at None and are listed in
+``missing``.
+
+A closed-loop execution is a run of successive plans to the same goal: replan cycles, braking
+trajectories (no goal of their own) and replacements join the execution in progress; a plan to
+another goal starts a new one. Its numbers are ``closed_loop.execution_metrics`` of the plans'
+stamps and durations, the joint_states, and the obstacle schedule (the obstacles messages at
+their log times; before the first, what the first plan was checked against), plus the replan
+latencies twice: as solver_node reported them (``latency_s`` of the ``replanned`` reports) and
+recomputed from the recording (log time of the trajectory whose header.stamp is the report's
+``plan_stamp`` minus log time of the joint_states whose header.stamp is its ``state_stamp``).
 """
 
 import bisect
@@ -34,8 +51,11 @@ from toc_ros.config import model_from_parameters, obstacle_rows
 from toc_ros.conversions import (as_model, ConversionError, joint_state_arrays,
                                  obstacle_rows_from_msg, pose_to_joint_goal, trajectory_arrays)
 from toc_ros.core import ProblemError, Status
-from toc_ros.core.obstacles import model_clearance
-from toc_ros.progress import progress_from_msg, ProgressReport
+from toc_ros.core.obstacles import model_clearance, segment_clearance
+from toc_ros.progress import (EVENT_REPLACED, EVENT_REPLAN_KEPT, EVENT_REPLANNED, EVENT_STOPPED,
+                              progress_from_msg, ProgressReport)
+
+from .closed_loop import execution_metrics, PlanSpan
 
 # Role -> (last name token, type). Names are matched below any namespace.
 ROLES = {
@@ -60,6 +80,17 @@ PROGRESS_MATCH_S = 2.0
 # Markers up to this long after a plan still show the obstacles it was planned around [s].
 MARKER_DELAY_S = 1.0
 MARKER_SPHERE, MARKER_CYLINDER, MARKER_LINE_STRIP = 2, 3, 4
+# Header stamps written in ~/progress (plan_stamp, state_stamp) match a message's within [s].
+STAMP_MATCH_S = 1e-6
+# A header.stamp mapped farther than this from the plan's receipt is not trusted [s].
+STAMP_SANITY_S = 10.0
+# Plans whose goals differ by at most this belong to one closed-loop execution [rad or m].
+GOAL_TOL = 1e-6
+# Events of ~/progress that are not the solve of a published plan matched by time.
+NOT_A_PLAN = (EVENT_REPLAN_KEPT, EVENT_REPLANNED)
+# Events counted per closed-loop execution (summary key -> event).
+EVENTS = {'replanned': EVENT_REPLANNED, 'replan_kept': EVENT_REPLAN_KEPT,
+          'trajectory_stopped': EVENT_STOPPED, 'trajectory_replaced': EVENT_REPLACED}
 
 
 def _float(value) -> float:
@@ -118,6 +149,25 @@ class Plan:
     goal: Optional[np.ndarray] = None
     goal_source: str = ''
     solve: Optional[Solve] = None
+    stamp: Optional[float] = None      # header.stamp on the time base [s] (None: zero stamp)
+    stamp_abs: Optional[float] = None  # header.stamp [s, node clock]
+    executed: bool = True              # False: replaced before its stamp
+    execution: int = 0                 # index of its closed-loop execution
+
+    @property
+    def start(self):
+        """Return when the plan starts to apply [s]: its header.stamp, else its receipt."""
+        return self.time if self.stamp is None else self.stamp
+
+    @property
+    def begin(self):
+        """Return when the plan takes over [s]: its start, or its receipt if that is later."""
+        return max(self.start, self.time)
+
+    @property
+    def duration(self):
+        """Return the plan's duration [s]."""
+        return float(self.times[-1])
 
 
 @dataclass
@@ -142,6 +192,22 @@ class RecordedRun:
     params: dict
     model: object = None                # the RobotModel (recorded_model), set by load_run
     model_source: str = 'parameters'
+    clock_offset_ns: int = 0            # log time - header.stamp (see the module docstring)
+    clock_source: str = 'none'
+
+    def stamp_time(self, stamp) -> Optional[float]:
+        """Return a builtin_interfaces/Time on the time base [s] (None for a zero stamp)."""
+        ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        return None if ns == 0 else (ns + self.clock_offset_ns - self.start_ns) * 1e-9
+
+    def node_time(self, seconds) -> float:
+        """Return a node-clock time [s] (e.g. a stamp written in ~/progress) on the base."""
+        return seconds + (self.clock_offset_ns - self.start_ns) * 1e-9
+
+    def sample_time(self, time, msg) -> float:
+        """Return a message's time on the base [s]: its header.stamp, else its log time."""
+        stamped = self.stamp_time(msg.header.stamp)
+        return time if stamped is None else stamped
 
 
 def load_run(recording, params, warn=None) -> RecordedRun:
@@ -158,7 +224,31 @@ def load_run(recording, params, warn=None) -> RecordedRun:
                 for role, items in raw.items()}
     run = RecordedRun(topics, messages, start_ns, dict(params))
     run.model, run.model_source = recorded_model(run, warn)
+    run.clock_offset_ns, run.clock_source = clock_offset(raw['joint_states'], warn)
     return run
+
+
+def _stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def clock_offset(joint_states, warn=None):
+    """
+    Return (offset [ns], source): the median of log time - header.stamp of joint_states.
+
+    joint_states: [(log time [ns], message)]. Without stamped joint_states the offset is 0
+    (the node clock is taken to be the recorder's log clock).
+    """
+    gaps = np.array([t - _stamp_ns(m.header.stamp) for t, m in joint_states
+                     if _stamp_ns(m.header.stamp) > 0], dtype=float)
+    if not gaps.size:
+        return 0, 'none (no stamped joint_states): node clock = log clock'
+    offset = int(round(float(np.median(gaps))))
+    spread = float(np.percentile(gaps, 95) - np.percentile(gaps, 5)) * 1e-9
+    if spread > 0.5 and warn is not None:
+        warn(f'the joint_states stamps and log times drift apart by {spread:.3g} s (5-95 %): '
+             'times mapped from header stamps are uncertain by that much')
+    return offset, f'median log time - header.stamp of {gaps.size} joint_states'
 
 
 def recorded_model(run, warn=None):
@@ -377,12 +467,22 @@ def build_plans(run, solves, warn) -> List[Plan]:
                                   arrays.positions[:, 1], arrays.velocities[:, 1]])
         rows, source, margin, margin_source = _obstacles_for(run, time, previous, warn)
         goal, goal_source = _goal_for(run, time, previous, model, names, states[-1])
+        stamp_ns = _stamp_ns(msg.header.stamp)
         plan = Plan(index=len(plans), time=time, joint_names=names, times=arrays.times,
                     states=states, efforts=arrays.efforts, obstacles=rows,
                     obstacles_source=source, margin=margin, margin_source=margin_source,
-                    goal=goal, goal_source=goal_source)
-        near = [s for s in free if abs(s.final_time - time) <= PROGRESS_MATCH_S
-                and s.status != Status.INVALID_INPUT.value]
+                    goal=goal, goal_source=goal_source, stamp=run.stamp_time(msg.header.stamp),
+                    stamp_abs=stamp_ns * 1e-9 if stamp_ns else None)
+        if plan.stamp is not None and abs(plan.stamp - time) > STAMP_SANITY_S:
+            warn(f'trajectory at {time:.3f} s: its header.stamp maps to {plan.stamp:.3f} s '
+                 f'(clock offset {run.clock_offset_ns * 1e-9:.6g} s); using its receipt')
+            plan.stamp = None
+        # A replan cycle's report names its plan by stamp; other solves are matched by time.
+        near = [s for s in free if plan.stamp_abs is not None
+                and abs(_float(s.report.plan_stamp) - plan.stamp_abs) <= STAMP_MATCH_S]
+        near = near or [s for s in free if abs(s.final_time - time) <= PROGRESS_MATCH_S
+                        and s.status != Status.INVALID_INPUT.value
+                        and s.report.event not in NOT_A_PLAN]
         if near:
             plan.solve = min(near, key=lambda s: abs(s.final_time - time))
             free.remove(plan.solve)
@@ -395,13 +495,17 @@ def build_plans(run, solves, warn) -> List[Plan]:
 
 
 def reference_at(plan: Plan, elapsed: np.ndarray) -> np.ndarray:
-    """Planned state at times elapsed [s] after receipt (linear; held after the end)."""
+    """Planned state at times elapsed [s] after the plan's start (linear; held after)."""
     return np.column_stack([np.interp(elapsed, plan.times, plan.states[:, j])
                             for j in range(4)])
 
 
-def _joint_samples(items, joint_names):
-    """Split joint_states into times, states (K, 4), efforts (K, 2; nan if absent), skipped."""
+def _joint_samples(items, joint_names, run=None):
+    """
+    Split joint_states into times, states (K, 4), efforts (K, 2; nan if absent), skipped.
+
+    Times are the messages' header stamps on the time base (run given), else log times.
+    """
     times, states, efforts = [], [], []
     skipped = 0
     for time, msg in items:
@@ -411,7 +515,7 @@ def _joint_samples(items, joint_names):
             skipped += 1
             continue
         names = list(msg.name)
-        times.append(time)
+        times.append(time if run is None else run.sample_time(time, msg))
         states.append((pos[0], vel[0], pos[1], vel[1]))
         efforts.append([msg.effort[names.index(n)] for n in joint_names]
                        if len(msg.effort) == len(names) else [math.nan, math.nan])
@@ -421,34 +525,236 @@ def _joint_samples(items, joint_names):
 
 def measured_series(run, joint_names):
     """Collect (times, states (K, 4), efforts (K, 2) or None) of all usable joint_states."""
-    times, states, efforts, _ = _joint_samples(run.messages['joint_states'], joint_names)
+    times, states, efforts, _ = _joint_samples(run.messages['joint_states'], joint_names, run)
     if not times.size:
         return None
     return times, states, None if np.all(np.isnan(efforts)) else efforts
 
 
+def mark_executed(plans):
+    """Set Plan.executed: False for a plan that a later plan replaced before its start."""
+    for k, plan in enumerate(plans):
+        plan.executed = not (k + 1 < len(plans) and plans[k + 1].time < plan.start)
+
+
 def build_executions(run, plans, warn) -> List[Execution]:
-    """Collect the joint_states of each plan's window, by the plan's joint names."""
+    """Collect the joint_states of each executed plan's window, by the plan's joint names."""
     executions = []
     samples = run.messages['joint_states']
-    sample_times = [t for t, _ in samples]
+    order = sorted(range(len(samples)), key=lambda i: run.sample_time(*samples[i]))
+    samples = [samples[i] for i in order]
+    sample_times = [run.sample_time(t, m) for t, m in samples]
     skipped = 0
-    for k, plan in enumerate(plans):
-        end = plans[k + 1].time if k + 1 < len(plans) else math.inf
-        window = samples[bisect.bisect_left(sample_times, plan.time):
+    executed = [plan for plan in plans if plan.executed]
+    for k, plan in enumerate(executed):
+        end = executed[k + 1].begin if k + 1 < len(executed) else math.inf
+        window = samples[bisect.bisect_left(sample_times, plan.begin):
                          bisect.bisect_left(sample_times, end)]
-        times, states, efforts, bad = _joint_samples(window, plan.joint_names)
+        times, states, efforts, bad = _joint_samples(window, plan.joint_names, run)
         skipped += bad
         if not times.size:
             continue
         executions.append(Execution(
-            plan=k, times=times, states=states,
+            plan=plan.index, times=times, states=states,
             efforts=None if np.all(np.isnan(efforts)) else efforts,
-            reference=reference_at(plan, times - plan.time),
-            interrupted=end < plan.time + plan.times[-1]))
+            reference=reference_at(plan, times - plan.start),
+            interrupted=end < plan.start + plan.duration))
     if skipped:
         warn(f'{skipped} joint_states messages lack the planned joints and were skipped')
     return executions
+
+
+# -- closed-loop executions -----------------------------------------------------------------
+@dataclass
+class ClosedLoop:
+    """Successive plans to one goal and what the recording shows of their execution."""
+
+    index: int
+    plans: List[int]                  # plan indices, in publication order
+    goal: np.ndarray                  # (4,) the joint goal
+    goal_source: str
+    t0: float                         # the first plan's start [s]
+    end: float                        # the next execution's takeover [s] (inf: none)
+    times: np.ndarray                 # (K,) joint_states stamps from t0 to end [s]
+    positions: np.ndarray             # (K, 2)
+    schedule: list                    # [(time [s], rows (n, 3))] true obstacles over time
+    clearance: np.ndarray             # (K, n) per obstacle row, every link (nan: absent)
+    node_latency: list                # [(time [s], latency [s])] of the replanned reports
+    recorded_latency: list            # [(time [s], latency [s])] recomputed from log times
+    unmatched: int                    # replanned reports without both raw messages
+    events: dict                      # EVENTS key -> count
+    metrics: dict                     # closed_loop.execution_metrics
+
+
+def _is_brake(plan):
+    return plan.solve is not None and plan.solve.report.event == EVENT_STOPPED
+
+
+def group_plans(plans) -> List[List[Plan]]:
+    """
+    Group plans into closed-loop executions: successive plans to the same goal.
+
+    A plan's goal is the one it was planned for (solver progress or the goal messages), else
+    its last state; a braking trajectory (matched to a trajectory_stopped report) has none
+    and joins the execution in progress, as does a plan whose goal is within GOAL_TOL.
+    """
+    groups, goal = [], None
+    for plan in plans:
+        own = plan.goal if plan.goal is not None else (None if _is_brake(plan)
+                                                       else plan.states[-1])
+        if not groups or (own is not None and goal is not None
+                          and float(np.max(np.abs(own - goal))) > GOAL_TOL):
+            groups.append([])
+            goal = None
+        if goal is None and own is not None:
+            goal = own
+        plan.execution = len(groups) - 1
+        groups[-1].append(plan)
+    return groups
+
+
+def obstacle_schedule(run, first_rows, warn=None):
+    """Return [(time [s], rows)]: first_rows from -inf, then each obstacles message's rows."""
+    schedule = [(-math.inf, np.asarray(first_rows, dtype=float).reshape(-1, 3))]
+    for time, msg in run.messages['obstacles']:
+        try:
+            rows = np.array(obstacle_rows_from_msg(msg), dtype=float).reshape(-1, 3)
+        except ConversionError:
+            continue
+        schedule.append((time, rows))
+    return schedule
+
+
+def obstacle_clearance(model, times, positions, schedule):
+    """Return (K, n) clearance [m] of every link to each true obstacle row (nan: absent)."""
+    width = max((len(rows) for _, rows in schedule), default=0)
+    out = np.full((len(times), width), np.nan)
+    starts = [t for t, _ in schedule]
+    for j, (start, rows) in enumerate(schedule):
+        stop = starts[j + 1] if j + 1 < len(schedule) else math.inf
+        inside = (times >= start) & (times < stop)
+        if not np.any(inside) or not len(rows):
+            continue
+        gaps = segment_clearance(model.link_segments(positions[inside]), rows)
+        out[np.nonzero(inside)[0], :len(rows)] = gaps.reshape(
+            int(np.sum(inside)), -1, len(rows)).min(axis=1)
+    return out
+
+
+def _by_stamp(items):
+    """Return (stamps, log times): header.stamp [s, node clock] sorted, log time [s]."""
+    pairs = sorted((_stamp_ns(m.header.stamp) * 1e-9, t) for t, m in items
+                   if _stamp_ns(m.header.stamp) > 0)
+    return [k for k, _ in pairs], [t for _, t in pairs]
+
+
+def _log_time_of(index, stamp):
+    """Log time [s] of the first message in index whose stamp is within STAMP_MATCH_S."""
+    if stamp is None or not math.isfinite(stamp):
+        return None
+    keys, times = index
+    k = bisect.bisect_left(keys, stamp - STAMP_MATCH_S)
+    if k < len(keys) and abs(keys[k] - stamp) <= STAMP_MATCH_S:
+        return times[k]
+    return None
+
+
+def build_closed_loops(run, plans, model) -> List[ClosedLoop]:
+    """Group the plans by goal and compute each execution's numbers (module docstring)."""
+    if not plans:
+        return []
+    groups = group_plans(plans)
+    samples = run.messages['joint_states']
+    names = plans[0].joint_names
+    all_times, all_states, _, _ = _joint_samples(samples, names, run)
+    order = np.argsort(all_times, kind='stable')
+    all_times, all_positions = all_times[order], all_states[order][:, 0::2]
+    trajectories = _by_stamp(run.messages['trajectory'])
+    states_index = _by_stamp(samples)
+    reports = [(t, progress_from_msg(m)) for t, m in run.messages['progress']]
+    loops = []
+    for g, group in enumerate(groups):
+        first = group[0]
+        end = groups[g + 1][0].begin if g + 1 < len(groups) else math.inf
+        received_end = groups[g + 1][0].time if g + 1 < len(groups) else math.inf
+        goal = next((p.goal for p in group if p.goal is not None), None)
+        source = next((p.goal_source for p in group if p.goal is not None), '')
+        if goal is None:
+            goal, source = group[-1].states[-1], 'last planned state'
+        keep = (all_times >= first.start - 1e-9) & (all_times < end)
+        times, positions = all_times[keep], all_positions[keep]
+        schedule = obstacle_schedule(run, first.obstacles)
+        mine = [r for t, r in reports if first.time <= t < received_end and r.final]
+        events = {key: sum(r.event == event for r in mine) for key, event in EVENTS.items()}
+        node_latency, recorded_latency, unmatched = [], [], 0
+        for r in mine:
+            if r.event != EVENT_REPLANNED:
+                continue
+            published = _log_time_of(trajectories, r.plan_stamp)
+            measured = _log_time_of(states_index, r.state_stamp)
+            at = published if published is not None else run.node_time(_float(r.plan_stamp))
+            if r.latency_s is not None and math.isfinite(r.latency_s):
+                node_latency.append((at, float(r.latency_s)))
+            if published is None or measured is None:
+                unmatched += 1
+            else:
+                recorded_latency.append((published, published - measured))
+        spans = [PlanSpan(p.start, p.duration) for p in group]
+        metrics = execution_metrics(model, goal[0::2], spans, times, positions, schedule,
+                                    [v for _, v in node_latency], events['replan_kept'])
+        recorded = np.array([v for _, v in recorded_latency])
+        metrics.update({
+            'recorded_latency_median_s': _percentile(recorded, 50),
+            'recorded_latency_p99_s': _percentile(recorded, 99),
+            'recorded_latency_max_s': float(np.max(recorded)) if recorded.size else math.nan,
+            'recorded_latencies': int(recorded.size)})
+        loops.append(ClosedLoop(
+            index=g, plans=[p.index for p in group], goal=np.asarray(goal, dtype=float),
+            goal_source=source, t0=first.start, end=end, times=times, positions=positions,
+            schedule=schedule,
+            clearance=obstacle_clearance(model, times, positions, schedule),
+            node_latency=node_latency, recorded_latency=recorded_latency,
+            unmatched=unmatched, events=events, metrics=metrics))
+    return loops
+
+
+def _percentile(values, q):
+    return float(np.percentile(values, q)) if len(values) else math.nan
+
+
+def closed_loop_numbers(loop: ClosedLoop, plans: List[Plan]) -> dict:
+    """Summary entry of a closed-loop execution (times from its t0 unless said otherwise)."""
+    m = loop.metrics
+    mine = [plans[i] for i in loop.plans]
+    late = [p.time - p.start for p in mine if p.stamp is not None and p.time > p.start]
+
+    def latency(prefix, count):
+        return {'median_s': _num(m[f'{prefix}_median_s']), 'p99_s': _num(m[f'{prefix}_p99_s']),
+                'max_s': _num(m[f'{prefix}_max_s']), 'count': count}
+    return {
+        'index': loop.index,
+        'plans': loop.plans,
+        'plan_count': len(loop.plans),
+        'executed_plans': sum(p.executed for p in mine),
+        'goal': loop.goal.tolist(),
+        'goal_source': loop.goal_source or None,
+        'start_s': loop.t0,
+        'samples': int(loop.times.size),
+        'events': loop.events,
+        'planned_t_min': _num(m['planned_t_min']),
+        'arrival_s': _num(m['arrival_s']),
+        'last_plan_end_s': _num(m['last_plan_end_s']),
+        'final_error': _num(m['final_error']),
+        'min_clearance': _num(m['min_clearance']),
+        # plans the recorder received after their stamp (the plant trims their start)
+        'late_receipts': {'count': len(late), 'max_s': max(late) if late else None},
+        'planned_arrivals': [{'plan': p.index, 'received_s': p.time - loop.t0,
+                              'arrival_s': p.start + p.duration - loop.t0,
+                              'executed': p.executed} for p in mine],
+        'latency_node': latency('latency', m['latencies']),
+        'latency_recorded': {**latency('recorded_latency', m['recorded_latencies']),
+                             'unmatched': loop.unmatched},
+    }
 
 
 # -- numbers --------------------------------------------------------------------------------
@@ -470,6 +776,11 @@ def plan_numbers(plan: Plan, u_max: np.ndarray, a, start_state=None) -> dict:
     return {
         'index': plan.index,
         'received_s': plan.time,
+        'stamp_s': plan.stamp,
+        'start_s': plan.start,
+        'executed': plan.executed,
+        'closed_loop': plan.execution,
+        'event': report.event or None,
         'status': solve.status,
         'message': solve.message,
         't_min': float(plan.times[-1]),
@@ -538,6 +849,7 @@ class Report:
     executions: List[Execution]
     summary: dict
     measured: Optional[tuple] = None    # (times, states, efforts) of all joint_states
+    closed_loops: List[ClosedLoop] = field(default_factory=list)
 
 
 def missing_roles(run, goal_needed=True) -> List[str]:
@@ -562,7 +874,9 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
     u_max = np.asarray(model.u_max, dtype=float)
     solves = solves_from_progress(run.messages['progress'])
     plans = build_plans(run, solves, warn)
+    mark_executed(plans)
     executions = build_executions(run, plans, warn)
+    loops = build_closed_loops(run, plans, model)
     plan_entries = []
     for plan in plans:
         before = _latest(run.messages['joint_states'], plan.time)
@@ -586,6 +900,9 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
                   'u_max': u_max.tolist()},
         'plans': plan_entries,
         'executions': [execution_numbers(e, plans[e.plan], model, u_max) for e in executions],
+        'closed_loop': [closed_loop_numbers(loop, plans) for loop in loops],
+        'events': {key: sum(loop.events[key] for loop in loops) for key in EVENTS},
+        'clock': {'offset_s': run.clock_offset_ns * 1e-9, 'source': run.clock_source},
         'solves': [{'status': s.status, 'message': s.message,
                     'time_s': _num(s.final_time), 'progress_messages': len(s.points),
                     'iterations': _num(_float(s.report.iteration)),
@@ -593,7 +910,7 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
         'missing': missing_roles(run, any(p.goal is None for p in plans)),
     }
     names = plans[0].joint_names if plans else list(run.params['joint_names'])
-    return Report(run, solves, plans, executions, summary, measured_series(run, names))
+    return Report(run, solves, plans, executions, summary, measured_series(run, names), loops)
 
 
 def _model_parameters(model):
@@ -617,9 +934,14 @@ def markdown(summary: dict) -> str:
     """Render the summary as Markdown (tables, plots linked by file name)."""
     lines = [f'# Run report: {summary["recording"]}', '',
              f'{len(summary["plans"])} plan(s), {len(summary["executions"])} execution(s), '
+             f'{len(summary.get("closed_loop", []))} closed-loop execution(s), '
              f'{len(summary["solves"])} solve(s) over {summary["duration_s"]:.2f} s. '
-             'Times are receive times from the first message; violations are recomputed '
-             'from the trajectory (min clearance of the whole arm to the inflated circles, '
+             'Times are log (receive) times from the first message; header stamps are mapped '
+             'onto them by the clock offset '
+             f'{_fmt((summary.get("clock") or {}).get("offset_s"), 6, " s")} '
+             f'({(summary.get("clock") or {}).get("source", "n/a")}). A plan starts at its '
+             'header.stamp (else at its receipt). Violations are recomputed from the '
+             'trajectory (min clearance of the whole arm to the inflated circles, '
              'negative = collision).', '']
     robot = summary.get('robot') or {}
     if robot.get('model'):
@@ -629,13 +951,17 @@ def markdown(summary: dict) -> str:
                   f'{values}.', '']
     if summary['plans']:
         lines += ['## Plans', '',
-                  '| # | received [s] | status | t_min [s] | solve time [s] | iterations '
-                  '| control excess | terminal error | min clearance [m] | start error |',
-                  '|---|---|---|---|---|---|---|---|---|---|']
+                  '| # | received [s] | starts [s] | status | t_min [s] | solve time [s] '
+                  '| iterations | control excess | terminal error | min clearance [m] '
+                  '| start error |',
+                  '|---|---|---|---|---|---|---|---|---|---|---|']
         for p in summary['plans']:
             v = p['violations']
+            start = (f'{p["start_s"]:.3f}' if p.get('start_s') is not None else 'n/a') + (
+                '' if p.get('executed', True) else ' (replaced before)')
             lines.append(
-                f'| {p["index"]} | {p["received_s"]:.3f} | {p["status"]} | {p["t_min"]:.4f} '
+                f'| {p["index"]} | {p["received_s"]:.3f} | {start} | {p["status"]} '
+                f'| {p["t_min"]:.4f} '
                 f'| {_fmt(p["solve_wall_time_s"], 3)} | {_fmt(p["iterations"])} '
                 f'| {_fmt(v["max_control_excess"], 3)} | {_fmt(v["terminal_error"], 3)} '
                 f'| {_fmt(v["min_clearance"], 3)} | {_fmt(v["start_error"], 3)} |')
@@ -660,6 +986,7 @@ def markdown(summary: dict) -> str:
                 f'| {e["final_hand_error"]:.3g} | {rms["q1"]:.3g} | {rms["q2"]:.3g} '
                 f'| {rms["hand"]:.3g} | {effort} |')
         lines.append('')
+    lines += _closed_loop_markdown(summary.get('closed_loop') or [])
     other = [s for s in summary['solves']
              if s['status'] not in (Status.SOLVED.value, 'unknown')]
     if other:
@@ -683,3 +1010,50 @@ def markdown(summary: dict) -> str:
         lines += [f'- warning: {w}' for w in summary['warnings']]
         lines.append('')
     return '\n'.join(lines)
+
+
+def _ms(latency):
+    values = [latency.get(k) for k in ('median_s', 'p99_s', 'max_s')]
+    if not latency.get('count'):
+        return 'n/a'
+    return ' / '.join('n/a' if v is None else f'{1e3 * v:.3g}' for v in values)
+
+
+def _late(late):
+    if not late.get('count'):
+        return '0'
+    return f'{late["count"]} ({1e3 * late["max_s"]:.3g})'
+
+
+def _closed_loop_markdown(loops):
+    """Lines of the closed-loop table (one row per execution)."""
+    if not loops:
+        return []
+    lines = ['## Closed-loop executions', '',
+             'Successive plans to one goal (replan cycles, braking, replacements). Times from '
+             'the start of the first plan; arrival: every joint within 1e-3 of the goal from '
+             'then on; final error: max joint error 0.2 s after the end of the last plan; min '
+             'clearance: every link to the true (uninflated) obstacles in force, every '
+             'joint_states sample. Latency node: latency_s of the replanned reports; '
+             'recorded: log time of the trajectory minus that of the joint_states the cycle '
+             'started from (its state_stamp). Received after stamp: plans the recorder '
+             'received after their header.stamp (the plant trims their start).', '',
+             '| # | plans (executed) | replanned | kept | stopped | planned t_min [s] '
+             '| arrival [s] | last plan end [s] | final error | min clearance [m] '
+             '| latency node median / p99 / max [ms] | latency recorded median / p99 / max '
+             '[ms] | received after stamp (max [ms]) |',
+             '|---|---|---|---|---|---|---|---|---|---|---|---|---|']
+    for c in loops:
+        ev = c['events']
+        recorded = _ms(c['latency_recorded'])
+        if c['latency_recorded'].get('unmatched'):
+            recorded += f' ({c["latency_recorded"]["unmatched"]} unmatched)'
+        lines.append(
+            f'| {c["index"]} | {c["plan_count"]} ({c["executed_plans"]}) | {ev["replanned"]} '
+            f'| {ev["replan_kept"]} | {ev["trajectory_stopped"]} '
+            f'| {_fmt(c["planned_t_min"], 5)} | {_fmt(c["arrival_s"], 5)} '
+            f'| {_fmt(c["last_plan_end_s"], 5)} | {_fmt(c["final_error"], 3)} '
+            f'| {_fmt(c["min_clearance"], 4)} | {_ms(c["latency_node"])} | {recorded} '
+            f'| {_late(c.get("late_receipts") or {})} |')
+    lines.append('')
+    return lines
