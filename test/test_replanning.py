@@ -259,4 +259,3 @@ def test_stop_when_no_plan_exists(loop):
     assert np.max(np.abs(last.velocity)) < 1e-2
     assert np.max(np.abs(np.array(last.position) - GOAL_Q)) > 1e-2
     set_obstacles(loop, PAPER_OBSTACLES)
-

@@ -380,7 +380,7 @@ class Demo:
 
     def run_closed_loop(self):
         """
-        The paper's goal with a mismatched plant and a moving circle: open loop, then replanning.
+        Run the paper's goal with a mismatched plant and a moving circle: open loop, replanning.
 
         The plant gets payload +20 % and inertia x 1.2, a circle moves into the path during
         the execution; each run starts from the plant's initial_state (~/reset).  The numbers

@@ -54,7 +54,7 @@ def format_summary(summary):
                 + ('' if plan['at_rest'] else ', not at rest'))
     loop = summary.get('closed_loop')
     if loop:
-        lines.append(f"  closed loop (paper goal; plant payload +20 %, inertia x 1.2; a circle "
+        lines.append('  closed loop (paper goal; plant payload +20 %, inertia x 1.2; a circle '
                      f"moving into the path; true plant t_min {loop['true_t_min']:.4f} s):")
         for name, m in loop['runs'].items():
             latency = ('' if not m['latencies'] else

@@ -997,7 +997,7 @@ class SolverNode(Node):
             recovery = recovery_params(params, start)
             if recovery is not None:
                 self.get_logger().warning(
-                    f"replanning from inside the obstacle margin with margin "
+                    'replanning from inside the obstacle margin with margin '
                     f"{recovery['obstacles.margin']:.4g} m")
                 params = recovery
         try:
