@@ -36,6 +36,8 @@ from toc_ros import harness
 from toc_ros.harness import LATCHED  # noqa: F401 - the tests import it from here
 from toc_ros.progress import EVENT_REFUSED, progress_from_msg
 
+CYCLE_SOURCE = 'replan_cycle'     # goal_source of solver_node's replan-cycle reports
+
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'toc_ros.yaml'
 PAPER_X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
@@ -113,11 +115,17 @@ def reports(ctx, since):
 
 
 def wait_final(ctx, since, timeout=SOLVE_TIMEOUT, source=None):
-    """Wait for the first final (not refused) progress report since a time; return it."""
+    """
+    Wait for the first final (not refused) progress report since a time; return it.
+
+    Reports of replan cycles (replan.rate) are not answers to a request and are skipped
+    unless source asks for them.
+    """
     def found():
         return [r for r in reports(ctx, since)
                 if r.final and r.event != EVENT_REFUSED
-                and (source is None or r.goal_source == source)]
+                and (r.goal_source == source if source is not None
+                     else r.goal_source != CYCLE_SOURCE)]
     return ctx.client.wait_for(found, timeout, 'a final progress report')[0]
 
 
