@@ -64,9 +64,11 @@ MU_EXACT = 1e-10
 WARM_BUDGET = 60
 # Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (see ipm.py).
 RHO_TERMINAL = 1e2
-# l1 weight of the obstacle constraints' elastic variables: above every obstacle multiplier
-# (they are O(1) here), so the elastic variables vanish at the solution.
-ELASTIC_WEIGHT = 100.0
+# Initial l1 weight of the obstacle constraints' elastic variables.  The kernel raises it
+# (x10) when a multiplier nears it at a solution of the barrier problem, so it ends above every
+# obstacle multiplier and the elastic variables vanish; a small start keeps the Lagrangian's
+# curvature -rho grad^2 c moderate while the iterates still cross an obstacle.
+ELASTIC_WEIGHT = 1.0
 # [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
 STOP_POLL = 0.005
 # Box on t_f [s].
