@@ -42,9 +42,10 @@ from .result import SolveResult, Status
 
 # Grids: a cold solve on N > 2 COARSE_INTERVALS starts on COARSE_INTERVALS intervals.
 COARSE_INTERVALS = 100
-# Barrier parameter of a cold start (IPOPT's default), and of a warm start on N intervals:
+# Barrier parameter of the first cold attempt (IPOPT's default 0.1 led into poorer local optima
+# more often: planar_2r with circles, the demo scenario), and of a warm start on N intervals:
 # MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
-MU_COLD = 0.1
+MU_COLD = 0.01
 # Further cold starts of the N grid after a failure, with these barrier parameters.
 MU_COLD_RETRIES = (0.01, 1.0)
 MU_WARM = 1e-5
@@ -75,9 +76,11 @@ ELASTIC_WEIGHT = 1.0
 # converge on the coarse grid or needed the inertia correction on more than EXPLORE_NONCONVEX
 # of its iterations there (other weights and barrier parameters lead around the obstacles
 # other ways, into other local optima; see FastSolve._explore).
-COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.01), (10.0, 0.01),
-                 (0.1, MU_COLD), (1.0, 1e-3), (100.0, 1.0), (0.03, MU_COLD))
+COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
+                 (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
 EXPLORE_NONCONVEX = 25
+# Fraction of a solve's timeout after which no further cold attempt starts.
+EXPLORE_TIME = 0.25
 # Converged coarse optima within REFINE_BAND of the shortest are refined on the N grid (at most
 # MAX_REFINE distinct ones); the shortest refined one is the result.
 REFINE_BAND = 0.02
@@ -536,13 +539,17 @@ class FastSolve:
         """
         Return whether to run the cold attempts after the first one (first: its run, code).
 
-        Only with obstacles, within half the iteration budget, and only when the first attempt
+        Only with obstacles, within half the iteration budget (and, with a timeout, within
+        EXPLORE_TIME of it, leaving the rest for the N grid), and only when the first attempt
         failed or needed the inertia correction (negative curvature) on more than
         EXPLORE_NONCONVEX iterations: its path crossed a nonconvex region, where other local
         optima are likely.  A start that leads straight into its basin (the paper scenario:
-        13 such iterations of 43) is not re-solved.
+        5 such iterations of 35) is not re-solved.
         """
         if not len(self.problem.obstacles) or self.done >= self.limit // 2:
+            return False
+        timeout = self.options.timeout
+        if timeout is not None and self.clock.elapsed() >= EXPLORE_TIME * timeout:
             return False
         run, code = first
         shifted = np.count_nonzero(run.ws.hist[:run.iterations, ipm.H_DELTA] > 0.0)
