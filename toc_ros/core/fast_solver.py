@@ -42,9 +42,10 @@ from .result import SolveResult, Status
 
 # Grids: a cold solve on N > 2 COARSE_INTERVALS starts on COARSE_INTERVALS intervals.
 COARSE_INTERVALS = 100
-# Barrier parameter of a cold start (IPOPT's default), and of a warm start on N intervals:
+# Barrier parameter of the first cold attempt (IPOPT's default 0.1 led into poorer local optima
+# more often: planar_2r with circles, the demo scenario), and of a warm start on N intervals:
 # MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
-MU_COLD = 0.1
+MU_COLD = 0.01
 # Further cold starts of the N grid after a failure, with these barrier parameters.
 MU_COLD_RETRIES = (0.01, 1.0)
 MU_WARM = 1e-5
@@ -64,9 +65,26 @@ MU_EXACT = 1e-10
 WARM_BUDGET = 60
 # Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (see ipm.py).
 RHO_TERMINAL = 1e2
-# l1 weight of the obstacle constraints' elastic variables: above every obstacle multiplier
-# (they are O(1) here), so the elastic variables vanish at the solution.
-ELASTIC_WEIGHT = 100.0
+# Initial l1 weight of the obstacle constraints' elastic variables.  The kernel raises it
+# (x10) when a multiplier nears it at a solution of the barrier problem, so it ends above every
+# obstacle multiplier and the elastic variables vanish; a small start keeps the Lagrangian's
+# curvature -rho grad^2 c moderate while the iterates still cross an obstacle.  A warm start
+# with multipliers uses the weight its solution ended with.
+ELASTIC_WEIGHT = 1.0
+# Cold-start attempts (elastic weight, initial barrier parameter), all from the same cold
+# start: the first always; the others when the problem has obstacles and the first did not
+# converge on the coarse grid or needed the inertia correction on more than EXPLORE_NONCONVEX
+# of its iterations there (other weights and barrier parameters lead around the obstacles
+# other ways, into other local optima; see FastSolve._explore).
+COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
+                 (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
+EXPLORE_NONCONVEX = 25
+# Fraction of a solve's timeout after which no further cold attempt starts.
+EXPLORE_TIME = 0.25
+# Converged coarse optima within REFINE_BAND of the shortest are refined on the N grid (at most
+# MAX_REFINE distinct ones); the shortest refined one is the result.
+REFINE_BAND = 0.02
+MAX_REFINE = 3
 # [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
 STOP_POLL = 0.005
 # Box on t_f [s].
@@ -83,7 +101,7 @@ class Stop(Exception):
 class InteriorPointRun:
     """One interior-point solve on one grid (the Workspace plus the driver state)."""
 
-    def __init__(self, problem, n, max_iter):
+    def __init__(self, problem, n, max_iter, elastic=None):
         model = problem.robot_model
         self.problem = problem
         self.model = model
@@ -104,7 +122,7 @@ class InteriorPointRun:
         fs[ipm.F_RHO] = RHO_TERMINAL
         fs[ipm.F_T_LOW] = T_LOW
         fs[ipm.F_T_REF] = max(problem.t_f0, 1e-3)
-        fs[ipm.F_ELASTIC] = ELASTIC_WEIGHT
+        fs[ipm.F_ELASTIC] = ELASTIC_WEIGHT if elastic is None else elastic
         fs[ipm.F_T_HIGH] = T_HIGH_FACTOR * max(problem.t_f0, 1.0)
 
     # Starting points ---------------------------------------------------------------------
@@ -168,7 +186,8 @@ class InteriorPointRun:
         """Copy of the multipliers (for a warm start of another run)."""
         ws = self.ws
         return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy(),
-                'zl': ws.zl.copy(), 'zu': ws.zu.copy()}
+                'zl': ws.zl.copy(), 'zu': ws.zu.copy(),
+                'rho': float(ws.fscal[ipm.F_ELASTIC])}
 
     # Results -----------------------------------------------------------------------------
     @property
@@ -299,6 +318,8 @@ def resample_duals(duals, m, n):
                          for j in range(duals['z'].shape[1])]) * (m / n) \
         if duals['z'].shape[1] else np.zeros((n, 0))
     out = {'lam': lam, 'nu': duals['nu'].copy(), 'z': z}
+    if 'rho' in duals:
+        out['rho'] = duals['rho']
     if 'zl' in duals:
         mid = (np.arange(n) + 0.5) / n
         idx = np.minimum((mid * m).astype(np.int64), m - 1)
@@ -381,6 +402,7 @@ class FastSolve:
         self.done = 0            # iterations on finished grids
         self.history = []
         self.run = None
+        self.best = None         # the shortest converged run on the N grid so far
 
     def _check(self, run):
         reason = self.clock.stop_reason()
@@ -393,9 +415,10 @@ class FastSolve:
             f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
 
     def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
-                  push=BOUND_PUSH):
+                  push=BOUND_PUSH, elastic=None):
         left = max(1, self.limit - self.done)
-        run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left))
+        run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left),
+                               elastic)
         run.start(states, controls, t_f, mu, duals, push)
         self.run = run
         try:
@@ -428,8 +451,9 @@ class FastSolve:
                     mu, push = MU_EXACT, WARM_PUSH
                 else:
                     mu, push = min(MU_WARM / n, max(MU_EXACT, 1e-4 * drift)), BOUND_PUSH
+                rho = None if duals is None else duals.get('rho')
                 run, code = self._solve_on(n, states, controls, t_f, mu, duals,
-                                           budget=WARM_BUDGET, push=push)
+                                           budget=WARM_BUDGET, push=push, elastic=rho)
                 if code != ipm.CONVERGED and self.done < self.limit:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None
@@ -438,7 +462,7 @@ class FastSolve:
                 run, code = self._cold(n)
         except Stop as stop:
             reason = stop.args[0]
-            run = self.run
+            run = self.best or self.run
             if run is None or run.n != n:
                 return SolveResult(status=reason, iterations=self.done,
                                    message=f'{reason.value.lower()} after {self.done} '
@@ -457,35 +481,79 @@ class FastSolve:
         """
         Solve from the cold start and return (run, code).
 
-        The coarse grid first, then the N grid from its solution; when that fails, the N grid
-        from the cold start with each barrier parameter of MU_COLD_RETRIES in turn (the central
-        path from another mu can lead into another basin).
+        Each attempt of COLD_ATTEMPTS (elastic weight, barrier parameter) runs from the cold
+        start on the coarse grid (on the N grid itself when N <= 2 COARSE_INTERVALS); the
+        distinct converged ones within REFINE_BAND of the shortest are refined on the N grid
+        from their primal-dual solution, and the shortest converged refinement is returned.
+        The attempts after the first run only when _explore says so.  When nothing converges,
+        the N grid from the cold start with each barrier parameter of MU_COLD_RETRIES in turn
+        (the central path from another mu can lead into another basin).
         """
         problem = self.problem
-        code = None
-        last = None      # the latest (run, code): the answer when the iterations run out
-        if n > 2 * COARSE_INTERVALS:
-            states, controls, t_f = interpolation_start(problem, COARSE_INTERVALS)
-            coarse, code = self._solve_on(COARSE_INTERVALS, states, controls, t_f, MU_COLD,
-                                          budget=max(1, self.limit // 4))
-            last = coarse, code
-            if code == ipm.CONVERGED and self.done < self.limit:
-                states, controls = resample(coarse.ws.x, coarse.controls(), n)
-                duals = resample_duals(coarse.duals(), COARSE_INTERVALS, n)
-                last = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
-                                      budget=max(1, self.limit // 4))
-                if last[1] == ipm.CONVERGED:
-                    return last
+        grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
+        found = []
         first = None
-        for mu in MU_COLD_RETRIES if code is not None else (MU_COLD,) + MU_COLD_RETRIES:
-            if self.done >= self.limit and last is not None:
+        start = interpolation_start(problem, grid)
+        for k, (rho, mu) in enumerate(COLD_ATTEMPTS):
+            if self.done >= self.limit or (k > 0 and not self._explore(first)):
+                break
+            states, controls, t_f = start
+            run, code = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
+                                       budget=max(1, self.limit // (8 if grid < n else 4)))
+            first = first or (run, code)
+            if code == ipm.CONVERGED:
+                found.append(run)
+        found.sort(key=lambda r: r.t_f)      # stable: ties keep the attempts' order
+        if grid == n and found:
+            return found[0], ipm.CONVERGED
+        # Refine the distinct coarse optima close to the best one (the coarse grid's ranking
+        # of nearby optima is not the N grid's), keep the shortest converged one.
+        refined = []
+        for coarse in found if grid < n else ():
+            if self.done >= self.limit or len(refined) >= MAX_REFINE \
+                    or coarse.t_f > (1.0 + REFINE_BAND) * found[0].t_f:
+                break
+            if any(abs(coarse.t_f - t) <= 1e-6 * t for t in refined):
+                continue
+            refined.append(coarse.t_f)
+            states, controls = resample(coarse.ws.x, coarse.controls(), n)
+            duals = resample_duals(coarse.duals(), grid, n)
+            run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
+                                       budget=max(1, self.limit // 4), elastic=duals['rho'])
+            if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
+                self.best = run
+        if self.best is not None:
+            return self.best, ipm.CONVERGED
+        for mu in MU_COLD_RETRIES:
+            if self.done >= self.limit and first is not None and first[0].n == n:
                 break
             states, controls, t_f = interpolation_start(problem, n)
-            last = self._solve_on(n, states, controls, t_f, mu)
-            first = first or last
-            if last[1] == ipm.CONVERGED:
-                return last
-        return first if first is not None else last
+            run, code = self._solve_on(n, states, controls, t_f, mu)
+            if first is None or first[0].n != n:
+                first = (run, code)
+            if code == ipm.CONVERGED:
+                return run, code
+        return first
+
+    def _explore(self, first):
+        """
+        Return whether to run the cold attempts after the first one (first: its run, code).
+
+        Only with obstacles, within half the iteration budget (and, with a timeout, within
+        EXPLORE_TIME of it, leaving the rest for the N grid), and only when the first attempt
+        failed or needed the inertia correction (negative curvature) on more than
+        EXPLORE_NONCONVEX iterations: its path crossed a nonconvex region, where other local
+        optima are likely.  A start that leads straight into its basin (the paper scenario:
+        5 such iterations of 35) is not re-solved.
+        """
+        if not len(self.problem.obstacles) or self.done >= self.limit // 2:
+            return False
+        timeout = self.options.timeout
+        if timeout is not None and self.clock.elapsed() >= EXPLORE_TIME * timeout:
+            return False
+        run, code = first
+        shifted = np.count_nonzero(run.ws.hist[:run.iterations, ipm.H_DELTA] > 0.0)
+        return code != ipm.CONVERGED or shifted > EXPLORE_NONCONVEX
 
     def _history(self):
         return np.array(self.history, dtype=float).reshape(-1, 4)

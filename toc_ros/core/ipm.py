@@ -1147,13 +1147,18 @@ def _regularized_step(ws):
 @njit
 def _raise_elastic_weight(ws):
     """
-    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho).
+    Multiply rho by 10 when an obstacle multiplier nears it (z > 0.9 rho) at a solution.
 
-    The l1 penalty is then binding and would accept a violated constraint.  Returns True when
-    rho changed.
+    The l1 penalty is then binding and would accept a violated constraint.  Only once the
+    barrier problem is solved (E_mu <= kappa_eps mu, when mu would be decreased): while the
+    iterates still cross an obstacle, z near rho is the penalty doing its work, and raising rho
+    there gives the Lagrangian the curvature -rho grad^2 c inside the obstacle (large inertia
+    corrections, tiny steps, runaway rho up to ELASTIC_MAX).  Returns True when rho changed.
     """
     fs = ws.fscal
     rho_e = fs[F_ELASTIC]
+    if fs[F_ERR_MU] > KAPPA_EPS * fs[F_MU]:
+        return False
     z_max = 0.0
     for i in range(1, ws.iscal[I_N] + 1):
         for j in range(ws.s.shape[1]):

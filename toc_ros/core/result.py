@@ -138,6 +138,8 @@ class SolveResult:
             for name in ('zl', 'zu'):
                 if name in duals:
                     state['duals'][name] = duals[name][k:].copy()
+            if 'rho' in duals:
+                state['duals']['rho'] = duals['rho']
         return SolveResult(
             status=self.status, message=f'remainder from node {k} of a {self.status.value} '
             'trajectory', mode=self.mode, integrator=self.integrator, n_intervals=n - k,

@@ -1,0 +1,167 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Fast mode on cases it used to fail: former STALLED random scenarios and planar_2r circles.
+
+* Random scenarios 14 and 20 of benchmarks/random_scenarios.py (N = 300, two and three
+  circles crossed by the cold start): STALLED before the elastic weight was raised only at
+  solutions of the barrier problem.  Checked by the numpy re-integration of numpy_model and
+  against the IPOPT transcription of benchmarks/reference_ipopt.py (when casadi is importable,
+  else the recorded optimum).
+* planar_2r of benchmarks/bench_planar_2r.py (Euler, N = 1000, circle A active): without
+  gravity STALLED before; with gravity a poor local optimum (0.817 s) before the further cold
+  attempts.  Checked by an Euler re-integration with the arm's closed-form dynamics written
+  here in numpy, and the clearance of both links by numpy segment geometry; t_f against the
+  best IPOPT t_f the benchmark measured on the same discretisation.
+"""
+
+import importlib.util
+import math
+from pathlib import Path
+import sys
+
+import numpy as np
+import numpy_model as nm
+import pytest
+
+from toc_ros.core import Problem, solve, SolverOptions, Status, warm_up
+from toc_ros.core.models import load_model
+
+HAVE_CASADI = importlib.util.find_spec('casadi') is not None
+GAP = 1e-3              # 0.1 %
+TOL = 1e-6              # the SOLVED tolerances (terminal error, clearance)
+
+# (x0, x_goal, circles, best IPOPT t_f of the benchmark run in benchmarks/RESULTS.md).
+RANDOM = {
+    14: ((2.96371552435794, 0.0, 1.111122200647496, 0.0),
+         (5.04598342070355, 0.0, 0.9163852766285077, 0.0),
+         ((-0.6803887848962021, -1.337373679824137, 0.09695843787011853),
+          (-0.7256054590257625, -0.8240268995890693, 0.10919318546029319)), 2.41810),
+    20: ((-0.7219685627535797, -0.3282229849181655, 1.1190599770583576, -0.19127626426140792),
+         (0.9621554594031496, 0.06228331035746315, 0.6886332301755282, 0.0),
+         ((0.7975872278731166, -0.22188219768891881, 0.26325933212145247),
+          (1.3732255951946963, -0.4018614372489332, 0.18746968607847325),
+          (1.4618824169988551, 0.3602668628273199, 0.28621549162037296)), 2.73409),
+}
+
+# planar_2r: q = (0, 0.3) -> (1.6, 0.3) at rest, circle A of bench_planar_2r.py; the best
+# IPOPT t_f of that benchmark (same start, or from fast mode's solution), before this change.
+CIRCLE_A = (1.50 * math.cos(0.35), 1.50 * math.sin(0.35), 0.12)
+PLANAR = {'g0': (0.0, 0.643441), 'g9.81': (9.81, 0.758213)}
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _compiled():
+    warm_up()
+    warm_up([load_model('planar_2r'), load_model('planar_2r', g=9.81)])
+
+
+def _reference_t_f(problem):
+    path = Path(__file__).resolve().parents[1] / 'benchmarks' / 'reference_ipopt.py'
+    sys.path.insert(0, str(path.parent))
+    spec = importlib.util.spec_from_file_location('reference_ipopt', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    res = module.solve_reference(problem.x0, problem.x_goal, problem.obstacles, problem.margin,
+                                 N=problem.n_intervals, integrator=problem.integrator,
+                                 model_variant=problem.robot.model_variant,
+                                 u_max=(problem.robot.u1_max, problem.robot.u2_max))
+    assert res['success'], res['attempts']
+    return res['t_f']
+
+
+@pytest.mark.parametrize('index', sorted(RANDOM))
+def test_former_stalled_random_scenario_is_solved_at_the_ipopt_optimum(index):
+    x0, goal, circles, recorded = RANDOM[index]
+    problem = Problem(x0=x0, x_goal=goal, obstacles=circles, n_intervals=300)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    measured = nm.assert_feasible(problem, result, tol=TOL)
+    assert measured['min_clearance'] < 1e-3, 'expected an obstacle to be active'
+    t_ref = _reference_t_f(problem) if HAVE_CASADI else recorded
+    assert result.final_time <= (1.0 + GAP) * t_ref, (result.final_time, t_ref)
+
+
+def _planar_rhs(x, u, prm):
+    """dx/dt of the planar 2R arm: M(q) ddq + C(q, dq) dq + G(q) = u, rods and a payload."""
+    l1, l2, m1, m2, mp, g = prm
+    a = (m1 / 3.0 + m2 + mp) * l1 * l1
+    b = (m2 / 3.0 + mp) * l2 * l2
+    c = (0.5 * m2 + mp) * l1 * l2
+    q1, dq1, q2, dq2 = x
+    mass = np.array([[a + b + 2.0 * c * math.cos(q2), b + c * math.cos(q2)],
+                     [b + c * math.cos(q2), b]])
+    coriolis = c * math.sin(q2) * np.array([-(2.0 * dq1 * dq2 + dq2 * dq2), dq1 * dq1])
+    gravity = g * np.array([(0.5 * m1 + m2 + mp) * l1 * math.cos(q1)
+                            + (0.5 * m2 + mp) * l2 * math.cos(q1 + q2),
+                            (0.5 * m2 + mp) * l2 * math.cos(q1 + q2)])
+    ddq = np.linalg.solve(mass, np.asarray(u) - coriolis - gravity)
+    return np.array([dq1, ddq[0], dq2, ddq[1]])
+
+
+def _segment_distance(a, b, p):
+    """Distance from the points p (M, 2) to the segments [a, b] (M, 2 each)."""
+    ab = b - a
+    t = np.clip(np.sum((p - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-300),
+                0.0, 1.0)
+    return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
+
+
+def _planar_problem(g):
+    model = load_model('planar_2r', g=g)
+    return Problem(model=model, x0=tuple(float(v) for v in model.state(np.array([0.0, 0.3]))),
+                   x_goal=tuple(float(v) for v in model.state(np.array([1.6, 0.3]))),
+                   obstacles=(CIRCLE_A,), n_intervals=1000)
+
+
+@pytest.mark.parametrize('name', sorted(PLANAR))
+def test_planar_2r_active_circle_is_solved_feasible_for_both_links(name):
+    g, best_ipopt = PLANAR[name]
+    problem = _planar_problem(g)
+    model = problem.robot_model
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    controls = np.asarray(result.controls)
+    n = problem.n_intervals
+    assert controls.shape == (n, 2)
+    assert np.all(np.abs(controls) <= np.asarray(model.u_max)[None, :])
+    prm = model.params
+    prm = (prm.l1, prm.l2, prm.m1, prm.m2, prm.m_p, prm.g)
+    tau = result.final_time / n
+    states = np.empty((n + 1, 4))
+    states[0] = problem.x0
+    for i in range(n):
+        states[i + 1] = states[i] + tau * _planar_rhs(states[i], controls[i], prm)
+    assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= TOL
+    np.testing.assert_allclose(result.states, states, rtol=0, atol=1e-9)
+    # Both links, every node 1..N, outside the inflated circle.
+    q1, q2 = states[:, 0], states[:, 2]
+    elbow = prm[0] * np.column_stack([np.cos(q1), np.sin(q1)])
+    hand = elbow + prm[1] * np.column_stack([np.cos(q1 + q2), np.sin(q1 + q2)])
+    centre = np.tile(CIRCLE_A[:2], (n + 1, 1))
+    radius = CIRCLE_A[2] + problem.margin
+    for a, b in ((np.zeros_like(elbow), elbow), (elbow, hand)):
+        assert np.min(_segment_distance(a, b, centre)[1:]) >= radius - TOL
+    assert result.final_time <= (1.0 + GAP) * best_ipopt, (result.final_time, best_ipopt)
+
+
+def test_further_cold_attempts_are_deterministic():
+    problem = _planar_problem(9.81)
+    first = solve(problem, SolverOptions(mode='fast'))
+    second = solve(problem, SolverOptions(mode='fast'))
+    assert first.status is second.status is Status.SOLVED
+    assert first.final_time == second.final_time and first.iterations == second.iterations
+    assert np.array_equal(first.controls, second.controls)
+    assert np.array_equal(first.history, second.history, equal_nan=True)
