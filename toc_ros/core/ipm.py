@@ -131,8 +131,8 @@ Workspace = namedtuple('Workspace', [
     'jac_x', 'jac_v', 'jac_t', 'defect', 'cons', 'cons_q',
     # stage blocks of the Newton system: Q (xi, xi), S (v, xi), R (v, v), q, r
     'qq', 'ss', 'rr', 'qv', 'rv',
-    # Riccati sweep
-    'pp', 'pc', 'gain', 'ff', 'chol',
+    # Riccati sweep; term_m, term_c: the terminal system dx(N) = term_c + term_m nu
+    'pp', 'pc', 'gain', 'ff', 'chol', 'term_m', 'term_c',
     # step
     'dx', 'dv', 'lam_new', 'nu_new', 'ds', 'de', 'dz', 'dzl', 'dzu',
     # trial point of the line search
@@ -161,7 +161,7 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
         qq=z((n + 1, nxi, nxi)), ss=z((n, nu, nxi)), rr=z((n, nu, nu)), qv=z((n + 1, nxi)),
         rv=z((n, nu)),
         pp=z((n + 1, nxi, nxi)), pc=z((n + 1, nxi, ncol)), gain=z((n, nu, nxi)),
-        ff=z((n, nu, ncol)), chol=z((n, nu, nu)),
+        ff=z((n, nu, ncol)), chol=z((n, nu, nu)), term_m=z((nx, nx)), term_c=z(nx),
         dx=z((n + 1, nx)), dv=z((n, nu)), lam_new=z((n + 1, nx)), nu_new=z(nx),
         ds=z((n + 1, nb)), de=z((n + 1, nb)), dz=z((n + 1, nb)), dzl=z((n, nu)),
         dzu=z((n, nu)),
@@ -630,7 +630,8 @@ def factorize(ws, delta):
     The shift delta is put on the primal diagonal.  Returns False when a reduced Hessian is
     not positive definite (the caller then raises delta).  pc holds nx + 1 right-hand sides:
     column 0 the Newton step's, column 1 + r the derivative with respect to the terminal
-    multiplier nu_r.
+    multiplier nu_r (Gamma, propagated by the closed loop); term_m and term_c receive the
+    terminal system.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -645,6 +646,11 @@ def factorize(ws, delta):
     h = np.zeros(nxi)
     rcol = np.zeros(nu)
     lower = np.zeros((nu, nu))
+    wcol = np.zeros((nu, nx))
+    for r in range(nx):
+        ws.term_c[r] = 0.0
+        for c in range(nx):
+            ws.term_m[r, c] = 0.0
     for a in range(nxi):
         for b in range(nxi):
             pp[n, a, b] = ws.qq[n, a, b]
@@ -715,7 +721,9 @@ def factorize(ws, delta):
         if i > 0:
             for a in range(nx):
                 pp[i, a, a] += delta
-        # Right-hand sides: h = P b + p(i+1) (b: the defect, column 0 only).
+        # Right-hand sides: h = P b + p(i+1) (b: the defect, column 0 only); columns 1..nx
+        # carry Gamma(i) = A_cl^T Gamma(i+1) (A_cl = Abar + Bbar gain) in the form
+        # Abar^T h + shat^T ff, which is cheaper here than forming A_cl.
         for col in range(ncol):
             for a in range(nxi):
                 acc = pc[i + 1, a, col]
@@ -728,6 +736,8 @@ def factorize(ws, delta):
                 for m in range(nx):
                     acc += ws.jac_v[i, m, c] * h[m]
                 rcol[c] = acc
+                if col > 0:
+                    wcol[c, col - 1] = acc
             _chol_solve(lower, rcol, nu)
             for c in range(nu):
                 ws.ff[i, c, col] = -rcol[c]
@@ -745,6 +755,25 @@ def factorize(ws, delta):
                 for c in range(nu):
                     acc += shat[c, a] * ws.ff[i, c, col]
                 pc[i, a, col] = acc
+        # The terminal system [I 0] xi(N) = term_c + term_m nu (up to the dT(0) terms added in
+        # newton_step): sum_i Gamma(i+1)^T (Bbar ff(i) + b(i)), with Gamma(i+1)^T Bbar ff_nu =
+        # -W^T rhat^-1 W, W = Bbar^T Gamma(i+1).  The forward sweep then runs once instead of
+        # nx + 2 times.
+        for a in range(nx):
+            acc = ws.defect[i, a]
+            for c in range(nu):
+                acc += ws.jac_v[i, a, c] * ws.ff[i, c, 0]
+            h[a] = acc
+        for r in range(nx):
+            acc = 0.0
+            for m in range(nx):
+                acc += pc[i + 1, m, 1 + r] * h[m]
+            ws.term_c[r] += acc
+            for r2 in range(nx):
+                acc = 0.0
+                for c in range(nu):
+                    acc += wcol[c, r] * ws.ff[i, c, 1 + r2]
+                ws.term_m[r, r2] += acc
     # T is a free initial state component: its curvature must be positive too.
     return pp[0, nx, nx] > 0.0
 
@@ -805,8 +834,8 @@ def newton_step(ws, delta):
     """
     Solve for the Newton step after a successful factorize(ws, delta).
 
-    First nu from the nx x nx terminal system, then dx, dv, dT and the new multipliers.
-    Returns dT, or nan when the terminal system is singular.
+    First nu from the nx x nx terminal system, then dx, dv, dT and the new multipliers (one
+    forward sweep).  Returns dT, or nan when the terminal system is singular.
     """
     n = ws.iscal[I_N]
     nx = ws.x.shape[1]
@@ -818,20 +847,13 @@ def newton_step(ws, delta):
     dts = np.zeros(ncol)
     for c in range(ncol):
         dts[c] = -ws.pc[0, nx, c] / p_tt
-    # dx(N) for column 0 (nu = 0) and its derivative for each nu_r.
-    weights[0] = 1.0
-    _forward(ws, weights, dts[0], xi, False)
+    # dx(N) = rhs-free part + mat nu, from the sums factorize accumulated (see there).
     rhs = np.zeros(nx)
-    for r in range(nx):
-        rhs[r] = -(ws.x[n, r] - ws.x_goal[r]) - xi[r]
     mat = np.zeros((nx, nx))
-    for c in range(nx):
-        for k in range(ncol):
-            weights[k] = 0.0
-        weights[1 + c] = 1.0
-        _forward(ws, weights, dts[1 + c], xi, False)
-        for r in range(nx):
-            mat[r, c] = xi[r]
+    for r in range(nx):
+        rhs[r] = -(ws.x[n, r] - ws.x_goal[r]) - ws.term_c[r] - ws.pc[0, nx, 1 + r] * dts[0]
+        for c in range(nx):
+            mat[r, c] = ws.term_m[r, c] + ws.pc[0, nx, 1 + r] * dts[1 + c]
     # mat is symmetric negative definite when the step is well defined.
     neg = np.zeros((nx, nx))
     lower = np.zeros((nx, nx))
