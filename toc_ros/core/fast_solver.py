@@ -411,11 +411,13 @@ def _guess_intervals(guess):
 class FastSolve:
     """Fast mode on one problem: coarse-to-fine cold start or warm start, then the result."""
 
-    def __init__(self, problem, options, clock, initial_guess=None):
+    def __init__(self, problem, options, clock, initial_guess=None, start_point=None):
         self.problem = problem
         self.options = options
         self.clock = clock
         self.initial_guess = initial_guess
+        # warm_start_point(problem, initial_guess, N) when the caller has it already.
+        self.start_point = start_point
         self.initial_guess_intervals = _guess_intervals(initial_guess)
         self.limit = options.iteration_limit()
         self.done = 0            # iterations on finished grids
@@ -456,7 +458,7 @@ class FastSolve:
         n = problem.n_intervals
         try:
             if self.initial_guess is not None:
-                states, controls, t_f, duals, drift = warm_start_point(
+                states, controls, t_f, duals, drift = self.start_point or warm_start_point(
                     problem, self.initial_guess, n)
                 # A guess that starts where the robot is (within ~1e-6) is kept tight against
                 # its bounds and barely re-centred; one the robot has drifted from gets room
