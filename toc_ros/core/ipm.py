@@ -123,6 +123,10 @@ KAPPA_EPS = 10.0
 ELASTIC_MAX = 1e8
 
 Workspace = namedtuple('Workspace', [
+    # state and control sizes as tuples of that length: their lengths are part of the numba
+    # type, so every kernel is compiled for its model's (nx, nu) with constant loop bounds
+    # (factorize ~3x faster than with sizes read from array shapes; same arithmetic, same bits)
+    'size_x', 'size_u',
     # problem data
     'p', 'x0', 'x_goal', 'u_max', 'circles',
     # primal: states, scaled controls; duals: dynamics, terminal, obstacles, control bounds
@@ -150,6 +154,7 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
     ncol = nx + 1
     z = np.zeros
     return Workspace(
+        size_x=(0,) * nx, size_u=(0,) * nu,
         p=np.ascontiguousarray(p, dtype=float), x0=np.array(x0, dtype=float),
         x_goal=np.array(x_goal, dtype=float), u_max=np.array(u_max, dtype=float),
         circles=circles,
@@ -351,8 +356,8 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
     """
     n = ws.iscal[I_N]
     method = ws.iscal[I_METHOD]
-    nx = ws.x.shape[1]
-    nu = ws.v.shape[1]
+    nx = len(ws.size_x)
+    nu = len(ws.size_u)
     nq = nx // 2
     nb = ws.s.shape[1]
     fs = ws.fscal
@@ -496,8 +501,8 @@ def barrier_terms(ws):
     maximum.
     """
     n = ws.iscal[I_N]
-    nx = ws.x.shape[1]
-    nu = ws.v.shape[1]
+    nx = len(ws.size_x)
+    nu = len(ws.size_u)
     nq = nx // 2
     nb = ws.s.shape[1]
     fs = ws.fscal
@@ -634,8 +639,8 @@ def factorize(ws, delta):
     terminal system.
     """
     n = ws.iscal[I_N]
-    nx = ws.x.shape[1]
-    nu = ws.v.shape[1]
+    nx = len(ws.size_x)
+    nu = len(ws.size_u)
     nxi = nx + 1
     ncol = nx + 1
     pp, pc = ws.pp, ws.pc
@@ -786,8 +791,8 @@ def _forward(ws, col_weights, dt, xi, store):
     Returns xi(N) in xi.  With store, writes dx, dv and the new multipliers lam_new.
     """
     n = ws.iscal[I_N]
-    nx = ws.x.shape[1]
-    nu = ws.v.shape[1]
+    nx = len(ws.size_x)
+    nu = len(ws.size_u)
     nxi = nx + 1
     ncol = nx + 1
     nxt = np.zeros(nxi)
@@ -838,7 +843,7 @@ def newton_step(ws, delta):
     forward sweep).  Returns dT, or nan when the terminal system is singular.
     """
     n = ws.iscal[I_N]
-    nx = ws.x.shape[1]
+    nx = len(ws.size_x)
     ncol = nx + 1
     p_tt = ws.pp[0, nx, nx]
     xi = np.zeros(nx + 1)
@@ -884,8 +889,8 @@ def newton_step(ws, delta):
 def recover_bound_steps(ws, dt):
     """Slack and bound-dual steps from the primal step (condensed per constraint)."""
     n = ws.iscal[I_N]
-    nu = ws.v.shape[1]
-    nq = ws.x.shape[1] // 2
+    nu = len(ws.size_u)
+    nq = len(ws.size_x) // 2
     nb = ws.s.shape[1]
     mu = ws.fscal[F_MU]
     for i in range(n):
@@ -923,7 +928,7 @@ def _max_step(value, step, frac, alpha):
 def fraction_to_boundary(ws, dt, frac):
     """(alpha_primal, alpha_dual) of the fraction-to-the-boundary rule."""
     n = ws.iscal[I_N]
-    nu = ws.v.shape[1]
+    nu = len(ws.size_u)
     nb = ws.s.shape[1]
     fs = ws.fscal
     ap = 1.0
@@ -955,8 +960,8 @@ def trial_merit(rhs, segments, ws, alpha, dt):
     """(theta, phi) at the trial point x + alpha dx, v + alpha dv, s + alpha ds, T + alpha dT."""
     n = ws.iscal[I_N]
     method = ws.iscal[I_METHOD]
-    nx = ws.x.shape[1]
-    nu = ws.v.shape[1]
+    nx = len(ws.size_x)
+    nu = len(ws.size_u)
     nq = nx // 2
     nb = ws.s.shape[1]
     fs = ws.fscal
@@ -1007,7 +1012,7 @@ def trial_merit(rhs, segments, ws, alpha, dt):
 def barrier_slope(ws, dt):
     """Directional derivative of the barrier objective along the step."""
     n = ws.iscal[I_N]
-    nu = ws.v.shape[1]
+    nu = len(ws.size_u)
     nb = ws.s.shape[1]
     fs = ws.fscal
     mu = fs[F_MU]
@@ -1053,8 +1058,8 @@ def _add_to_filter(ws, theta, phi):
 def accept_trial(ws, alpha, alpha_dual, dt):
     """Move to the trial point (primal from the trial buffers, duals by alpha / alpha_dual)."""
     n = ws.iscal[I_N]
-    nx = ws.x.shape[1]
-    nu = ws.v.shape[1]
+    nx = len(ws.size_x)
+    nu = len(ws.size_u)
     nb = ws.s.shape[1]
     fs = ws.fscal
     mu = fs[F_MU]
