@@ -65,7 +65,9 @@ def _residual(run, ws):
 
 
 def _moved(ws, eps, dt, dzt):
-    w = ws._replace(**{k: getattr(ws, k).copy() for k in ws._fields})
+    # Copies of the arrays (the size tuples are immutable).
+    w = ws._replace(**{k: getattr(ws, k).copy() for k in ws._fields
+                       if isinstance(getattr(ws, k), np.ndarray)})
     w.x[:] += eps * ws.dx
     w.v[:] += eps * ws.dv
     w.lam[1:] += eps * (ws.lam_new[1:] - ws.lam[1:])

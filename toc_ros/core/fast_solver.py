@@ -31,6 +31,7 @@ being executed) skips the coarse grid.
 """
 
 import math
+import os
 import threading
 import time
 
@@ -220,16 +221,8 @@ class InteriorPointRun:
         of an iteration even on long horizons.  Returns the ipm code.
         """
         chunk = 1
-        done = threading.Event()
-        watcher = None
         if stop_requested is not None:
-            def watch():
-                while not done.wait(STOP_POLL):
-                    if stop_requested():
-                        self.ws.iscal[ipm.I_STOP] = 1
-                        return
-            watcher = threading.Thread(target=watch, name='toc_ros-stop-watch', daemon=True)
-            watcher.start()
+            _WATCHER.add(self.ws, stop_requested)
         try:
             while True:
                 check(self)
@@ -241,9 +234,57 @@ class InteriorPointRun:
                     check(self)
                     return code
         finally:
-            done.set()
-            if watcher is not None:
-                watcher.join()
+            if stop_requested is not None:
+                _WATCHER.remove(self.ws)
+
+
+class _StopWatcher:
+    """
+    One daemon thread that polls the stop requests of the running kernels every STOP_POLL.
+
+    Shared by all solves: a thread per solve cost its start and join, several ms on a loaded
+    machine (both wait until the scheduler runs the new thread).  It sleeps while no kernel
+    runs.
+    """
+
+    def __init__(self):
+        self._reset()
+        # A forked child (e.g. a sweep worker) has neither the thread nor a usable lock.
+        if hasattr(os, 'register_at_fork'):
+            os.register_at_fork(after_in_child=self._reset)
+
+    def _reset(self):
+        self._cond = threading.Condition()
+        self._active = {}
+        self._thread = None
+
+    def add(self, ws, stop_requested):
+        with self._cond:
+            self._active[id(ws)] = (ws, stop_requested)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._watch, name='toc_ros-stop-watch',
+                                                daemon=True)
+                self._thread.start()
+            self._cond.notify()
+
+    def remove(self, ws):
+        with self._cond:
+            self._active.pop(id(ws), None)
+
+    def _watch(self):
+        with self._cond:
+            while True:
+                if not self._active:
+                    self._cond.wait()
+                    continue
+                for key, (ws, stop_requested) in list(self._active.items()):
+                    if stop_requested():
+                        ws.iscal[ipm.I_STOP] = 1
+                        del self._active[key]
+                self._cond.wait(STOP_POLL)
+
+
+_WATCHER = _StopWatcher()
 
 
 def interpolation_start(problem, n):
@@ -272,21 +313,20 @@ def interpolation_start(problem, n):
     states = np.empty((n + 1, model.nx))
     states[:, 0::2] = q
     states[:, 1::2] = dq
-    controls = np.zeros((n, model.nu))
     tau = t_f / n
     k = model.kernels
     p = model.packed()
-    f = np.zeros(model.nx)
+    f = np.zeros((n, model.nx))
     fx = np.zeros((model.nx, model.nx))
-    fu = np.zeros((model.nx, model.nu))
+    fu = np.zeros((n, model.nx, model.nu))
     zero = np.zeros(model.nu)
     u_max = np.asarray(model.u_max, dtype=float)
     for i in range(n):
-        k.rhs_jac(states[i], zero, p, f, fx, fu)
-        target = (states[i + 1] - states[i]) / tau - f
-        u = np.linalg.lstsq(fu, target, rcond=None)[0]
-        controls[i] = np.clip(u, -u_max, u_max)
-    return states, controls, t_f
+        k.rhs_jac(states[i], zero, p, f[i], fx, fu[i])
+    # One stacked pseudo-inverse instead of n lstsq calls (that loop was ~3 ms at n = 100).
+    target = (states[1:] - states[:-1]) / tau - f
+    u = np.matmul(np.linalg.pinv(fu), target[:, :, None])[:, :, 0]
+    return states, np.clip(u, -u_max, u_max), t_f
 
 
 def resample(states, controls, n):
@@ -392,11 +432,13 @@ def _guess_intervals(guess):
 class FastSolve:
     """Fast mode on one problem: coarse-to-fine cold start or warm start, then the result."""
 
-    def __init__(self, problem, options, clock, initial_guess=None):
+    def __init__(self, problem, options, clock, initial_guess=None, start_point=None):
         self.problem = problem
         self.options = options
         self.clock = clock
         self.initial_guess = initial_guess
+        # warm_start_point(problem, initial_guess, N) when the caller has it already.
+        self.start_point = start_point
         self.initial_guess_intervals = _guess_intervals(initial_guess)
         self.limit = options.iteration_limit()
         self.done = 0            # iterations on finished grids
@@ -439,7 +481,7 @@ class FastSolve:
         n = problem.n_intervals
         try:
             if self.initial_guess is not None:
-                states, controls, t_f, duals, drift = warm_start_point(
+                states, controls, t_f, duals, drift = self.start_point or warm_start_point(
                     problem, self.initial_guess, n)
                 # A guess that starts where the robot is (within ~1e-6) is kept tight against
                 # its bounds and barely re-centred; one the robot has drifted from gets room

@@ -71,6 +71,7 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
     N.  A guess that does not lead to convergence falls back to a cold start.
     """
     options = SolverOptions() if options is None else options
+    start_point = None
     try:
         if not isinstance(problem, Problem):
             raise ProblemError('problem must be a toc_ros.core.Problem')
@@ -85,7 +86,8 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
             if options.mode != 'fast':
                 raise ProblemError('an initial guess is used by fast mode only')
             try:
-                warm_start_point(problem, initial_guess, problem.n_intervals)
+                # Checked here, used by fast mode (not computed twice: a rollout and resampling).
+                start_point = warm_start_point(problem, initial_guess, problem.n_intervals)
             except (TypeError, ValueError) as exc:
                 raise ProblemError(f'bad initial guess: {exc}')
     except ProblemError as exc:
@@ -96,7 +98,7 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
     if options.mode == 'paper':
         result = _solve_paper(problem, options, problem.integrator_id, clock)
     else:
-        result = _solve_fast(problem, options, clock, initial_guess)
+        result = _solve_fast(problem, options, clock, initial_guess, start_point)
     result.mode = options.mode
     result.integrator = problem.integrator
     result.n_intervals = problem.n_intervals
@@ -169,8 +171,8 @@ def _solve_paper(problem, options, method, clock):
     return result
 
 
-def _solve_fast(problem, options, clock, initial_guess):
-    return FastSolve(problem, options, clock, initial_guess).solve()
+def _solve_fast(problem, options, clock, initial_guess, start_point=None):
+    return FastSolve(problem, options, clock, initial_guess, start_point).solve()
 
 
 def warm_up(models=None):

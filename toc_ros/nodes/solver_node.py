@@ -100,8 +100,11 @@ ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm m
 CANCEL_WAIT_S = 2.0
 # Before a solve starts, the worker waits until no goal arrived for QUIET_S (at most
 # SETTLE_MAX_S): after a burst the executor takes the newer goals first, so only the newest
-# is solved.
+# is solved.  A goal with no other goal within QUIET_S before it waits only QUIET_FIRST_S (the
+# goals of a burst follow each other within a fraction of a millisecond; a goal arriving in
+# that window turns the wait into the burst's QUIET_S), so a single goal starts at once.
 QUIET_S = 0.05
+QUIET_FIRST_S = 0.005
 SETTLE_MAX_S = 0.5
 # Queue depth of the services: every request of a burst is kept and answered.
 SERVICE_QOS = QoSProfile(depth=100)
@@ -277,7 +280,8 @@ class _Worker:
         self._active = None
         self._cancel = None
         self._stopping = False
-        self._last_submit = 0.0
+        self._last_submit = -math.inf
+        self._gap = math.inf     # [s] between the last two submits
         self._thread = threading.Thread(target=self._loop, name='solver', daemon=True)
         self._thread.start()
 
@@ -285,7 +289,8 @@ class _Worker:
         """Queue request, dropping a queued one and canceling the running one."""
         with self._cond:
             dropped, self._pending = self._pending, request
-            self._last_submit = time.monotonic()
+            now = time.monotonic()
+            self._gap, self._last_submit = now - self._last_submit, now
             if self._active is not None:
                 self._active.stop_reason = 'preempted by a newer goal'
                 self._cancel.set()
@@ -370,7 +375,8 @@ class _Worker:
             settle_end = time.monotonic() + SETTLE_MAX_S
             while (not self._stopping and self._pending is not None
                    and self._pending.cycle is None):
-                quiet = self._last_submit + QUIET_S - time.monotonic()
+                wait_s = QUIET_S if self._gap < QUIET_S else QUIET_FIRST_S
+                quiet = self._last_submit + wait_s - time.monotonic()
                 if quiet <= 0.0 or time.monotonic() >= settle_end:
                     break
                 self._cond.wait(min(quiet, settle_end - time.monotonic()))
@@ -1031,16 +1037,16 @@ class SolverNode(Node):
             message = f'{request.stop_reason} ({result.message})'
         if result.status is Status.INVALID_INPUT:
             message = f'{message} (start state from {start_source})'
+        if result.status in schema.PUBLISHED and result.has_trajectory:
+            if not self._publish_plan(request, result, problem, params, revision):
+                request.restart_reason = 'planning data changed at the end of the solve'
+                return
         rows = problem.obstacles
         report = schema.result_report(
             result, message, goal_source=request.source, start_source=start_source,
             goal=tuple(float(v) for v in np.round(request.goal, 9)),
             obstacles_hash=schema.obstacles_hash(rows, problem.margin),
             data_revision=revision, event=request.event, **model_keys(params))
-        if result.status in schema.PUBLISHED and result.has_trajectory:
-            if not self._publish_plan(request, result, problem, params, revision):
-                request.restart_reason = 'planning data changed at the end of the solve'
-                return
         text = (f'{result.status.value} for goal from {request.source}: {message} '
                 f'({result.iterations} iterations, {result.wall_time_s:.3f} s)')
         # One call site per severity: rclpy refuses to change it between calls of a site.
@@ -1091,7 +1097,6 @@ class SolverNode(Node):
         stamp = conversions.time_msg(start)
         model = problem.robot_model
         trajectory = conversions.trajectory_msg(result, params['joint_names'], model, stamp)
-        path = conversions.hand_path_msg(result.states, model, params['base_frame'], stamp)
         with self._plan_lock:
             if revision != self._revision:
                 with self._lock:
@@ -1114,6 +1119,8 @@ class SolverNode(Node):
                 'path_states': result.states, 'result': result, 'model': model}
             self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
+        # The path and the markers only after the trajectory: they are not on its latency.
+        path = conversions.hand_path_msg(result.states, model, params['base_frame'], stamp)
         request.path = path
         self._path_pub.publish(path)
         if request.cycle is None:
