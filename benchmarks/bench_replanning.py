@@ -118,7 +118,11 @@ def main(argv=None):
                         and client.count('joint_states') > 10, 60.0, 'the nodes')
         for name in args.scenarios:
             spec = SCENARIOS[name]
-            reference = true_t_min(dict(params, **{'solver.N': args.N}), spec['true'])
+            obstacles = spec.get('obstacles', PAPER_OBSTACLES)
+            if spec.get('moving') is not None:      # the circle's final place
+                obstacles = spec['moving'].rows(obstacles, math.inf)
+            reference = true_t_min(dict(params, **{'solver.N': args.N}), spec['true'],
+                                   obstacles, spec.get('margin'))
             for loop, rate in (('open loop', 0.0), ('replanning', args.rate)):
                 plant = dict(NOMINAL_PLANT, **spec['plant'])
                 execution = run_execution(

@@ -182,11 +182,21 @@ def _plans(client, since):
         if m.points]
 
 
-def true_t_min(params, changes):
-    """Return fast mode's t_min for the solver parameters params with changes (the true plant)."""
+def true_t_min(params, changes, obstacles=None, margin=None):
+    """
+    Return fast mode's t_min for the solver parameters params with changes (the true plant).
+
+    obstacles / margin: the obstacle rows and margin to plan around instead of params' (for a
+    moving circle: its final place).
+    """
     from toc_ros import config
     from toc_ros.core import solve
     values = dict(params, **changes)
+    if obstacles is not None:
+        for i, key in enumerate(('x', 'y', 'radius')):
+            values[f'obstacles.{key}'] = [float(row[i]) for row in obstacles]
+    if margin is not None:
+        values['obstacles.margin'] = float(margin)
     result = solve(config.problem_from_parameters(values), config.options_from_parameters(values))
     return result.final_time if result.success else math.nan
 

@@ -55,7 +55,8 @@ def format_summary(summary):
     loop = summary.get('closed_loop')
     if loop:
         lines.append('  closed loop (paper goal; plant payload +20 %, inertia x 1.2; a circle '
-                     f"moving into the path; true plant t_min {loop['true_t_min']:.4f} s):")
+                     f"moving into the path; t_min of the true plant around the circle's "
+                     f"final place {loop['true_t_min']:.4f} s):")
         for name, m in loop['runs'].items():
             latency = ('' if not m['latencies'] else
                        f", replan latency median/p99 {1e3 * m['latency_median_s']:.1f}/"
