@@ -33,11 +33,20 @@ published for SOLVED and SOLVED_INACCURATE results only, together with ``planned
 ``markers``; the result on ``~/progress`` and the markers name the obstacle set it was planned
 for (``obstacles_hash``) and the revision of the planning data (``data_revision``).
 
+Replanning (fast mode, replan.rate > 0): while a plan executes, replan cycles solve to the
+same goal from the latest joint_states, predicted forward to the new plan's start
+(header.stamp = now + lead) along the executing plan, warm-started from that plan's rest; a
+cycle's plan is published only when solved before its stamp, else the executing plan is kept
+(~/progress event replan_kept).  Goals go first: a cycle never preempts a goal.
+
 No plan for stale data: when the obstacles, the margin, the robot data or the extension
-limits change during a solve, the solve restarts from the same goal and the latest state;
+limits change during a goal's solve, the solve restarts from the same goal and the latest
+state (a replan cycle's plan is published only if it satisfies the data current at its end);
 when they change while a published trajectory is still executing and its remaining part
-now cuts an (inflated) obstacle or exceeds u_max, an empty trajectory (the plant stops and
-holds) is published at once and the goal is planned again from the measured state.
+now cuts an (inflated) obstacle or exceeds u_max, a replan cycle plans around them at once
+(when the plan stays out of the true circles for > BRAKE_HORIZON_S); otherwise, or when that
+fails, a braking trajectory (an empty one without a measured state) is published at once and
+the goal is planned again from the measured state.
 
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
