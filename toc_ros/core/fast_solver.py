@@ -79,7 +79,7 @@ ELASTIC_WEIGHT = 1.0
 # other ways, into other local optima; see FastSolve._explore).
 COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
                  (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
-EXPLORE_NONCONVEX = 25
+EXPLORE_NONCONVEX = 20
 # Fraction of a solve's timeout after which no further cold attempt starts.
 EXPLORE_TIME = 0.25
 # Converged coarse optima within REFINE_BAND of the shortest are refined on the N grid (at most
