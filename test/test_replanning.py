@@ -32,13 +32,13 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import progress as schema
 from toc_ros.core import Status
+from toc_ros.demo.closed_loop import MOVING, MOVING_MARGIN, MOVING_OBSTACLES
 from trajectory_msgs.msg import JointTrajectory
 
 MARGIN = 0.01
 PAPER_OBSTACLES = [(1.0, 1.0, 0.2)]
 PARAMS = {'solver.N': 200, 'solver.timeout': 60.0}
 GOAL_Q = (PAPER_GOAL[0], PAPER_GOAL[2])
-MOVING_MARGIN = 0.03
 
 
 @pytest.fixture(scope='module')
@@ -197,20 +197,17 @@ def test_failed_replan_keeps_the_plan(loop):
 
 def test_moving_obstacle_is_avoided_and_the_goal_reached(loop):
     """A circle moves into the path while the arm executes; the arm never enters it."""
-    # From 1.8 m to 1.3 m from the base along the bearing 0.98 rad, at 0.5 m/s (10 Hz):
-    # the first plan's arm sweeps through its final place from t = 1.24 s on.
-    bearing = np.array([math.cos(0.98), math.sin(0.98)])
-    moving = [*(1.8 * bearing), 0.1]
-    rows = PAPER_OBSTACLES + [tuple(moving)]
+    # closed_loop.MOVING: from 1.8 m to 1.3 m from the base along the bearing 0.98 rad at 1 m/s
+    # from 0.2 s to 0.7 s (sent at 10 Hz); the first plan's arm sweeps through its final place
+    # from t = 1.24 s on.
+    rows = [tuple(r) for r in MOVING_OBSTACLES]
     # A margin that covers the plant's tracking error (the arm must not enter the true circle).
     since, first = start(loop, 20.0, rows, **{'obstacles.margin': MOVING_MARGIN})
     t0 = time.monotonic()
     schedule = [(t0, list(rows))]
-    for _ in range(10):
+    while time.monotonic() - t0 < MOVING.stop + 0.15:
         time.sleep(0.1)
-        moving[0] -= 0.05 * bearing[0]
-        moving[1] -= 0.05 * bearing[1]
-        rows = PAPER_OBSTACLES + [tuple(moving)]
+        rows = [tuple(r) for r in MOVING.rows(MOVING_OBSTACLES, time.monotonic() - t0)]
         loop.obstacles.publish(Float64MultiArray(data=[v for r in rows for v in r]))
         schedule.append((time.monotonic(), list(rows)))
     settle(loop, first, 2.0)
