@@ -470,7 +470,10 @@ class SolverNode(Node):
                                  callback_group=inputs)
         self.create_subscription(Float64MultiArray, 'obstacles', self._on_obstacles, 10,
                                  callback_group=inputs)
-        self.create_subscription(JointState, 'joint_states', self._on_joint_states, 10)
+        # Depth 1: only the newest state matters; a backlog would start replans from old ones.
+        self.create_subscription(JointState, 'joint_states', self._on_joint_states,
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE),
+                                 callback_group=MutuallyExclusiveCallbackGroup())
         # ~/plan is a coroutine that waits for its request without holding an executor
         # thread; reentrant so that any number of them wait at once.
         self.create_service(GetPlan, '~/plan', self._on_plan, qos_profile=SERVICE_QOS,
