@@ -129,8 +129,14 @@ def main(argv=None):
                     client, (goal_pub, obstacles_pub), model, joint_names, PAPER_GOAL_Q,
                     spec.get('obstacles', PAPER_OBSTACLES), plant=plant, replan_rate=rate,
                     moving=spec.get('moving'), margin=spec.get('margin'))
+                cycles = [r for r in execution.reports if r.event == 'replanned']
                 row = {'scenario': name, 'loop': loop, 'true_t_min': reference,
-                       'metrics': execution.metrics}
+                       'metrics': execution.metrics,
+                       # per published cycle: solve time and stamp lead over its state [s]
+                       'cycle_solve_s': [r.elapsed_s for r in cycles],
+                       'cycle_lead_s': [r.plan_stamp - r.state_stamp for r in cycles],
+                       'kept': [r.message for r in execution.reports
+                                if r.event == 'replan_kept']}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
                 time.sleep(0.5)

@@ -64,7 +64,7 @@ from nav_msgs.srv import GetPlan
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -811,7 +811,9 @@ class SolverNode(Node):
                     why = 'the planning data changed during the cycle and the plan ' \
                           'violates the new data'
         latency = time.monotonic() - cycle.received
-        if result is not None and result.status is not Status.INVALID_INPUT:
+        if result is not None and result.status is Status.SOLVED:
+            # Solved cycles only (published or late): a timed-out one lasts as long as the lead
+            # it was given and would only feed its own lead back.
             with self._lock:
                 self._latencies.append(min(latency, MAX_LEAD_S / 1.5))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
@@ -1192,7 +1194,7 @@ class SolverNode(Node):
 
 def main(args=None):
     """Run solver_node until shutdown; exit code 2 for invalid parameters."""
-    return run_node('solver_node', SolverNode, lambda: MultiThreadedExecutor(num_threads=4),
+    return run_node('solver_node', SolverNode, SingleThreadedExecutor,
                     args=args, errors=(parameters.ParameterError, InvalidParameterValueException,
                                        InvalidParameterTypeException),
                     error_prefix='invalid parameters: ')
