@@ -86,6 +86,11 @@ STAMP_MATCH_S = 1e-6
 STAMP_SANITY_S = 10.0
 # Plans whose goals differ by at most this belong to one closed-loop execution [rad or m].
 GOAL_TOL = 1e-6
+# Goal sources of user requests: such a plan after the previous execution ended starts anew.
+REQUEST_SOURCES = ('goal_pose', 'goal_joints', '~/plan')
+# A joint_states step larger than this is a reset of the (simulated) robot, not motion: it
+# ends the execution's samples [rad or m].
+RESET_JUMP = 0.1
 # Events of ~/progress that are not the solve of a published plan matched by time.
 NOT_A_PLAN = (EVENT_REPLAN_KEPT, EVENT_REPLANNED)
 # Events counted per closed-loop execution (summary key -> event).
@@ -596,20 +601,24 @@ def group_plans(plans) -> List[List[Plan]]:
 
     A plan's goal is the one it was planned for (solver progress or the goal messages), else
     its last state; a braking trajectory (matched to a trajectory_stopped report) has none
-    and joins the execution in progress, as does a plan whose goal is within GOAL_TOL.
+    and joins the execution in progress, as does a plan whose goal is within GOAL_TOL, unless
+    it answers a new user goal (REQUEST_SOURCES) once the execution's plans have all ended.
     """
-    groups, goal = [], None
+    groups, goal, ends = [], None, -math.inf
     for plan in plans:
         own = plan.goal if plan.goal is not None else (None if _is_brake(plan)
                                                        else plan.states[-1])
-        if not groups or (own is not None and goal is not None
-                          and float(np.max(np.abs(own - goal))) > GOAL_TOL):
+        source = plan.solve.report.goal_source if plan.solve is not None else ''
+        again = source in REQUEST_SOURCES and plan.begin > ends
+        if not groups or again or (own is not None and goal is not None
+                                   and float(np.max(np.abs(own - goal))) > GOAL_TOL):
             groups.append([])
             goal = None
         if goal is None and own is not None:
             goal = own
         plan.execution = len(groups) - 1
         groups[-1].append(plan)
+        ends = max(ends if len(groups[-1]) > 1 else -math.inf, plan.start + plan.duration)
     return groups
 
 
@@ -683,6 +692,10 @@ def build_closed_loops(run, plans, model) -> List[ClosedLoop]:
             goal, source = group[-1].states[-1], 'last planned state'
         keep = (all_times >= first.start - 1e-9) & (all_times < end)
         times, positions = all_times[keep], all_positions[keep]
+        jumps = np.nonzero(np.max(np.abs(np.diff(positions, axis=0)), axis=1) > RESET_JUMP)[0] \
+            if len(times) > 1 else ()
+        if len(jumps):          # a reset of the robot ends what this execution did
+            times, positions = times[:jumps[0] + 1], positions[:jumps[0] + 1]
         schedule = obstacle_schedule(run, first.obstacles)
         mine = [r for t, r in reports if first.time <= t < received_end and r.final]
         events = {key: sum(r.event == event for r in mine) for key, event in EVENTS.items()}

@@ -317,9 +317,10 @@ class Demo:
         if report.status is not Status.SOLVED:
             raise DemoError(f'plan {number} ended {plan["status"]}: {report.message}')
 
+        # The goal's own plan: replan cycles (replan.rate) publish more to the same goal.
         received, trajectory = self._wait(
             lambda: client.stamped('trajectory')[trajectories_seen:],
-            f'the trajectory of plan {number}', timeout=10.0)[-1]
+            f'the trajectory of plan {number}', timeout=10.0)[0]
         start, end = trajectory.points[0], trajectory.points[-1]
         duration = conversions.duration_seconds(end.time_from_start)
         plan['trajectory'] = {'points': len(trajectory.points), 'duration_s': duration,
