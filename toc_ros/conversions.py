@@ -28,7 +28,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from toc_ros.core import Problem, ProblemError
 from toc_ros.core.model import dynamics, RobotParams
 from toc_ros.core.models import CylindricalRobot, ModelError, RobotModel
@@ -301,6 +301,16 @@ def _frame(frame_id):
     return frame_id[1:] if frame_id.startswith('/') else frame_id
 
 
+def _goal_xy(msg, base_frame):
+    """Return the finite (x, y) [m] of a goal pose, which must be in base_frame."""
+    if _frame(msg.header.frame_id) != _frame(base_frame):
+        raise ConversionError(f"goal pose is in frame '{msg.header.frame_id}', expected "
+                              f"'{base_frame}' (no TF lookup: send it in the base frame)")
+    p = msg.pose.position
+    x, y, _ = _finite((p.x, p.y, p.z), 'goal position')
+    return x, y
+
+
 def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf),
                        branch=None):
     """
@@ -311,13 +321,8 @@ def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf
     offset a [m]: q1 = atan2(y, x), q2 = sqrt(x^2 + y^2) - a within extension_limits.  The
     pose must be in base_frame; orientation and z are ignored (planar models).
     """
+    x, y = _goal_xy(msg, base_frame)
     if isinstance(a, RobotModel) and not isinstance(a, CylindricalRobot):
-        frame = _frame(msg.header.frame_id)
-        if frame != _frame(base_frame):
-            raise ConversionError(f"goal pose is in frame '{msg.header.frame_id}', expected "
-                                  f"'{base_frame}' (no TF lookup: send it in the base frame)")
-        p = msg.pose.position
-        x, y, _ = _finite((p.x, p.y, p.z), 'goal position')
         try:
             q = a.inverse_kinematics(float(x), float(y), branch)
         except ModelError as exc:
@@ -325,12 +330,6 @@ def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf
         return a.state(q)
     if isinstance(a, CylindricalRobot):
         a = float(a.params.a)
-    frame = _frame(msg.header.frame_id)
-    if frame != _frame(base_frame):
-        raise ConversionError(f"goal pose is in frame '{msg.header.frame_id}', expected "
-                              f"'{base_frame}' (no TF lookup: send it in the base frame)")
-    p = msg.pose.position
-    x, y, _ = _finite((p.x, p.y, p.z), 'goal position')
     distance = math.hypot(x, y)
     if distance < MIN_AXIS_DISTANCE:
         raise ConversionError(f'goal ({x:.6g}, {y:.6g}) is on the base axis: the rotation '
@@ -377,6 +376,15 @@ def joint_state_to_state(msg, joint_names):
     state = np.empty(2 * len(pos))
     state[0::2], state[1::2] = pos, vel
     return state
+
+
+def obstacles_msg(rows):
+    """Float64MultiArray with rows (x, y, radius) and a (rows, 3) layout."""
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label='rows', size=len(rows), stride=3 * len(rows)),
+                      MultiArrayDimension(label='x_y_radius', size=3, stride=3)]
+    msg.data = [float(v) for row in rows for v in row]
+    return msg
 
 
 def obstacle_rows_from_msg(msg):

@@ -97,19 +97,19 @@ def _now(client):
 
 
 def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
-                  plant=None, replan_rate=20.0, moving=None, margin=None, timeout=20.0,
-                  send=None):
+                  plant=None, replan_rate=20.0, moving=None, margin=None, timeout=20.0):
     """
     Run one goal in the loop and return an Execution.
 
     client: a harness.RosClient collecting 'joint_states', 'trajectory' and PROGRESS;
     publishers: (goal_joints, obstacles) publishers; plant: plant_node parameter values for
-    this run (mismatch knobs); moving: a MovingObstacle or None; send(rows): publishes an
-    obstacle set (default: Float64MultiArray rows on publishers[1]); margin: the solver's
+    this run (mismatch knobs); moving: a MovingObstacle or None; margin: the solver's
     obstacles.margin for this run (restored afterwards).
     """
     goal_pub, obstacles_pub = publishers
-    send = send or (lambda rows: obstacles_pub.publish(_obstacles_msg(rows)))
+
+    def send(rows):
+        obstacles_pub.publish(conversions.obstacles_msg(rows))
     solver = {'replan.rate': float(replan_rate)}
     restore = {}
     if margin is not None:
@@ -206,11 +206,6 @@ def _set(client, node, values):
     refused = [r.reason for r in results if not r.successful]
     if refused:
         raise RuntimeError(f'{node} refused {values}: {refused}')
-
-
-def _obstacles_msg(rows):
-    from std_msgs.msg import Float64MultiArray
-    return Float64MultiArray(data=[float(v) for row in rows for v in row])
 
 
 def _wait_obstacles(client, rows):

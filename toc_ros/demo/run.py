@@ -22,7 +22,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import config, conversions, harness
 from toc_ros.core import Status
@@ -100,15 +100,6 @@ def kernel_cache_found():
     cache_dir = numba.config.CACHE_DIR
     return bool(cache_dir) and os.path.isdir(cache_dir) and any(
         name.endswith('.nbi') for _, _, files in os.walk(cache_dir) for name in files)
-
-
-def obstacles_msg(rows):
-    """Float64MultiArray with rows (x, y, radius) and a (rows, 3) layout."""
-    msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label='rows', size=len(rows), stride=3 * len(rows)),
-                      MultiArrayDimension(label='x_y_radius', size=3, stride=3)]
-    msg.data = [float(v) for row in rows for v in row]
-    return msg
 
 
 def goal_pose_msg(q_goal, a, frame_id):
@@ -270,7 +261,7 @@ class Demo:
         self.summary['plans'].append(plan)
         out.stage(f'plan {number} ({stage.label}): {len(stage.obstacles)} obstacle(s) '
                   f'{list(stage.obstacles)}')
-        self.obstacles_pub.publish(obstacles_msg(stage.obstacles))
+        self.obstacles_pub.publish(conversions.obstacles_msg(stage.obstacles))
         expected = tuple(tuple(float(v) for v in row) for row in stage.obstacles)
         self._wait(lambda: self._solver_obstacles() == expected,
                    'solver_node to take the obstacles', timeout=30.0)
