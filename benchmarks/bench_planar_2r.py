@@ -47,7 +47,6 @@ given for comparison (target of issue 13: planar_2r within 2x of it).
 
 import argparse
 from dataclasses import replace
-import json
 import math
 import os
 import sys
@@ -57,7 +56,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from bench_solvers import _clean, load_average, time_fast, time_reference  # noqa: E402, I100
+from bench_solvers import (  # noqa: E402, I100
+    load_average, time_fast, time_reference, write_outputs)
 import reference_solvers as rs  # noqa: E402
 from toc_ros.core import Problem, SolverOptions, warm_up  # noqa: E402
 from toc_ros.core.models import load_model  # noqa: E402
@@ -186,14 +186,7 @@ def main(argv=None):
     parser.add_argument('--json', metavar='FILE', help='also write the rows as JSON')
     args = parser.parse_args(argv)
     report = run(max(1, args.repeat), args.fatrop)
-    text = markdown(report)
-    print(text)
-    if args.markdown:
-        with open(args.markdown, 'w') as stream:
-            stream.write(text)
-    if args.json:
-        with open(args.json, 'w') as stream:
-            json.dump(_clean(report), stream, indent=1)
+    write_outputs(markdown(report), report, args.markdown, args.json)
     return 0 if all(r['ok'] for r in report['rows']) else 1
 
 

@@ -50,6 +50,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+from bench_solvers import write_outputs  # noqa: E402, I100
 from toc_ros import config, harness  # noqa: E402
 from toc_ros.demo.closed_loop import (  # noqa: E402
     MISMATCH, MOVING, MOVING_MARGIN, MOVING_OBSTACLES, NOMINAL_PLANT, PAPER_GOAL_Q,
@@ -147,14 +148,8 @@ def main(argv=None):
     load = os.getloadavg()
     text = (f'bench_replanning: N = {args.N}, replan.rate = {args.rate} Hz, load '
             f'{load[0]:.2f}\n\n' + _table(rows))
-    print(text)
-    if args.markdown:
-        with open(args.markdown, 'w') as stream:
-            stream.write(text + '\n')
-    if args.json:
-        with open(args.json, 'w') as stream:
-            json.dump({'N': args.N, 'rate': args.rate, 'rows': rows}, stream, indent=1,
-                      default=lambda v: None)
+    write_outputs(text + '\n', {'N': args.N, 'rate': args.rate, 'rows': rows}, args.markdown,
+                  args.json)
     return 0
 
 

@@ -347,6 +347,17 @@ def _clean(value):
     return value
 
 
+def write_outputs(text, data, markdown_path=None, json_path=None):
+    """Print the tables; write them to markdown_path and data (nan as null) to json_path."""
+    print(text)
+    if markdown_path:
+        with open(markdown_path, 'w') as stream:
+            stream.write(text)
+    if json_path:
+        with open(json_path, 'w') as stream:
+            json.dump(_clean(data), stream, indent=1)
+
+
 def main(argv=None):
     """Run the benchmark; print the Markdown tables, optionally write them and JSON."""
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
@@ -360,14 +371,7 @@ def main(argv=None):
     if args.repeat < 1 or args.ref_repeat < 1:
         parser.error('--repeat and --ref-repeat must be >= 1')
     report = run(args.repeat, args.ref_repeat, args.quick)
-    text = markdown(report)
-    print(text)
-    if args.markdown:
-        with open(args.markdown, 'w') as stream:
-            stream.write(text)
-    if args.json:
-        with open(args.json, 'w') as stream:
-            json.dump(_clean(report), stream, indent=1)
+    write_outputs(markdown(report), report, args.markdown, args.json)
     return 0
 
 

@@ -37,7 +37,6 @@ Needs casadi (extra 'bench').
 """
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -48,6 +47,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+from bench_solvers import write_outputs  # noqa: E402, I100
 from reference_ipopt import solve_reference  # noqa: E402
 from reference_solvers import Reference  # noqa: E402
 from toc_ros.core import (measure_violations, Problem, ProblemError, solve,  # noqa: E402
@@ -218,16 +218,6 @@ def markdown(rows, load_start, load_end):
     return '\n'.join(out) + '\n'
 
 
-def _clean(value):
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_clean(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def main(argv=None):
     """Run the comparison; exit code 1 if any scenario is not SOLVED within 0.1 %."""
     parser = argparse.ArgumentParser(description=__doc__.strip().split('\n')[0])
@@ -262,14 +252,8 @@ def main(argv=None):
                   f'{row["ipopt_t_f"]:.5f} s ({row["ipopt_status"]})  gap '
                   f'{row["gap_percent"]:+.4f} %  circles {row["circles"]}'
                   f'{"" if row["ok"] else "  <-- " + row["fast_message"]}', flush=True)
-    text = markdown(rows, load_start, os.getloadavg())
-    print(text)
-    if args.markdown:
-        with open(args.markdown, 'w') as stream:
-            stream.write(text)
-    if args.json:
-        with open(args.json, 'w') as stream:
-            json.dump(_clean({'rows': rows}), stream, indent=1)
+    write_outputs(markdown(rows, load_start, os.getloadavg()), {'rows': rows}, args.markdown,
+                  args.json)
     return 0 if all(r['ok'] for r in rows) else 1
 
 
