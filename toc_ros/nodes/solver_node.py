@@ -719,19 +719,13 @@ class SolverNode(Node):
         if rate <= 0.0 or params['solver.mode'] != 'fast' or not self._ready.is_set():
             return False
         with self._plan_lock:
-            plan = self._executing
+            plan, revision = self._executing, self._revision
         if plan is None or plan.get('result') is None or state.shape[0] != plan['model'].nx:
             return False
         now = self._now()
         if abs(now - state_time) > MAX_STATE_AGE_S:
             state_time = now
-        # The lead covers the solve: replan.lead, or more when recent cycles took longer
-        # (a loaded machine); new data may allow more still (lead given by the caller).
-        lead = max(float(params['replan.lead']), self._cycle_latency(), lead or 0.0)
-        stamp = now + lead
-        measured_at, start_at = state_time - plan['start'], stamp - plan['start']
-        if plan['duration'] - start_at < float(params['replan.min_remaining']):
-            return False
+        measured_at = state_time - plan['start']
         if measured_at < 0.0:
             # The plan starts replan.lead after the state of the cycle that made it, and the
             # state is from before that: wait for it to apply, unless new data cannot wait;
@@ -751,10 +745,15 @@ class SolverNode(Node):
                 reason = 'rate'
             else:
                 return False
+        # The lead covers the solve: replan.lead, or more when recent cycles took longer
+        # (a loaded machine); new data may allow more still (lead given by the caller).
+        lead = max(float(params['replan.lead']), self._cycle_latency(), lead or 0.0)
+        stamp = now + lead
+        start_at = stamp - plan['start']
+        if plan['duration'] - start_at < float(params['replan.min_remaining']):
+            return False
         start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
         request = _Request(plan['goal'], CYCLE_SOURCE)
-        with self._plan_lock:
-            revision = self._revision
         request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason,
                                revision)
         if not self._worker.offer(request, behind_cycle=reason == 'data change'):
