@@ -16,11 +16,12 @@
 Online replanning in the closed loop (issue 12): open loop against replanning, real nodes.
 
 solver_node and plant_node run as processes on a private ROS domain (the shipped parameter
-file, solver.N = --N); each scenario is executed once with replan.rate = 0 (plan once, the
-plant's PD tracks it) and once with replan.rate = --rate, from the paper's start to its goal
-around its circle:
+file, solver.N = --N, solver.integrator = --integrator); each scenario is executed once with
+replan.rate = 0 (plan once, the plant's PD tracks it) and once with replan.rate = --rate, from
+the paper's start to its goal around its circle:
 
-* mismatch: the plant's payload +20 % (hand_mass 50 -> 60 kg) and inertia x 1.2;
+* mismatch: the plant's payload +20 % (hand_mass 50 -> 60 kg) and inertia x 1.2; run a third
+  time with replan.estimate = hand_mass, inertia (the cycles plan with the online estimate);
 * lag: a 10 ms first-order actuator lag on the plant (plant_node actuator_lag);
 * moving: a second circle moves into the path during the execution (the plant matches the
   model); the arm must keep clear of it and still arrive.
@@ -28,13 +29,14 @@ around its circle:
 Reported per run (toc_ros.analysis.closed_loop.execution_metrics, from the joint_states,
 trajectory and ~/progress messages received): the final position error 0.2 s after the end of
 the last plan, the arrival time (every joint within 1e-2 of the goal from then on) against
-the minimum time of the true plant (fast mode on the plant's own parameters; for the lag the
-model's), the executed clearance to every true circle (no margin) over all joint_states, and
-the replan cycle latency (joint_states received -> trajectory published, measured in
-solver_node) median / p99 / max over the whole execution.
+the arrival time of the true plant's best plan by the same rule (fast mode on the plant's own
+parameters; for the lag the model's), the last plan's end (where the planner has the arm at
+rest at the goal) against that plan's t_min, the executed clearance to every true circle (no
+margin) over all joint_states, and the replan cycle latency (joint_states received ->
+trajectory published, measured in solver_node) median / p99 / max over the whole execution.
 
-    PYTHONPATH=. python benchmarks/bench_replanning.py [--N 300] [--rate 20]
-        [--scenarios mismatch lag moving] [--markdown FILE] [--json FILE]
+    PYTHONPATH=. python benchmarks/bench_replanning.py [--N 1000] [--integrator rk4]
+        [--rate 20] [--scenarios mismatch lag moving] [--markdown FILE] [--json FILE]
 """
 
 import argparse
@@ -53,13 +55,13 @@ from std_srvs.srv import Trigger  # noqa: E402
 from bench_solvers import write_outputs  # noqa: E402, I100
 from toc_ros import config, harness  # noqa: E402
 from toc_ros.demo.closed_loop import (  # noqa: E402
-    MISMATCH, MOVING, MOVING_MARGIN, MOVING_OBSTACLES, NOMINAL_PLANT, PAPER_GOAL_Q,
-    PAPER_OBSTACLES, run_execution, TRUE_ROBOT, true_t_min)
+    ESTIMATED, MISMATCH, MOVING, MOVING_MARGIN, MOVING_OBSTACLES, NOMINAL_PLANT, PAPER_GOAL_Q,
+    PAPER_OBSTACLES, run_execution, true_reference, TRUE_ROBOT)
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
 
 SCENARIOS = {
-    'mismatch': {'plant': MISMATCH, 'true': TRUE_ROBOT},
+    'mismatch': {'plant': MISMATCH, 'true': TRUE_ROBOT, 'estimate': ESTIMATED},
     'lag': {'plant': {'actuator_lag': 0.01}, 'true': {}},
     'moving': {'plant': {}, 'true': {}, 'moving': MOVING, 'obstacles': MOVING_OBSTACLES,
                'margin': MOVING_MARGIN},
@@ -68,17 +70,19 @@ SCENARIOS = {
 
 def _table(rows):
     lines = ['| scenario | loop | planned t_min [s] | true t_min [s] | arrival [s] | '
-             'arrival / true | final error (end + 0.2 s) | min clearance [m] | plans | kept | '
-             'latency median / p99 / max [ms] |', '|' + '---|' * 11]
+             "arrival / true plan's | last plan end / true t_min | final error (end + 0.2 s) "
+             '| min clearance [m] | plans | kept | latency median / p99 / max [ms] |',
+             '|' + '---|' * 12]
     for r in rows:
-        m = r['metrics']
+        m, true = r['metrics'], r['true']
         lat = ('-' if not m['latencies'] else
                f"{1e3 * m['latency_median_s']:.1f} / {1e3 * m['latency_p99_s']:.1f} / "
                f"{1e3 * m['latency_max_s']:.1f}")
-        ratio = m['arrival_s'] / r['true_t_min'] if r['true_t_min'] else math.nan
         lines.append(
             f"| {r['scenario']} | {r['loop']} | {m['planned_t_min']:.4f} | "
-            f"{r['true_t_min']:.4f} | {m['arrival_s']:.4f} | {ratio:.4f} | "
+            f"{true['t_min']:.4f} | {m['arrival_s']:.4f} | "
+            f"{m['arrival_s'] / true['arrival_s']:.4f} | "
+            f"{m['last_plan_end_s'] / true['t_min']:.4f} | "
             f"{m['final_error']:.2e} | {m['min_clearance']:.4f} | {m['plans']} | "
             f"{m['replans_kept']} | {lat} |")
     return '\n'.join(lines)
@@ -87,7 +91,10 @@ def _table(rows):
 def main(argv=None):
     """Run the scenarios and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[1])
-    parser.add_argument('--N', type=int, default=300)
+    parser.add_argument('--N', type=int, default=1000)
+    parser.add_argument('--integrator', default='rk4', choices=('euler', 'rk4'),
+                        help='solver.integrator (rk4: the plan is what the plant does under '
+                        'its piecewise-constant controls)')
     parser.add_argument('--rate', type=float, default=20.0)
     parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS),
                         choices=list(SCENARIOS))
@@ -101,7 +108,8 @@ def main(argv=None):
     log_dir = tempfile.mkdtemp(prefix='bench_replanning_')
     client = harness.RosClient('bench_replanning')
     nodes = [harness.NodeProcess('solver_node', client.namespace, log_dir,
-                                 {'solver.N': args.N, 'solver.timeout': 30.0}, params_file),
+                                 {'solver.N': args.N, 'solver.timeout': 30.0,
+                                  'solver.integrator': args.integrator}, params_file),
              harness.NodeProcess('plant_node', client.namespace, log_dir, None, params_file)]
     rows = []
     try:
@@ -122,22 +130,28 @@ def main(argv=None):
             obstacles = spec.get('obstacles', PAPER_OBSTACLES)
             if spec.get('moving') is not None:      # the circle's final place
                 obstacles = spec['moving'].rows(obstacles, math.inf)
-            reference = true_t_min(dict(params, **{'solver.N': args.N}), spec['true'],
-                                   obstacles, spec.get('margin'))
-            for loop, rate in (('open loop', 0.0), ('replanning', args.rate)):
+            reference = true_reference(dict(params, **{'solver.N': args.N,
+                                                       'solver.integrator': args.integrator}),
+                                       spec['true'], PAPER_GOAL_Q, obstacles, spec.get('margin'))
+            loops = [('open loop', 0.0, ()), ('replanning', args.rate, ())]
+            if spec.get('estimate'):
+                loops.append(('replanning + estimation', args.rate, spec['estimate']))
+            for loop, rate, estimate in loops:
                 plant = dict(NOMINAL_PLANT, **spec['plant'])
                 execution = run_execution(
                     client, (goal_pub, obstacles_pub), model, joint_names, PAPER_GOAL_Q,
                     spec.get('obstacles', PAPER_OBSTACLES), plant=plant, replan_rate=rate,
-                    moving=spec.get('moving'), margin=spec.get('margin'))
+                    moving=spec.get('moving'), margin=spec.get('margin'), estimate=estimate,
+                    integrator=args.integrator)
                 cycles = [r for r in execution.reports if r.event == 'replanned']
-                row = {'scenario': name, 'loop': loop, 'true_t_min': reference,
+                row = {'scenario': name, 'loop': loop, 'true': reference,
                        'metrics': execution.metrics,
                        # per published cycle: solve time and stamp lead over its state [s]
                        'cycle_solve_s': [r.elapsed_s for r in cycles],
                        'cycle_lead_s': [r.plan_stamp - r.state_stamp for r in cycles],
                        'kept': [r.message for r in execution.reports
-                                if r.event == 'replan_kept']}
+                                if r.event == 'replan_kept'],
+                       'estimates': [r.estimate for r in cycles if r.estimate]}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
                 time.sleep(0.5)
@@ -146,10 +160,10 @@ def main(argv=None):
             node.stop()
         client.close()
     load = os.getloadavg()
-    text = (f'bench_replanning: N = {args.N}, replan.rate = {args.rate} Hz, load '
-            f'{load[0]:.2f}\n\n' + _table(rows))
-    write_outputs(text + '\n', {'N': args.N, 'rate': args.rate, 'rows': rows}, args.markdown,
-                  args.json)
+    text = (f'bench_replanning: N = {args.N}, solver.integrator = {args.integrator}, '
+            f'replan.rate = {args.rate} Hz, load {load[0]:.2f}\n\n' + _table(rows))
+    data = {'N': args.N, 'integrator': args.integrator, 'rate': args.rate, 'rows': rows}
+    write_outputs(text + '\n', data, args.markdown, args.json)
     return 0
 
 

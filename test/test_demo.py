@@ -223,12 +223,28 @@ def test_closed_loop_stage_recomputed_from_the_recording(demo, recorded):
     """Replanning keeps the arm out of the moving circle and arrives; from the raw messages."""
     _, _, summary = demo
     loop = summary['closed_loop']
-    assert list(loop['runs']) == ['open loop', 'replanning']
+    assert list(loop['runs']) == ['open loop', 'replanning', 'replanning + estimation']
     goals = [t for t, _ in recorded['/goal_joints']]
-    assert len(goals) == 2
-    start, end = goals[1], math.inf              # the replanning run
+    assert len(goals) == 3
+    for start, end in ((goals[1], goals[2]), (goals[2], math.inf)):     # the replanning runs
+        _check_replanning_run(recorded, summary, start, end)
+    # The estimation run planned with the plant's true data (payload +20 %, inertia x 1.2).
+    estimates = [progress_from_msg(m).estimate for t, m in recorded['/solver_node/progress']
+                 if t >= goals[2] and progress_from_msg(m).event == 'replanned']
+    values = [dict(kv.split('=') for kv in e.split(', ')) for e in estimates
+              if e and not e.startswith('none')]
+    assert len(values) >= 5, estimates
+    assert float(values[-1]['hand_mass']) == pytest.approx(60.0, rel=0.02)
+    assert float(values[-1]['inertia']) == pytest.approx(193.0 * 1.2, rel=0.02)
+
+
+def _check_replanning_run(recorded, summary, start, end):
     schedule = [(t, m.data.reshape(-1, 3).tolist()) for t, m in recorded['/obstacles']]
-    states = [(t, list(m.position)) for t, m in recorded['/joint_states'] if t >= start]
+    states = [(t, list(m.position)) for t, m in recorded['/joint_states'] if start <= t < end]
+    # The next run starts with a plant reset (a jump back to the start): cut there.
+    jumps = [i for i in range(1, len(states))
+             if max(abs(a - b) for a, b in zip(states[i][1], states[i - 1][1])) > 0.1]
+    states = states[:jumps[0]] if jumps else states
     assert states
     worst = math.inf
     for t, q in states:
@@ -237,11 +253,12 @@ def test_closed_loop_stage_recomputed_from_the_recording(demo, recorded):
     assert worst >= 0.0
     replans = [m for t, m in recorded['/trajectory'] if start <= t < end and m.points]
     assert len(replans) >= 5
-    goal = list(recorded['/goal_joints'][1][1].position)
+    goal = [list(m.position) for t, m in recorded['/goal_joints'] if t == start][0]
     assert max(abs(p - g) for p, g in zip(states[-1][1], goal)) < 1e-3
     # Every replan cycle's report names a recorded trajectory by its header.stamp.
     stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in replans]
-    cycles = [progress_from_msg(m) for t, m in recorded['/solver_node/progress'] if t >= start]
+    cycles = [progress_from_msg(m) for t, m in recorded['/solver_node/progress']
+              if start <= t < end]
     replanned = [r for r in cycles if r.event == 'replanned']
     assert replanned
     for report in replanned:

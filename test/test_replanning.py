@@ -259,3 +259,40 @@ def test_stop_when_no_plan_exists(loop):
     assert np.max(np.abs(last.velocity)) < 1e-2
     assert np.max(np.abs(np.array(last.position) - GOAL_Q)) > 1e-2
     set_obstacles(loop, PAPER_OBSTACLES)
+
+
+def _estimate_values(report):
+    return {k: float(v) for k, v in (kv.split('=') for kv in report.estimate.split(', '))}
+
+
+def test_online_estimate_of_a_heavier_plant(loop):
+    """replan.estimate: the cycles identify the plant's payload and inertia and plan with them."""
+    from rclpy.parameter import Parameter
+    off = Parameter('replan.estimate', Parameter.Type.STRING_ARRAY, [])
+    try:
+        set_params(loop, 'plant_node', {'payload_mass_offset': 10.0, 'inertia_scale': 1.2})
+        # RK4 plans (what the plant does under them): the PD then corrects little, and the
+        # efforts are mostly the plan's own.
+        since, first = start(loop, 20.0, **{'replan.estimate': ['hand_mass', 'inertia'],
+                                            'solver.integrator': 'rk4'})
+        settle(loop, first)
+    finally:
+        set_params(loop, 'plant_node', {'payload_mass_offset': 0.0, 'inertia_scale': 1.0})
+        set_params(loop, 'solver_node', {'replan.estimate': off, 'solver.integrator': 'euler'})
+    replanned = [r for r in cycle_reports(loop, since) if r.event == schema.EVENT_REPLANNED]
+    assert all(r.estimate for r in replanned), [r.estimate for r in replanned]
+    used = [_estimate_values(r) for r in replanned if not r.estimate.startswith('none')]
+    # The first cycles wait for enough samples ('none: ...'); the rest plan with the estimate.
+    assert len(used) >= 5 and len(used) >= len(replanned) - 6, [r.estimate for r in replanned]
+    assert used[-1]['hand_mass'] == pytest.approx(60.0, rel=0.02)
+    assert used[-1]['inertia'] == pytest.approx(193.0 * 1.2, rel=0.02)
+    # A cycle that plans with the heavier estimate needs longer than the nominal plan.
+    assert replanned[-1].plan_stamp + replanned[-1].t_f > stamp_of(first) + duration_of(first)
+    final = positions_since(loop, since)[-1]
+    assert np.max(np.abs(final - GOAL_Q)) < 1e-3
+
+
+def test_unknown_estimated_parameter_is_refused(loop):
+    results = loop.client.set_parameters('solver_node', {'replan.estimate': ['wheel_radius']})
+    assert not results[0].successful
+    assert 'wheel_radius' in results[0].reason and 'hand_mass' in results[0].reason

@@ -370,6 +370,22 @@ def joint_state_arrays(msg, joint_names, require_velocity=False):
     return positions, velocities
 
 
+def joint_state_efforts(msg, joint_names):
+    """Efforts of joint_names from a JointState (None when it has none; ConversionError)."""
+    names = list(msg.name)
+    if not len(msg.effort):
+        return None
+    if len(msg.effort) != len(names):
+        raise ConversionError(f'joint state has {len(names)} names but {len(msg.effort)} '
+                              'efforts')
+    try:
+        index = [names.index(n) for n in joint_names]
+    except ValueError:
+        raise ConversionError(f'joint state lacks joints of {list(joint_names)} (has {names})') \
+            from None
+    return _finite([msg.effort[i] for i in index], 'joint efforts')
+
+
 def joint_state_to_state(msg, joint_names):
     """State (q1, dq1, q2, dq2, ...) of joint_names from a JointState (velocities default 0)."""
     pos, vel = joint_state_arrays(msg, joint_names)

@@ -255,12 +255,16 @@ class RosClient:
         return future.result()
 
     def set_parameters(self, node_name, values, timeout=10.0):
-        """Set parameters of a node one by one; return the SetParametersResults."""
+        """
+        Set parameters of a node one by one; return the SetParametersResults.
+
+        A value may be an rclpy Parameter (for a type the value does not tell: an empty list).
+        """
         from rcl_interfaces.srv import SetParameters
         client = self.node.create_client(SetParameters, self.name(f'{node_name}/set_parameters'))
         request = SetParameters.Request()
-        request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in
-                              values.items()]
+        request.parameters = [(v if isinstance(v, Parameter) else Parameter(k, value=v))
+                              .to_parameter_msg() for k, v in values.items()]
         try:
             return self.call(client, request, timeout).results
         finally:

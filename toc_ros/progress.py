@@ -94,6 +94,9 @@ class ProgressReport:
     deviation: Optional[float] = None
     plan_stamp: Optional[float] = None
     state_stamp: Optional[float] = None
+    # Replan cycles with replan.estimate: the estimated model parameters planned with,
+    # 'name=value, ...', or 'none: <reason>' while there is no usable estimate.
+    estimate: str = ''
 
     @property
     def solving(self):

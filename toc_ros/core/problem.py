@@ -14,6 +14,7 @@
 
 """Problem definition, solver options and input validation (before any iteration runs)."""
 
+import dataclasses
 from dataclasses import dataclass, field
 import math
 from typing import Optional, Tuple
@@ -77,6 +78,12 @@ class Problem:
     def robot_model(self):
         """Return the RobotModel solved for (models/base.py)."""
         return CylindricalRobot(self.robot) if self.model is None else self.model
+
+    def with_model(self, model):
+        """Return this problem for another RobotModel (the cylindrical one as `robot` data)."""
+        if isinstance(model, CylindricalRobot):
+            return dataclasses.replace(self, robot=model.params, model=None)
+        return dataclasses.replace(self, model=model)
 
     @property
     def integrator_id(self):

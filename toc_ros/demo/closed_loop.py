@@ -28,10 +28,11 @@ import time
 from typing import Optional, Tuple
 
 import numpy as np
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from toc_ros import conversions
-from toc_ros.analysis.closed_loop import execution_metrics, PlanSpan
+from toc_ros.analysis.closed_loop import arrival_time, execution_metrics, PlanSpan
 from toc_ros.progress import EVENT_REPLAN_KEPT, EVENT_REPLANNED, progress_from_msg
 
 PROGRESS = 'solver_node/progress'
@@ -70,6 +71,8 @@ MOVING = MovingObstacle(index=1, velocity=(-_BEARING[0], -_BEARING[1]), start=0.
 # TRUE_ROBOT is the same change as solver parameters (for the true plant's t_min).
 MISMATCH = {'payload_mass_offset': 10.0, 'inertia_scale': 1.2}
 TRUE_ROBOT = {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}
+# What replan.estimate identifies online in that scenario (the plant's changed parameters).
+ESTIMATED = ('hand_mass', 'inertia')
 NOMINAL_PLANT = {'payload_mass_offset': 0.0, 'inertia_scale': 1.0, 'actuator_lag': 0.0,
                  'control_delay': 0.0}
 # A margin that covers the plant's tracking error around a moving circle [m].
@@ -97,24 +100,30 @@ def _now(client):
 
 
 def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
-                  plant=None, replan_rate=20.0, moving=None, margin=None, timeout=20.0):
+                  plant=None, replan_rate=20.0, moving=None, margin=None, estimate=(),
+                  integrator=None, timeout=20.0):
     """
     Run one goal in the loop and return an Execution.
 
     client: a harness.RosClient collecting 'joint_states', 'trajectory' and PROGRESS;
     publishers: (goal_joints, obstacles) publishers; plant: plant_node parameter values for
-    this run (mismatch knobs); moving: a MovingObstacle or None; margin: the solver's
-    obstacles.margin for this run (restored afterwards).
+    this run (mismatch knobs); moving: a MovingObstacle or None; margin, integrator: the
+    solver's obstacles.margin and solver.integrator for this run (restored afterwards);
+    estimate: its replan.estimate (set anew each run: every run estimates from scratch).
     """
     goal_pub, obstacles_pub = publishers
 
     def send(rows):
         obstacles_pub.publish(conversions.obstacles_msg(rows))
-    solver = {'replan.rate': float(replan_rate)}
-    restore = {}
+    solver = {'replan.rate': float(replan_rate), 'replan.estimate': Parameter(
+        'replan.estimate', Parameter.Type.STRING_ARRAY, [str(n) for n in estimate])}
+    temporary = {}
     if margin is not None:
-        restore = client.get_parameters('solver_node', ['obstacles.margin'])
-        solver['obstacles.margin'] = float(margin)
+        temporary['obstacles.margin'] = float(margin)
+    if integrator is not None:
+        temporary['solver.integrator'] = str(integrator)
+    restore = client.get_parameters('solver_node', list(temporary)) if temporary else {}
+    solver.update(temporary)
     _set(client, 'solver_node', solver)
     try:
         return _execute(client, goal_pub, send, model, joint_names, goal_q, obstacles, plant,
@@ -182,13 +191,24 @@ def _plans(client, since):
         if m.points]
 
 
-def true_t_min(params, changes, obstacles=None, margin=None):
+def true_reference(params, changes, goal_q, obstacles=None, margin=None):
     """
-    Return fast mode's t_min for the solver parameters params with changes (the true plant).
+    Return {'t_min', 'arrival_s'} of the best plan for the true plant (nan when unsolved).
 
+    Fast mode on the solver parameters params with changes (the true plant's data); arrival_s
+    is that plan's own arrival_time (ARRIVAL_TOL): what a perfect execution of it scores.
     obstacles / margin: the obstacle rows and margin to plan around instead of params' (for a
     moving circle: its final place).
     """
+    result = _true_plan(params, changes, obstacles, margin)
+    if not result.success:
+        return {'t_min': math.nan, 'arrival_s': math.nan}
+    positions = np.asarray(result.states)[:, 0::2]
+    return {'t_min': float(result.final_time),
+            'arrival_s': arrival_time(np.asarray(result.time_grid), positions, goal_q)}
+
+
+def _true_plan(params, changes, obstacles, margin):
     from toc_ros import config
     from toc_ros.core import solve
     values = dict(params, **changes)
@@ -197,8 +217,7 @@ def true_t_min(params, changes, obstacles=None, margin=None):
             values[f'obstacles.{key}'] = [float(row[i]) for row in obstacles]
     if margin is not None:
         values['obstacles.margin'] = float(margin)
-    result = solve(config.problem_from_parameters(values), config.options_from_parameters(values))
-    return result.final_time if result.success else math.nan
+    return solve(config.problem_from_parameters(values), config.options_from_parameters(values))
 
 
 def _set(client, node, values):

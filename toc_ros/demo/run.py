@@ -59,7 +59,11 @@ PLANAR_2R_STAGES = (
 # stage: the paper's goal under model mismatch and a moving circle, open loop and replanning).
 SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES, True),
              'planar_2r': ('toc_ros_planar_2r.yaml', PLANAR_2R_STAGES, False)}
-CLOSED_LOOP_RUNS = (('open loop', 0.0), ('replanning', 20.0))   # (name, replan.rate [Hz])
+# (name, replan.rate [Hz], replan.estimate); every run plans with RK4 (CLOSED_LOOP_INTEGRATOR:
+# the plan is then what the plant does under its piecewise-constant controls).
+CLOSED_LOOP_RUNS = (('open loop', 0.0, ()), ('replanning', 20.0, ()),
+                    ('replanning + estimation', 20.0, closed_loop.ESTIMATED))
+CLOSED_LOOP_INTEGRATOR = 'rk4'
 
 PROGRESS_PRINT_PERIOD_S = 0.5
 REQUIRED_TOPICS = (
@@ -384,29 +388,38 @@ class Demo:
         params = config.load_parameters(self.params_file, 'solver_node')
         # The true plant around the circle's final place: what the best plan could achieve.
         final = closed_loop.MOVING.rows(closed_loop.MOVING_OBSTACLES, math.inf)
-        reference = closed_loop.true_t_min(params, closed_loop.TRUE_ROBOT, final,
-                                           closed_loop.MOVING_MARGIN)
+        params['solver.integrator'] = CLOSED_LOOP_INTEGRATOR
+        reference = closed_loop.true_reference(params, closed_loop.TRUE_ROBOT,
+                                               closed_loop.PAPER_GOAL_Q, final,
+                                               closed_loop.MOVING_MARGIN)
         rate = client.get_parameters('solver_node', ['replan.rate'], timeout=5.0)
         runs = {}
-        self.summary['closed_loop'] = {'true_t_min': reference, 'runs': runs,
+        self.summary['closed_loop'] = {'true_t_min': reference['t_min'],
+                                       'true_arrival_s': reference['arrival_s'], 'runs': runs,
+                                       'integrator': CLOSED_LOOP_INTEGRATOR,
                                        'mismatch': closed_loop.MISMATCH,
                                        'margin': closed_loop.MOVING_MARGIN}
         try:
-            for name, replan_rate in CLOSED_LOOP_RUNS:
+            for name, replan_rate, estimate in CLOSED_LOOP_RUNS:
                 execution = closed_loop.run_execution(
                     client, (self.goal_joints_pub, self.obstacles_pub), self.model,
                     self.joint_names, closed_loop.PAPER_GOAL_Q, closed_loop.MOVING_OBSTACLES,
                     plant=dict(closed_loop.NOMINAL_PLANT, **closed_loop.MISMATCH),
                     replan_rate=replan_rate, moving=closed_loop.MOVING,
-                    margin=closed_loop.MOVING_MARGIN)
-                m = runs[name] = dict(execution.metrics, replan_rate=replan_rate)
+                    margin=closed_loop.MOVING_MARGIN, estimate=estimate,
+                    integrator=CLOSED_LOOP_INTEGRATOR)
+                estimates = [r.estimate for r in execution.reports if r.estimate]
+                m = runs[name] = dict(execution.metrics, replan_rate=replan_rate,
+                                      last_estimate=estimates[-1] if estimates else '')
                 latency = ('' if not m['latencies'] else
                            f", replan latency median {1e3 * m['latency_median_s']:.1f} ms, "
                            f"p99 {1e3 * m['latency_p99_s']:.1f} ms")
                 out.stage(f"closed loop, {name}: {m['plans']} plan(s), arrival "
-                          f"{m['arrival_s']:.3f} s (true plant t_min {reference:.3f} s), final "
-                          f"error {m['final_error']:.2e}, min clearance "
-                          f"{m['min_clearance']:.4f} m{latency}")
+                          f"{m['arrival_s']:.3f} s (the true plant's best plan "
+                          f"{reference['arrival_s']:.3f} s, t_min {reference['t_min']:.3f} s), "
+                          f"final error {m['final_error']:.2e}, min clearance "
+                          f"{m['min_clearance']:.4f} m{latency}"
+                          + (f", estimate {m['last_estimate']}" if m['last_estimate'] else ''))
         finally:
             self.client.set_parameters('plant_node', closed_loop.NOMINAL_PLANT)
             self.client.set_parameters('solver_node', rate)

@@ -55,15 +55,17 @@ def format_summary(summary):
     loop = summary.get('closed_loop')
     if loop:
         lines.append('  closed loop (paper goal; plant payload +20 %, inertia x 1.2; a circle '
-                     f"moving into the path; t_min of the true plant around the circle's "
-                     f"final place {loop['true_t_min']:.4f} s):")
+                     f"moving into the path; {loop.get('integrator', 'euler')} plans; the true "
+                     "plant's best plan around the circle's final place: t_min "
+                     f"{loop['true_t_min']:.4f} s, arrival {loop['true_arrival_s']:.4f} s):")
         for name, m in loop['runs'].items():
             latency = ('' if not m['latencies'] else
                        f", replan latency median/p99 {1e3 * m['latency_median_s']:.1f}/"
                        f"{1e3 * m['latency_p99_s']:.1f} ms")
             lines.append(f"    {name}: {m['plans']} plan(s), arrival {m['arrival_s']:.4f} s, "
                          f"final error {m['final_error']:.2e} (0.2 s after the last plan), "
-                         f"min clearance {m['min_clearance']:.4f} m{latency}")
+                         f"min clearance {m['min_clearance']:.4f} m{latency}"
+                         + (f", estimate {m['last_estimate']}" if m.get('last_estimate') else ''))
     recording = summary.get('recording')
     if recording:
         count = recording['messages']

@@ -76,6 +76,15 @@ class SolverNodeSettings:
         'to 0.2 s), from the state predicted along the executing plan; a cycle not published '
         'by then keeps the executing plan', unit='s', low=0.001,
         high=1.0, ros_name='replan.lead')
+    replan_estimate: Tuple[str, ...] = setting(
+        (), 'model parameters (e.g. hand_mass, inertia; m_p) that the replan cycles estimate '
+        'online from joint_states (position, velocity and effort = the applied u) and plan '
+        'with; goals are planned with the robot.* values; empty = off',
+        ros_name='replan.estimate', ros_type='string_array')
+    replan_estimate_window: float = setting(
+        2.0, 'time constant of the exponential forgetting of the online estimation (older '
+        'joint_states weigh less)', unit='s', low=0.01, high=1e4,
+        ros_name='replan.estimate_window')
 
 
 # Largest plant actuator_lag and control_delay [s]: the delay's ring buffer holds

@@ -75,7 +75,8 @@ from std_srvs.srv import Trigger
 from toc_ros import conversions, progress as schema
 from toc_ros.config import (model_from_parameters, obstacle_rows, options_from_parameters,
                             problem_from_parameters)
-from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
+from toc_ros.core import ModelError, ProblemError, Progress, solve, Status, warm_up
+from toc_ros.core.estimation import estimate_text, ParameterEstimator
 from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.replan import brake, predict
 from toc_ros.core.result import CLEARANCE_TOL
@@ -92,8 +93,11 @@ PLANNING_PREFIXES = ('obstacles.', 'robot.', 'extension_limits')
 # slow iterations) so that no gap exceeds MAX_PROGRESS_GAP_S.
 HEARTBEAT_PERIOD_S = 0.05
 MAX_PROGRESS_GAP_S = 0.15
-# Fewest remaining plan nodes for which a replan warm-starts from the executing plan.
+# Fewest remaining plan nodes for which a replan warm-starts from the executing plan, and
+# fewest intervals of a replan cycle.
 MIN_WARM_NODES = 20
+# A replan cycle needs at least this many nodes of the executing plan left to start from.
+MIN_CYCLE_GUESS_NODES = 2
 # A joint_states stamp further than this from the node clock is from another time base
 # (publish_clock without use_sim_time, say): its age is then taken as zero.
 MAX_STATE_AGE_S = 1.0
@@ -137,6 +141,12 @@ def parameter_errors(params):
     except ProblemError as exc:
         return [str(exc)]
     errors = parameters.joint_name_errors(params['joint_names'], model.n_joints, model.name)
+    if params['replan.estimate']:
+        try:
+            ParameterEstimator(model, params['replan.estimate'],
+                               float(params['replan.estimate_window']))
+        except ModelError as exc:
+            errors.append(f'replan.estimate: {exc}')
     if not str(params['base_frame']).strip('/'):
         errors.append('base_frame must not be empty')
     limit_errors = parameters.vector_errors('extension_limits', params['extension_limits'], 2)
@@ -450,6 +460,10 @@ class SolverNode(Node):
         self._plan_info = None              # (hash, revision) of the last published plan
         self._next_cycle = 0.0              # time.monotonic() of the next replan.rate cycle
         self._latencies = collections.deque(maxlen=LATENCY_WINDOW)   # of recent cycles [s]
+        # Online estimation (replan.estimate): fed by joint_states, read by the cycles.
+        self._estimation_lock = threading.Lock()
+        self._estimator = None
+        self._estimator_key = None
         self._ready = threading.Event()
         self._started = time.monotonic()
         self._kernel_load_s = None
@@ -537,6 +551,9 @@ class SolverNode(Node):
         return result
 
     def _after_set_parameters(self, changed):
+        if any(p.name.startswith('replan.estimate') for p in changed):
+            with self._estimation_lock:     # set (even to the same value): start afresh
+                self._estimator, self._estimator_key = None, None
         with self._lock:
             self._params = parameters.candidate(self._params, changed)
             self._arm_dirty = True   # obstacles or frames may have changed
@@ -610,7 +627,8 @@ class SolverNode(Node):
                 'start': self._now(), 'duration': float(braking.time_grid[-1]),
                 'times': braking.time_grid, 'states': braking.states,
                 'controls': braking.controls, 'goal': plan['goal'], 'source': 'brake',
-                'path_states': plan['path_states'], 'result': None, 'model': model}
+                'path_states': plan['path_states'], 'result': None, 'model': model,
+                'resolution': plan['resolution']}
         replan = not self._worker.goal_busy()
         how = 'braking to rest' if braking is not None else 'stopped'
         reason = (f'the executing trajectory {violation} under data revision {revision}: '
@@ -697,7 +715,43 @@ class SolverNode(Node):
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
             params = self._params
-        self._maybe_replan(params, state, stamp if stamp > 0.0 else self._now(), received)
+        state_time = stamp if stamp > 0.0 else self._now()
+        if params['replan.estimate']:
+            self._estimate_from(msg, params, state, state_time)
+        self._maybe_replan(params, state, state_time, received)
+
+    def _estimate_from(self, msg, params, state, state_time):
+        """Feed the online estimator (replan.estimate) with one joint_states sample."""
+        try:
+            effort = conversions.joint_state_efforts(msg, params['joint_names'])
+        except conversions.ConversionError as exc:
+            effort, why = None, str(exc)
+        else:
+            why = 'joint_states carry no effort'
+        if effort is None:
+            self.get_logger().warning(f'replan.estimate: {why}; nothing estimated',
+                                      throttle_duration_sec=5.0)
+            return
+        key = (model_from_parameters(params), tuple(params['replan.estimate']),
+               float(params['replan.estimate_window']))
+        with self._estimation_lock:
+            if key != self._estimator_key:      # new robot data or estimation settings
+                self._estimator = ParameterEstimator(*key)
+                self._estimator_key = key
+            self._estimator.add(state_time, state[0::2], state[1::2], effort)
+
+    def _estimated_model(self, params):
+        """Return (model with the online estimate or None, its text or the reason for none)."""
+        if not params['replan.estimate']:
+            return None, ''
+        with self._estimation_lock:
+            estimator = self._estimator
+            if estimator is None or estimator.model_ != model_from_parameters(params):
+                return None, 'no samples yet'
+            model = estimator.model()
+            if model is None:
+                return None, estimator.status
+            return model, estimate_text(estimator.estimate())
 
     # -- replanning (receding horizon) ----------------------------------------------------------
 
@@ -776,17 +830,23 @@ class SolverNode(Node):
             if self._executing is not plan:
                 return          # a newer plan was published meanwhile: nothing to replace
         result, problem, why = None, None, ''
+        estimated, estimate = self._estimated_model(params)
         try:
             guess = plan['result'].remainder(plan['times'][nearest_node(plan['states'],
                                                                         cycle.start)])
             problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
-            nodes = min(guess.controls.shape[0], int(params['replan.max_nodes']))
+            if estimated is not None:
+                problem = problem.with_model(estimated)
+            # The goal plan's resolution (tau) while replan.max_nodes allows: a cycle near the
+            # end has as fine a grid as the goal's plan, not the coarse one of an early cycle.
+            nodes = int(min(int(params['replan.max_nodes']), max(
+                MIN_WARM_NODES, math.ceil(guess.final_time / plan['resolution'] - 1e-6))))
             problem = dataclasses.replace(problem, n_intervals=nodes)
             # A cycle is worthless once its plan should have started: that is its time limit.
             options = options_from_parameters(params)
             options = dataclasses.replace(options, timeout=max(min(
                 cycle.stamp_s - self._now(), options.timeout or math.inf), MIN_CYCLE_TIMEOUT_S))
-            if guess.controls.shape[0] < MIN_WARM_NODES:
+            if guess.controls.shape[0] < MIN_CYCLE_GUESS_NODES:
                 why = f'only {guess.controls.shape[0]} plan nodes left'
             else:
                 result = solve(problem, options, cancel=cancel, initial_guess=guess)
@@ -819,7 +879,8 @@ class SolverNode(Node):
                       goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
                       data_revision=revision, latency_s=latency, deviation=cycle.deviation,
                       plan_stamp=cycle.stamp_s, state_stamp=cycle.state_stamp,
-                      **model_keys(params))
+                      estimate=estimate if estimated is not None else
+                      (f'none: {estimate}' if estimate else ''), **model_keys(params))
         if problem is not None:
             values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
         if published:       # the data it was checked against
@@ -1129,7 +1190,11 @@ class SolverNode(Node):
                 'states': np.asarray(result.states, dtype=float),
                 'controls': np.asarray(result.controls, dtype=float),
                 'goal': request.goal.copy(), 'source': request.source,
-                'path_states': result.states, 'result': result, 'model': model}
+                'path_states': result.states, 'result': result, 'model': model,
+                # [s] tau of the goal's plan, kept by its replan cycles (their N)
+                'resolution': (result.final_time / max(result.controls.shape[0], 1)
+                               if request.cycle is None else
+                               request.cycle.plan['resolution'])}
             self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
         # The path and the markers only after the trajectory: they are not on its latency.

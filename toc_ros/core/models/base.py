@@ -39,6 +39,8 @@ toc_ros.core.ipm that take those pointwise kernels as arguments; each model modu
 in a few small cached wrappers (see cylindrical.py), so machine code is cached per model.
 """
 
+import dataclasses
+
 import numpy as np
 
 
@@ -129,6 +131,17 @@ class RobotModel:
         if dq is not None:
             x[1::2] = np.asarray(dq, dtype=float).reshape(-1)
         return x
+
+    def parameter_values(self):
+        """Return {name: value} of the physical data (self.params, a frozen dataclass)."""
+        return {f.name: getattr(self.params, f.name) for f in dataclasses.fields(self.params)}
+
+    def with_parameters(self, values):
+        """Return the same model with some parameter values replaced ({name: value})."""
+        unknown = sorted(set(values) - set(self.parameter_values()))
+        if unknown:
+            raise ModelError(f'model {self.name!r} has no parameter(s) {", ".join(unknown)}')
+        return type(self)(dataclasses.replace(self.params, **values))
 
     def __eq__(self, other):
         return type(self) is type(other) and self.params == other.params

@@ -1010,6 +1010,15 @@ class SymbolicRobot(RobotModel):
             raise TypeError('a SymbolicRobot built without its file text cannot be pickled')
         return (_rebuild, (self._text, self._source, self.params.as_dict()))
 
+    def parameter_values(self):
+        """Return {name: value} of the file's parameters."""
+        return self.params.as_dict()
+
+    def with_parameters(self, values):
+        """Return the same model with some parameter values replaced ({name: value})."""
+        return SymbolicRobot(self.kernels, dict(self.params.as_dict(), **values), self._text,
+                             self._source)
+
     def _packed_or_problem(self):
         values = [float(v) for _, v in self.params.values]
         try:
