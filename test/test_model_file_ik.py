@@ -161,8 +161,8 @@ BAD_SECTIONS = {
     'reach of the joints': ('[x^2 + y^2 <= (l1 + l2)^2]', '[q1 <= 1]', 'may not depend on q1'),
     'no branches': ('  branches:\n    up:\n', '  other:\n    up:\n',
                     'inverse_kinematics: expected {definitions'),
-    'bad branch': ('    up:\n', '    up: [1, 2]\n    down:\n', 'inverse_kinematics.branches.up: '
-                                                            'expected one expression per joint'),
+    'bad branch': ('    up:\n', '    up: [1, 2]\n    down:\n',
+                   'inverse_kinematics.branches.up: expected one expression per joint'),
     'definition shadows a parameter': ('    c2: ', '    l1: 1\n    c2: ',
                                        'inverse_kinematics.definitions.l1: a definition name'),
     'x is a parameter': ('{l1: 1.0, l2: 0.5}', '{l1: 1.0, l2: 0.5, x: 2.0}',

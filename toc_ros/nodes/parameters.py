@@ -47,7 +47,7 @@ class SolverNodeSettings:
     ik_branch: str = setting(
         'elbow_up', 'inverse-kinematics branch of hand goals (goal_pose, ~/plan) for models '
         "with several: planar_2r 'elbow_up' (q2 <= 0) or 'elbow_down' (q2 >= 0), a model "
-        "file: a branch name of its inverse_kinematics section; ignored by models with one "
+        'file: a branch name of its inverse_kinematics section; ignored by models with one '
         'solution', ros_name='robot.ik_branch')
     max_count: int = setting(
         64, 'largest obstacle set accepted (obstacles topic and obstacles.* parameters); '

@@ -125,7 +125,7 @@ def closed_form_ik(model, x, y, branch):
 
 
 def check_poses(joint_kinds):
-    """Fixed joint positions for the load-time check (revolute in [-pi, pi], prismatic +-0.5 m)."""
+    """Return the poses of the load-time check (revolute in [-pi, pi], prismatic +-0.5 m)."""
     rng = np.random.default_rng(CHECK_SEED)
     half = np.array([math.pi if kind == 'revolute' else 0.5 for kind in joint_kinds])
     return [rng.uniform(-half, half) for _ in range(CHECK_POSES)]

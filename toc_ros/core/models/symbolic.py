@@ -405,7 +405,7 @@ def _parse_lagrangian(source, parser, lag):
 
 def _parse_ik(source, parser, section, taken):
     """
-    IKSpec of the inverse_kinematics section (ModelError with the reason if invalid).
+    Parse the inverse_kinematics section into an IKSpec (ModelError with the reason).
 
     taken: the names the section's definitions may not reuse (parameters, model definitions,
     functions); x and y must not be among them.
@@ -920,7 +920,7 @@ class _Generator:
         return _kernel_code(self.numpy, self._read_numpy, [block])
 
     def hand(self):
-        """Generate the body of hand(q, p): the hand (end of the last link) and d hand / dq."""
+        """Generate the body of the function hand: the last link's end and d hand / dq."""
         block = _Block()
         for r, e in enumerate(self.spec.links[-1][2:4]):
             block.output(f'out[{r}]', e)
@@ -954,7 +954,7 @@ class _Generator:
             for j, e in enumerate(exprs):
                 block.output(f'out[{j}]', e)
             lines += ['', '', f'def _ik_{k}(goal_x, goal_y, p):',
-                      f'    """Joint positions of IK branch {name!r} with the hand at the goal."""',
+                      f'    """Joint positions of IK branch {name!r} (hand at the goal)."""',
                       f'    out = [0.0] * {self.n}',
                       *_kernel_code(self.math, self._read, [block]),
                       '    return out']
@@ -1034,7 +1034,7 @@ class _Generator:
             '',
             '',
             'def hand(q, p):',
-            '    """[hx, hy, d hx / dq (n), d hy / dq (n)] at joint positions q (plain Python)."""',
+            '    """Hand [hx, hy, d hx / dq (n), d hy / dq (n)] at q (plain Python)."""',
             f'    out = [0.0] * {2 + 2 * self.n}',
             *self.hand(),
             '    return out',
