@@ -44,6 +44,11 @@ File format (every expression is a SymPy expression string; `^` means power):
       forces: [u1, u2 - 0.1*dq2]       # optional generalised forces Q, default u
     dynamics: [dq1, ..., ...]          # OR: the 2 n entries of f in the layout
                                        #   (q1, dq1, q2, dq2, ...) of x, functions of x and u
+    inverse_kinematics:                # optional: closed-form hand IK (hand_ik.py); names:
+      definitions: {c2: ...}           #   the hand goal x, y, the parameters, min, max
+      reach: [x^2 + y^2 <= (l1 + l2)^2]            # conditions (<=, >=, <, >)
+      branches:                        # name: one expression per joint
+        elbow_up: {q1: ..., q2: ...}
 
 Functions: sin cos tan asin acos atan atan2 sinh cosh tanh exp log sqrt, the constant pi and
 ddt (total time derivative of an expression of q).  The file is evaluated by SymPy's parser
