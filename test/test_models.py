@@ -459,9 +459,14 @@ def test_planar_2r_ik_at_the_base_with_equal_links():
         load_model('planar_2r', l1=0.8, l2=0.8).inverse_kinematics(0.0, 0.0, 'elbow_up')
 
 
-def test_generated_model_has_no_ik():
-    with pytest.raises(ModelError, match='no hand inverse kinematics'):
-        load_model(PLANAR_FILE).inverse_kinematics(1.0, 0.5, 'elbow_up')
+def test_generated_model_ik():
+    # The file's inverse_kinematics section (test_model_file_ik.py has the details).
+    q = load_model(PLANAR_FILE).inverse_kinematics(1.0, 0.5, 'elbow_up')
+    np.testing.assert_allclose(q, Planar2R().inverse_kinematics(1.0, 0.5, 'elbow_up'),
+                               atol=1e-12)
+    # No section and 3 joints: no numeric IK either.
+    with pytest.raises(ModelError, match='ambiguous: a redundant arm'):
+        symbolic.model_from_text(PLANAR_3R, 'planar_3r.yaml').inverse_kinematics(1.0, 0.5)
 
 
 # ------------------------------------------------------------------------------------------

@@ -227,6 +227,35 @@ def test_planar_goal_pose_ik_and_unreachable_goal(planar_solver):
     assert np.allclose(trajectory.points[-1].positions, [0.9, 0.9], atol=1e-6)
 
 
+def test_goal_pose_with_a_model_file_uses_its_ik_section(planar_solver):
+    client, _, _, goal_pose, _ = planar_solver
+    file_model = str(REPO / 'config' / 'models' / 'planar_2r.yaml')
+    results = client.set_parameters('solver_node', {'robot.model': file_model}, timeout=300.0)
+    assert results[0].successful, results[0].reason
+    try:
+        since = time.monotonic()
+        goal_pose.publish(pose(3.0, 0.0))
+        refused = _final(client, since, timeout=30.0)
+        assert refused.status is Status.INVALID_INPUT, refused
+        assert "reach condition 'x^2 + y^2 <= (l1 + l2)^2' fails" in refused.message
+        hand = Planar2R().hand_position(np.array([0.9, 0.9]))
+        since = time.monotonic()
+        goal_pose.publish(pose(*hand))       # robot.ik_branch elbow_down: q2 >= 0
+        result = _final(client, since)
+        assert result.status is Status.SOLVED and result.robot_model == file_model, result
+        assert np.allclose(result.goal, [0.9, 0.0, 0.9, 0.0], atol=1e-9), result.goal
+        assert client.set_parameters('solver_node', {'robot.ik_branch': 'sideways'})[0] \
+            .successful
+        since = time.monotonic()
+        goal_pose.publish(pose(*hand))
+        refused = _final(client, since, timeout=30.0)
+        assert refused.status is Status.INVALID_INPUT and 'ambiguous' in refused.message
+    finally:
+        results = client.set_parameters('solver_node', {'robot.model': 'planar_2r',
+                                                        'robot.ik_branch': 'elbow_down'})
+        assert all(r.successful for r in results), results
+
+
 def test_joint_names_must_match_the_model(planar_solver):
     client = planar_solver[0]
     results = client.set_parameters('solver_node', {'joint_names': ['a', 'b', 'c']})

@@ -312,19 +312,20 @@ def _goal_xy(msg, base_frame):
 
 
 def pose_to_joint_goal(msg, base_frame, a, extension_limits=(-math.inf, math.inf),
-                       branch=None):
+                       branch=None, seed=None):
     """
     Joint goal state (at rest) of a PoseStamped hand target by inverse kinematics.
 
-    a: a RobotModel (its inverse_kinematics with the IK branch; ConversionError with the
-    model's reason for an unreachable or ambiguous goal), or the cylindrical robot's hand
-    offset a [m]: q1 = atan2(y, x), q2 = sqrt(x^2 + y^2) - a within extension_limits.  The
-    pose must be in base_frame; orientation and z are ignored (planar models).
+    a: a RobotModel (its inverse_kinematics with the IK branch and the seed, joint positions
+    that a numeric IK starts from; ConversionError with the model's reason for an unreachable
+    or ambiguous goal), or the cylindrical robot's hand offset a [m]: q1 = atan2(y, x),
+    q2 = sqrt(x^2 + y^2) - a within extension_limits.  The pose must be in base_frame;
+    orientation and z are ignored (planar models).
     """
     x, y = _goal_xy(msg, base_frame)
     if isinstance(a, RobotModel) and not isinstance(a, CylindricalRobot):
         try:
-            q = a.inverse_kinematics(float(x), float(y), branch)
+            q = a.inverse_kinematics(float(x), float(y), branch, seed=seed)
         except ModelError as exc:
             raise ConversionError(str(exc))
         return a.state(q)

@@ -46,9 +46,9 @@ class SolverNodeSettings:
         '~/plan) of the cylindrical robot; the paper gives none, so generous defaults')
     ik_branch: str = setting(
         'elbow_up', 'inverse-kinematics branch of hand goals (goal_pose, ~/plan) for models '
-        "with several: planar_2r 'elbow_up' (q2 <= 0) or 'elbow_down' (q2 >= 0); ignored by "
-        'models with one solution', choices=('elbow_up', 'elbow_down'),
-        ros_name='robot.ik_branch')
+        "with several: planar_2r 'elbow_up' (q2 <= 0) or 'elbow_down' (q2 >= 0), a model "
+        'file: a branch name of its inverse_kinematics section; ignored by models with one '
+        'solution', ros_name='robot.ik_branch')
     max_count: int = setting(
         64, 'largest obstacle set accepted (obstacles topic and obstacles.* parameters); '
         'larger sets are refused with the reason on ~/progress', low=0, high=100000,

@@ -925,16 +925,16 @@ class SolverNode(Node):
             return
         self._stop(plan, params, revision, violation)
 
-    @staticmethod
-    def _pose_goal(msg, params):
-        """Joint goal of a hand pose by the model's inverse kinematics (ConversionError)."""
+    def _pose_goal(self, msg, params):
+        """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
         try:
             model = model_from_parameters(params)
         except ProblemError as exc:
             raise conversions.ConversionError(str(exc))
+        start, _ = self._start_state(params, self._snapshot()[1])
         return conversions.pose_to_joint_goal(
             msg, params['base_frame'], model, tuple(params['extension_limits']),
-            params['robot.ik_branch'])
+            params['robot.ik_branch'], seed=model.positions(start))
 
     def _on_goal_pose(self, msg):
         self._submit(lambda params: self._pose_goal(msg, params), 'goal_pose')

@@ -105,12 +105,14 @@ class RobotModel:
         seg = self.link_segments(q)
         return seg[..., -1, 2:4]
 
-    def inverse_kinematics(self, x, y, branch=None):
+    def inverse_kinematics(self, x, y, branch=None, seed=None):
         """
         Joint positions (n,) that put the hand at (x, y) [m] in the base frame.
 
-        Raises ModelError with a reason when the point is unreachable or the answer is
-        ambiguous for this model and no branch selects one.
+        branch selects one of several closed-form solutions (ik_branches); seed (joint
+        positions, e.g. the current ones) starts a numeric solution.  Raises ModelError with a
+        reason when the point is unreachable or the answer is ambiguous for this model and no
+        branch selects one.
         """
         raise ModelError(f'model {self.name!r} has no hand inverse kinematics')
 

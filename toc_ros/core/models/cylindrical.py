@@ -177,7 +177,7 @@ class CylindricalRobot(RobotModel):
         seg[..., 0, 3] = reach * np.sin(q[..., 0])
         return seg
 
-    def inverse_kinematics(self, x, y, branch=None):
+    def inverse_kinematics(self, x, y, branch=None, seed=None):
         """q1 = atan2(y, x), q2 = sqrt(x^2 + y^2) - a (unique: the arm is a ray)."""
         distance = math.hypot(x, y)
         if not distance > 0.0:

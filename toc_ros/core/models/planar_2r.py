@@ -371,7 +371,7 @@ class Planar2R(RobotModel):
         seg[..., 1, 3] = seg[..., 1, 1] + l2 * np.sin(q12)
         return seg
 
-    def inverse_kinematics(self, x, y, branch=None):
+    def inverse_kinematics(self, x, y, branch=None, seed=None):
         """
         Joint positions (q1, q2) that put the hand at (x, y) [m].
 

@@ -44,6 +44,11 @@ File format (every expression is a SymPy expression string; `^` means power):
       forces: [u1, u2 - 0.1*dq2]       # optional generalised forces Q, default u
     dynamics: [dq1, ..., ...]          # OR: the 2 n entries of f in the layout
                                        #   (q1, dq1, q2, dq2, ...) of x, functions of x and u
+    inverse_kinematics:                # optional: closed-form hand IK (hand_ik.py); names:
+      definitions: {c2: ...}           #   the hand goal x, y, the parameters, min, max
+      reach: [x^2 + y^2 <= (l1 + l2)^2]            # conditions (<=, >=, <, >)
+      branches:                        # name: one expression per joint
+        elbow_up: {q1: ..., q2: ...}
 
 Functions: sin cos tan asin acos atan atan2 sinh cosh tanh exp log sqrt, the constant pi and
 ddt (total time derivative of an expression of q).  The file is evaluated by SymPy's parser
@@ -77,6 +82,7 @@ import sys
 import numpy as np
 import yaml
 
+from . import hand_ik
 from .base import ModelError, RobotModel
 
 try:
@@ -93,7 +99,11 @@ except ImportError:  # pragma: no cover - exercised only where sympy is absent
 SINGULAR_RTOL = 1e-12
 JOINT_KINDS = ('revolute', 'prismatic')
 TOP_LEVEL_KEYS = ('name', 'description', 'joints', 'parameters', 'positive', 'u_max',
-                  'definitions', 'links', 'lagrangian', 'dynamics')
+                  'definitions', 'links', 'lagrangian', 'dynamics', 'inverse_kinematics')
+IK_KEYS = ('definitions', 'reach', 'branches')
+HAND_NAMES = ('x', 'y')       # the hand goal's coordinates in inverse_kinematics
+IK_FUNCTIONS = {'min': 'Min', 'max': 'Max'}     # for clamping, inverse_kinematics only
+_COMPARISON = re.compile(r'<=|>=|<|>')
 FUNCTION_NAMES = ('sin', 'cos', 'tan', 'asin', 'acos', 'atan', 'atan2', 'sinh', 'cosh',
                   'tanh', 'exp', 'log', 'sqrt')
 _RESERVED = re.compile(r'^(q|dq|u)[0-9]+$')
@@ -148,6 +158,16 @@ class ModelSpec:
     mass: object = None      # n x n sympy Matrix (lagrangian)
     residual: list = None    # n expressions r(x, u) (lagrangian)
     f: list = None           # 2 n expressions (explicit)
+    ik: object = None        # IKSpec of the inverse_kinematics section, if any
+
+
+@dataclass
+class IKSpec:
+    """The inverse_kinematics section: expressions of the hand goal (x, y) and parameters."""
+
+    goal: tuple              # the internal symbols of x and y
+    reach: list              # (text, small side, big side, strict): small <(=) big
+    branches: dict           # branch name -> n expressions (q1, ..., qn)
 
 
 class _Symbols:
@@ -197,6 +217,16 @@ class _Parser:
             raise ModelError('ddt() takes an expression of q and the parameters only')
         return sum((sp.diff(expr, q) * dq for q, dq in zip(self.sym.q, self.sym.dq)),
                    sp.Integer(0))
+
+    def bind_goal(self):
+        """Bind x, y (the hand goal) and min, max for the inverse_kinematics section."""
+        goal = tuple(sp.Symbol(f'goal_{name}', real=True) for name in HAND_NAMES)
+        for name, symbol in zip(HAND_NAMES, goal):
+            self.env[name] = symbol
+            self.user_names[symbol] = name
+        for name, function in IK_FUNCTIONS.items():
+            self.env[name] = getattr(sp, function)
+        return goal
 
     def define(self, name, expr):
         """Bind a definition name to an expression for the following expressions."""
@@ -349,9 +379,20 @@ def parse_model_text(text, source='<string>'):
         entries = _expression_list(source, data['dynamics'], 'dynamics', 2 * n,
                                    f'{2 * n} expressions (dx/dt for x = (q1, dq1, ...))')
         spec.f = [parser.parse(e, f'dynamics[{i}]', xu_set) for i, e in enumerate(entries)]
-        return spec
+    else:
+        spec.mass, spec.residual = _parse_lagrangian(source, parser, data['lagrangian'])
+    if data.get('inverse_kinematics') is not None:
+        spec.ik = _parse_ik(source, parser, data['inverse_kinematics'],
+                            taken | set(param_names) | set(definitions))
+    return spec
 
-    lag = data['lagrangian']
+
+def _parse_lagrangian(source, parser, lag):
+    """M(q) and r(x, u) of the lagrangian section (see _euler_lagrange)."""
+    sym = parser.sym
+    n = sym.n
+    q_set, x_set = set(sym.q) | set(sym.p), set(sym.x) | set(sym.p)
+    xu_set = x_set | set(sym.u)
     if not isinstance(lag, dict) or 'kinetic' not in lag or set(lag) - {
             'kinetic', 'potential', 'forces'}:
         _fail(source, 'lagrangian', f'expected {{kinetic: ..., potential: ..., forces: '
@@ -364,8 +405,72 @@ def parse_model_text(text, source='<string>'):
                              f'{n} generalised forces'))]
     else:
         forces = list(sym.u)
-    spec.mass, spec.residual = _euler_lagrange(source, sym, kinetic, potential, forces)
-    return spec
+    return _euler_lagrange(source, sym, kinetic, potential, forces)
+
+
+def _parse_ik(source, parser, section, taken):
+    """
+    Parse the inverse_kinematics section into an IKSpec (ModelError with the reason).
+
+    taken: the names the section's definitions may not reuse (parameters, model definitions,
+    functions); x and y must not be among them.
+    """
+    where = 'inverse_kinematics'
+    if not isinstance(section, dict) or set(section) - set(IK_KEYS) or 'branches' not in section:
+        _fail(source, where, f'expected {{definitions: {{...}}, reach: [...], branches: '
+              f'{{name: {{q1: ..., ...}}}}}}, got {section!r}')
+    clash = sorted(set(HAND_NAMES) & taken)
+    if clash:
+        _fail(source, where, f'{", ".join(clash)} name the hand goal here: rename the '
+              f'parameter or definition {", ".join(clash)}')
+    goal = parser.bind_goal()
+    allowed = set(goal) | set(parser.sym.p)
+    definitions = section.get('definitions') or {}
+    if not isinstance(definitions, dict):
+        _fail(source, f'{where}.definitions', f'expected a mapping name: expression, got '
+              f'{definitions!r}')
+    for name, text in definitions.items():
+        at = f'{where}.definitions.{name}'
+        if (not isinstance(name, str) or not _IDENT.match(name) or keyword.iskeyword(name)
+                or _RESERVED.match(name) or name in taken or name in HAND_NAMES
+                or name in IK_FUNCTIONS):
+            _fail(source, at, 'a definition name must be a new identifier (not x, y, a '
+                  'parameter, a model definition, q<i>, dq<i>, u<i>, a function name, pi or ddt)')
+        parser.define(name, parser.parse(text, at, allowed))
+    reach = section.get('reach') or []
+    if not isinstance(reach, list):
+        _fail(source, f'{where}.reach', f'expected a list of conditions such as '
+              f"'x^2 + y^2 <= (l1 + l2)^2', got {reach!r}")
+    conditions = [_parse_condition(parser, text, f'{where}.reach[{k}]', allowed)
+                  for k, text in enumerate(reach)]
+    branches = section['branches']
+    if not isinstance(branches, dict) or not branches:
+        _fail(source, f'{where}.branches', f'expected a mapping name: {{q1: ..., ...}} with '
+              f'at least one branch, got {branches!r}')
+    joints = [f'q{j + 1}' for j in range(parser.sym.n)]
+    solutions = {}
+    for name, branch in branches.items():
+        at = f'{where}.branches.{name}'
+        if not isinstance(name, str) or not _IDENT.match(name):
+            _fail(source, at, 'a branch name must be an identifier')
+        if not isinstance(branch, dict) or sorted(map(str, branch)) != sorted(joints):
+            got = sorted(map(str, branch)) if isinstance(branch, dict) else branch
+            _fail(source, at, f'expected one expression per joint, {", ".join(joints)}; got '
+                  f'{got!r}')
+        solutions[name] = [parser.parse(branch[j], f'{at}.{j}', allowed) for j in joints]
+    return IKSpec(goal=goal, reach=conditions, branches=solutions)
+
+
+def _parse_condition(parser, text, where, allowed):
+    """(text, small, big, strict) of a reach condition 'a <= b' (or >=, <, >)."""
+    if not isinstance(text, str) or len(_COMPARISON.findall(text)) != 1:
+        _fail(parser.source, where, f'expected one comparison such as '
+              f"'x^2 + y^2 <= (l1 + l2)^2' (<=, >=, < or >), got {text!r}")
+    match = _COMPARISON.search(text)
+    left = parser.parse(text[:match.start()], where, allowed)
+    right = parser.parse(text[match.end():], where, allowed)
+    small, big = (left, right) if match.group().startswith('<') else (right, left)
+    return text.strip(), small, big, '=' not in match.group()
 
 
 def _euler_lagrange(source, sym, kinetic, potential, forces):
@@ -581,7 +686,7 @@ def _kernel_code(printer, read, blocks, indent='    '):
 
 def _name_key(name):
     head, _, index = name.rpartition('_')
-    return (head, int(index))
+    return (head, int(index)) if index.isdigit() else (name, -1)   # goal_x, goal_y
 
 
 def _sort_key(symbol):
@@ -819,6 +924,48 @@ class _Generator:
                 block.output(f'seg[..., {k}, {r}]', self.hoist(e))
         return _kernel_code(self.numpy, self._read_numpy, [block])
 
+    def hand(self):
+        """Generate the body of the function hand: the last link's end and d hand / dq."""
+        block = _Block()
+        for r, e in enumerate(self.spec.links[-1][2:4]):
+            block.output(f'out[{r}]', e)
+            for j, q in enumerate(self.sym.q):
+                block.output(f'out[{2 + r * self.n + j}]', sp.diff(e, q))
+        return _kernel_code(self.math, self._read_q, [block])
+
+    def inverse_kinematics(self):
+        """Generate the IK functions of the inverse_kinematics section (plain Python)."""
+        ik = self.spec.ik
+        if ik is None:
+            return ['IK_BRANCHES = ()', 'IK_REACH = ()', 'IK_STRICT = ()', 'IK = {}', '', '',
+                    'def ik_reach(goal_x, goal_y, p):',
+                    '    """No reach conditions: the file has no inverse_kinematics."""',
+                    '    return []']
+        reach = _Block()
+        for k, (_, small, big, _) in enumerate(ik.reach):
+            reach.output(f'out[{2 * k}]', small)
+            reach.output(f'out[{2 * k + 1}]', big)
+        count = len(ik.reach)
+        lines = [f'IK_BRANCHES = {tuple(ik.branches)!r}',
+                 f'IK_REACH = {tuple(c[0] for c in ik.reach)!r}',
+                 f'IK_STRICT = {tuple(c[3] for c in ik.reach)!r}', '', '',
+                 'def ik_reach(goal_x, goal_y, p):',
+                 '    """Sides (small, big) of the reach conditions small <= big."""',
+                 f'    out = [0.0] * {2 * count}',
+                 *_kernel_code(self.math, self._read, [reach]),
+                 f'    return [(out[2 * k], out[2 * k + 1]) for k in range({count})]']
+        for k, (name, exprs) in enumerate(ik.branches.items()):
+            block = _Block()
+            for j, e in enumerate(exprs):
+                block.output(f'out[{j}]', e)
+            lines += ['', '', f'def _ik_{k}(goal_x, goal_y, p):',
+                      f'    """Joint positions of IK branch {name!r} (hand at the goal)."""',
+                      f'    out = [0.0] * {self.n}',
+                      *_kernel_code(self.math, self._read, [block]),
+                      '    return out']
+        entries = ', '.join(f'{name!r}: _ik_{k}' for k, name in enumerate(ik.branches))
+        return lines + ['', '', f'IK = {{{entries}}}']
+
     # Module -------------------------------------------------------------------------------
     def source(self):
         """Return the generated module's source text."""
@@ -889,6 +1036,16 @@ class _Generator:
             f'    seg = numpy.zeros(q.shape[:-1] + ({len(spec.links)}, 4))',
             *link_np,
             '    return seg',
+            '',
+            '',
+            'def hand(q, p):',
+            '    """Hand [hx, hy, d hx / dq (n), d hy / dq (n)] at q (plain Python)."""',
+            f'    out = [0.0] * {2 + 2 * self.n}',
+            *self.hand(),
+            '    return out',
+            '',
+            '',
+            *self.inverse_kinematics(),
         ]
         for name, args, doc, body in kernels:
             lines += ['', '', "@njit(cache=True, inline='always')", f'def {name}{args}:',
@@ -1098,6 +1255,26 @@ class SymbolicRobot(RobotModel):
         """(..., L, 4) from the file's link expressions."""
         return self.kernels.link_segments(np.asarray(q, dtype=float), self.packed())
 
+    @property
+    def ik_branches(self):
+        """Names of the file's closed-form IK branches (empty: numeric IK or none)."""
+        return tuple(self.kernels.IK_BRANCHES)
+
+    def inverse_kinematics(self, x, y, branch=None, seed=None):
+        """
+        Joint positions (n,) that put the hand at (x, y) [m] (hand_ik.py).
+
+        With an inverse_kinematics section: its branch (robot.ik_branch; ignored when there is
+        one); without: Newton from seed (joint positions, default zero) for 2 joints.  Raises
+        ModelError with the reason for an unreachable, ambiguous or singular goal.
+        """
+        x, y = float(x), float(y)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ModelError(f'model {self.name!r}: hand goal ({x!r}, {y!r}) is not finite')
+        if self.kernels.IK_BRANCHES:
+            return hand_ik.closed_form_ik(self, x, y, branch)
+        return hand_ik.numeric_ik(self, x, y, seed)
+
 
 def _relative_pivot(m):
     """Smallest LDL^T pivot of m relative to its largest diagonal entry (<= 0: indefinite)."""
@@ -1131,6 +1308,7 @@ def model_from_text(text, source='<string>', cache_dir=None, **params):
     if problems:
         raise ModelError(f'model file {source}: ' + '; '.join(problems))
     _check_not_always_singular(model, source)
+    hand_ik.check_branches(model, source)
     return model
 
 
