@@ -37,7 +37,9 @@ Replanning (fast mode, replan.rate > 0): while a plan executes, replan cycles so
 same goal from the latest joint_states, predicted forward to the new plan's start
 (header.stamp = now + lead) along the executing plan, warm-started from that plan's rest; a
 cycle's plan is published only when solved before its stamp, else the executing plan is kept
-(~/progress event replan_kept).  Goals go first: a cycle never preempts a goal.
+(~/progress event replan_kept).  Goals go first: a cycle never preempts a goal.  With
+replan.estimate the cycles plan with model parameters estimated online from the joint_states
+efforts (core/estimation.py).
 
 No plan for stale data: when the obstacles, the margin, the robot data or the extension
 limits change during a goal's solve, the solve restarts from the same goal and the latest
