@@ -95,11 +95,11 @@ PLANNING_PREFIXES = ('obstacles.', 'robot.', 'extension_limits')
 # slow iterations) so that no gap exceeds MAX_PROGRESS_GAP_S.
 HEARTBEAT_PERIOD_S = 0.05
 MAX_PROGRESS_GAP_S = 0.15
-# Fewest remaining plan nodes for which a replan warm-starts from the executing plan, and
-# fewest intervals of a replan cycle.
+# Fewest remaining plan nodes for which a replan warm-starts from the executing plan.
 MIN_WARM_NODES = 20
-# A replan cycle needs at least this many nodes of the executing plan left to start from.
-MIN_CYCLE_GUESS_NODES = 2
+# A replan cycle needs at least this many nodes of the executing plan left (a cycle keeps its
+# plan's grid, so near the end of a plan cut to replan.max_nodes few are left).
+MIN_CYCLE_GUESS_NODES = 5
 # A joint_states stamp further than this from the node clock is from another time base
 # (publish_clock without use_sim_time, say): its age is then taken as zero.
 MAX_STATE_AGE_S = 1.0
@@ -123,6 +123,9 @@ QUIET_FIRST_S = 0.005
 SETTLE_MAX_S = 0.5
 # Queue depth of the services: every request of a burst is kept and answered.
 SERVICE_QOS = QoSProfile(depth=100)
+# The cycles' model follows the online estimate when a parameter moved by more than this
+# (relative) from the one planned with.
+ESTIMATE_CHANGE = 0.01
 # A published trajectory is "executing" until its duration plus this has passed.
 EXECUTION_SLACK_S = 0.5
 # New data that puts a true (uninflated) obstacle on the executing plan within this time
@@ -466,6 +469,7 @@ class SolverNode(Node):
         self._estimation_lock = threading.Lock()
         self._estimator = None
         self._estimator_key = None
+        self._planning_estimate = None      # (values, model) the cycles plan with
         self._ready = threading.Event()
         self._started = time.monotonic()
         self._kernel_load_s = None
@@ -556,6 +560,7 @@ class SolverNode(Node):
         if any(p.name.startswith('replan.estimate') for p in changed):
             with self._estimation_lock:     # set (even to the same value): start afresh
                 self._estimator, self._estimator_key = None, None
+                self._planning_estimate = None
         with self._lock:
             self._params = parameters.candidate(self._params, changed)
             self._arm_dirty = True   # obstacles or frames may have changed
@@ -629,8 +634,7 @@ class SolverNode(Node):
                 'start': self._now(), 'duration': float(braking.time_grid[-1]),
                 'times': braking.time_grid, 'states': braking.states,
                 'controls': braking.controls, 'goal': plan['goal'], 'source': 'brake',
-                'path_states': plan['path_states'], 'result': None, 'model': model,
-                'resolution': plan['resolution']}
+                'path_states': plan['path_states'], 'result': None, 'model': model}
         replan = not self._worker.goal_busy()
         how = 'braking to rest' if braking is not None else 'stopped'
         reason = (f'the executing trajectory {violation} under data revision {revision}: '
@@ -740,20 +744,36 @@ class SolverNode(Node):
             if key != self._estimator_key:      # new robot data or estimation settings
                 self._estimator = ParameterEstimator(*key)
                 self._estimator_key = key
+                self._planning_estimate = None
             self._estimator.add(state_time, state[0::2], state[1::2], effort)
 
     def _estimated_model(self, params):
-        """Return (model with the online estimate or None, its text or the reason for none)."""
+        """
+        Return (model with the online estimate or None, its text or the reason for none).
+
+        The model planned with changes only when the estimate moved by more than
+        ESTIMATE_CHANGE from it: successive cycles then solve the same problem, and each
+        warm start (the previous cycle's optimum) stays nearly optimal.
+        """
         if not params['replan.estimate']:
             return None, ''
         with self._estimation_lock:
             estimator = self._estimator
             if estimator is None or estimator.model_ != model_from_parameters(params):
                 return None, 'no samples yet'
-            model = estimator.model()
-            if model is None:
+            values = estimator.estimate()
+            if values is None:
+                self._planning_estimate = None
                 return None, estimator.status
-            return model, estimate_text(estimator.estimate())
+            held = self._planning_estimate
+            if held is None or held[0].keys() != values.keys() or any(
+                    abs(values[k] - held[0][k]) > ESTIMATE_CHANGE * abs(held[0][k])
+                    for k in values):
+                model = estimator.model()
+                if model is None:
+                    return None, estimator.status
+                held = self._planning_estimate = (values, model)
+            return held[1], estimate_text(held[0])
 
     # -- replanning (receding horizon) ----------------------------------------------------------
 
@@ -804,8 +824,14 @@ class SolverNode(Node):
         # The lead covers the solve: replan.lead, or more when recent cycles took longer
         # (a loaded machine); new data may allow more still (lead given by the caller).
         lead = max(float(params['replan.lead']), self._cycle_latency(), lead or 0.0)
-        stamp = now + lead
-        start_at = stamp - plan['start']
+        # The new plan starts on a node of the executing one (the first at or after now +
+        # lead): its warm start, that plan's remainder from the node, then starts where the
+        # predicted state is, not up to half an interval away (which costs iterations).
+        start_at = now + lead - plan['start']
+        node = int(np.searchsorted(times, start_at))
+        if node < times.shape[0]:
+            start_at = float(times[node])
+        stamp = plan['start'] + start_at
         if plan['duration'] - start_at < float(params['replan.min_remaining']):
             return False
         start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
@@ -839,10 +865,10 @@ class SolverNode(Node):
             problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
             if estimated is not None:
                 problem = problem.with_model(estimated)
-            # The goal plan's resolution (tau) while replan.max_nodes allows: a cycle near the
-            # end has as fine a grid as the goal's plan, not the coarse one of an early cycle.
-            nodes = int(min(int(params['replan.max_nodes']), max(
-                MIN_WARM_NODES, math.ceil(guess.final_time / plan['resolution'] - 1e-6))))
+            # The remainder's own grid (same tau: the warm start is then nearly optimal), cut
+            # to replan.max_nodes intervals; resampling to another grid each cycle would move
+            # the control switches off it and cost many more iterations.
+            nodes = min(guess.controls.shape[0], int(params['replan.max_nodes']))
             problem = dataclasses.replace(problem, n_intervals=nodes)
             # A cycle is worthless once its plan should have started: that is its time limit.
             options = options_from_parameters(params)
@@ -1192,11 +1218,7 @@ class SolverNode(Node):
                 'states': np.asarray(result.states, dtype=float),
                 'controls': np.asarray(result.controls, dtype=float),
                 'goal': request.goal.copy(), 'source': request.source,
-                'path_states': result.states, 'result': result, 'model': model,
-                # [s] tau of the goal's plan, kept by its replan cycles (their N)
-                'resolution': (result.final_time / max(result.controls.shape[0], 1)
-                               if request.cycle is None else
-                               request.cycle.plan['resolution'])}
+                'path_states': result.states, 'result': result, 'model': model}
             self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
         # The path and the markers only after the trajectory: they are not on its latency.
