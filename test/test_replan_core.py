@@ -22,7 +22,7 @@ import pytest
 from toc_ros.analysis.closed_loop import arrival_time, execution_metrics, PlanSpan
 from toc_ros.core import Problem, solve, SolverOptions
 from toc_ros.core.models import CylindricalRobot
-from toc_ros.core.replan import brake, BRAKE_REST_SPEED, control_at, predict
+from toc_ros.core.replan import brake, BRAKE_REST_SPEED, control_at, controls_at, predict
 
 MODEL = CylindricalRobot()
 U_MAX = np.array([600.0, 500.0])
@@ -105,3 +105,13 @@ def test_arrival_is_the_first_time_after_which_the_goal_holds():
     assert metrics['last_plan_end_s'] == pytest.approx(0.3)
     # 0.2 s after the last plan's end (0.3 s): the sample at 0.5 s.
     assert metrics['final_error'] == pytest.approx(0.001)
+
+
+def test_vectorised_controls_match_the_pointwise_lookup():
+    rng = np.random.default_rng(3)
+    times = np.linspace(0.0, 2.0, 301)
+    controls = rng.normal(size=(300, 2))
+    # Outside the plan, on every node, and between them.
+    t = np.concatenate([rng.uniform(-0.5, 2.5, 2000), times])
+    expected = np.array([control_at(times, controls, v) for v in t])
+    np.testing.assert_array_equal(controls_at(times, controls, t), expected)

@@ -297,24 +297,3 @@ def test_unknown_estimated_parameter_is_refused(loop):
     assert not results[0].successful
     assert 'wheel_radius' in results[0].reason and 'hand_mass' in results[0].reason
 
-
-def test_cycles_are_skipped_while_the_plan_is_on_course(loop):
-    """replan.on_course: near the end of a plan the plant follows, cycles are skipped."""
-    rk4 = {'solver.integrator': 'rk4'}
-
-    def late_cycles(on_course):
-        since, first = start(loop, 20.0, **{'replan.on_course': on_course}, **rk4)
-        settle(loop, first)
-        end = stamp_of(first) + duration_of(first)
-        late = [r for r in cycle_reports(loop, since) if r.plan_stamp > end - 0.6]
-        return late, positions_since(loop, since)[-1]
-    try:
-        every, _ = late_cycles(0.0)
-        skipping, final = late_cycles(1e-3)
-    finally:
-        set_params(loop, 'solver_node', {'solver.integrator': 'euler', 'replan.on_course': 1e-3})
-    # At 20 Hz, cycles up to 0.15 s before the end: about 9 in the last 0.6 s.  The open-loop
-    # rollout of the rest of the plan is accurate over such a short horizon.
-    assert len(every) >= 6, [r.message for r in every]
-    assert len(skipping) <= len(every) // 2, ([r.message for r in skipping], len(every))
-    assert np.max(np.abs(final - GOAL_Q)) < 1e-3

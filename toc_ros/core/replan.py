@@ -46,6 +46,14 @@ def control_at(times, controls, t):
     return controls[i]
 
 
+def controls_at(times, controls, t):
+    """Return control_at for every time of the array t (rows), vectorised."""
+    t = np.asarray(t, dtype=float)
+    index = np.clip(np.searchsorted(times, t, side='right') - 1, 0, controls.shape[0] - 1)
+    inside = (t >= times[0]) & (t < times[-1])
+    return np.where(inside[:, None], np.asarray(controls, dtype=float)[index], 0.0)
+
+
 def predict(model, x, times, controls, t0, t1):
     """
     Return the state at plan time t1 from state x at plan time t0 under the plan's controls.
@@ -60,7 +68,7 @@ def predict(model, x, times, controls, t0, t1):
     steps = max(1, math.ceil(span / PREDICT_STEP_S))
     dt = span / steps
     mids = float(t0) + dt * (np.arange(steps) + 0.5)
-    u = np.array([control_at(times, controls, t) for t in mids], dtype=float)
+    u = controls_at(times, controls, mids)
     states = np.empty((steps + 1, model.nx))
     model.kernels.rollout(x, np.ascontiguousarray(u), dt, model.packed(), RK4, states)
     return states[-1].copy()

@@ -76,12 +76,6 @@ class SolverNodeSettings:
         'to 0.2 s), from the state predicted along the executing plan; a cycle not published '
         'by then keeps the executing plan', unit='s', low=0.001,
         high=1.0, ros_name='replan.lead')
-    replan_on_course: float = setting(
-        1e-3, 'a replan.rate cycle is skipped while the executing plan, rolled out with the '
-        'model from the predicted state, still ends within this of the goal (and its speed '
-        'within this per 0.1 s): near the end of a time-optimal plan a replan from a state a '
-        'little too fast costs an overshoot where the tracker needs none; 0 = never skip',
-        unit='rad or m', low=0.0, high=1e3, ros_name='replan.on_course')
     replan_estimate: Tuple[str, ...] = setting(
         (), 'model parameters (e.g. hand_mass, inertia; m_p) that the replan cycles estimate '
         'online from joint_states (position, velocity and effort = the applied u) and plan '

@@ -123,8 +123,6 @@ QUIET_FIRST_S = 0.005
 SETTLE_MAX_S = 0.5
 # Queue depth of the services: every request of a burst is kept and answered.
 SERVICE_QOS = QoSProfile(depth=100)
-# replan.on_course: the executing plan's end speed must be within replan.on_course per this.
-ON_COURSE_TIME_S = 0.1
 # The cycles' model follows the online estimate when a parameter moved by more than this
 # (relative) from the one planned with.
 ESTIMATE_CHANGE = 0.01
@@ -837,9 +835,6 @@ class SolverNode(Node):
         if plan['duration'] - start_at < float(params['replan.min_remaining']):
             return False
         start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
-        if reason == 'rate' and self._on_course(plan, start, start_at, params):
-            self._next_cycle = received + 1.0 / rate
-            return False
         request = _Request(plan['goal'], CYCLE_SOURCE)
         request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason,
                                revision)
@@ -847,27 +842,6 @@ class SolverNode(Node):
             return False
         self._next_cycle = received + 1.0 / rate
         return True
-
-    @staticmethod
-    def _on_course(plan, start, start_at, params):
-        """
-        Tell whether the executing plan still arrives from the predicted state (no cycle due).
-
-        Its controls, rolled out with the model from the predicted start to the plan's end,
-        must put every joint within replan.on_course of the goal and its speed within
-        replan.on_course per 0.1 s.  Near the end of a time-optimal plan both joints brake at
-        their bounds: a minimum-time cycle from a state a few 1e-4 rad/s fast plans an
-        overshoot and a return (tens of ms later, hundreds of iterations), where the tracker
-        only overshoots by a fraction of a millimetre.
-        """
-        tolerance = float(params['replan.on_course'])
-        if not tolerance > 0.0:
-            return False
-        end = predict(plan['model'], start, plan['times'], plan['controls'], start_at,
-                      plan['duration'])
-        goal = plan['goal']
-        return bool(np.max(np.abs(end[0::2] - goal[0::2])) <= tolerance
-                    and np.max(np.abs(end[1::2] - goal[1::2])) <= tolerance / ON_COURSE_TIME_S)
 
     def _cycle_latency(self):
         """Return 1.5 x the 90th percentile of recent cycle latencies (0 without any) [s]."""
