@@ -296,4 +296,3 @@ def test_unknown_estimated_parameter_is_refused(loop):
     results = loop.client.set_parameters('solver_node', {'replan.estimate': ['wheel_radius']})
     assert not results[0].successful
     assert 'wheel_radius' in results[0].reason and 'hand_mass' in results[0].reason
-
