@@ -164,3 +164,19 @@ def assert_feasible(problem, result, tol=1e-6):
         sampled = sampled_clearance(measured['states'], circles, robot['a'])
         assert np.all(sampled >= closed - 1e-12) and np.max(sampled - closed) < 1e-3
     return measured
+
+
+def planar_2r_f(x, u, l1=1.0, l2=0.8, m1=12.0, m2=8.0, mp=2.0, g=0.0):
+    """planar_2r of issue 13 from its Lagrangian, written out here (not the package's)."""
+    q1, dq1, q2, dq2 = x
+    a = (m1 / 3.0 + m2 + mp) * l1 ** 2
+    b = (m2 / 3.0 + mp) * l2 ** 2
+    c = (m2 / 2.0 + mp) * l1 * l2
+    mass = np.array([[a + b + 2.0 * c * np.cos(q2), b + c * np.cos(q2)],
+                     [b + c * np.cos(q2), b]])
+    coriolis = c * np.sin(q2) * np.array([-(2.0 * dq1 * dq2 + dq2 ** 2), dq1 ** 2])
+    gravity = np.array([g * (m1 / 2.0 + m2 + mp) * l1 * np.cos(q1)
+                        + g * (m2 / 2.0 + mp) * l2 * np.cos(q1 + q2),
+                        g * (m2 / 2.0 + mp) * l2 * np.cos(q1 + q2)])
+    ddq = np.linalg.solve(mass, np.asarray(u) - coriolis - gravity)
+    return np.array([dq1, ddq[0], dq2, ddq[1]])

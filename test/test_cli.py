@@ -200,22 +200,6 @@ def test_ctrl_c_cancels_and_returns_the_best_so_far(tmp_path):
     assert data['status'] == 'CANCELED' and 0 < data['iterations'] < 1000000
 
 
-def _planar_2r_rhs(x, u, l1=1.0, l2=0.8, m1=12.0, m2=8.0, mp=2.0, g=0.0):
-    """planar_2r of issue 13 from its Lagrangian, written out here (not the package's)."""
-    q1, dq1, q2, dq2 = x
-    a = (m1 / 3.0 + m2 + mp) * l1 ** 2
-    b = (m2 / 3.0 + mp) * l2 ** 2
-    c = (m2 / 2.0 + mp) * l1 * l2
-    mass = np.array([[a + b + 2.0 * c * np.cos(q2), b + c * np.cos(q2)],
-                     [b + c * np.cos(q2), b]])
-    coriolis = c * np.sin(q2) * np.array([-(2.0 * dq1 * dq2 + dq2 ** 2), dq1 ** 2])
-    gravity = np.array([g * (m1 / 2.0 + m2 + mp) * l1 * np.cos(q1)
-                        + g * (m2 / 2.0 + mp) * l2 * np.cos(q1 + q2),
-                        g * (m2 / 2.0 + mp) * l2 * np.cos(q1 + q2)])
-    ddq = np.linalg.solve(mass, np.asarray(u) - coriolis - gravity)
-    return np.array([dq1, ddq[0], dq2, ddq[1]])
-
-
 def test_model_planar_2r_solves_and_reintegrates_independently(tmp_path):
     out = tmp_path / 'planar.json'
     proc = _run('--model', 'planar_2r', '--no-obstacles', '--N', '100', '--start', '0', '1',
@@ -228,7 +212,7 @@ def test_model_planar_2r_solves_and_reintegrates_independently(tmp_path):
     tau = data['final_time'] / 100
     x = np.array([0.0, 0.0, 1.0, 0.0])
     for u in controls:      # the paper's Euler discretisation
-        x = x + tau * _planar_2r_rhs(x, u)
+        x = x + tau * nm.planar_2r_f(x, u)
     assert np.allclose(x, [1.0, 0.0, 0.5, 0.0], atol=1e-6), x
     assert np.allclose(data['states'][-1], x, atol=1e-9)
 
@@ -244,7 +228,7 @@ def test_model_file_with_param_and_gravity(tmp_path):
     tau = data['final_time'] / 100
     x = np.array([0.0, 0.0, 1.0, 0.0])
     for u in np.array(data['controls']):
-        x = x + tau * _planar_2r_rhs(x, u, l1=0.9, g=9.81)
+        x = x + tau * nm.planar_2r_f(x, u, l1=0.9, g=9.81)
     assert np.allclose(x, [1.0, 0.0, 0.5, 0.0], atol=1e-6), x
 
 

@@ -55,19 +55,8 @@ def _feed(estimator, rhs, x0, u_max, t_end, dt=1e-3, sample_every=10, hold=10):
     return x
 
 
-def _planar_rhs(x, u, m1=12.0, m2=8.0, m_p=2.0, l1=1.0, l2=0.8, g=9.81):
-    q1, dq1, q2, dq2 = x
-    a = (m1 / 3.0 + m2 + m_p) * l1 ** 2
-    b = (m2 / 3.0 + m_p) * l2 ** 2
-    c = (m2 / 2.0 + m_p) * l1 * l2
-    mass = np.array([[a + b + 2 * c * math.cos(q2), b + c * math.cos(q2)],
-                     [b + c * math.cos(q2), b]])
-    h = np.array([-c * math.sin(q2) * (2 * dq1 * dq2 + dq2 ** 2), c * math.sin(q2) * dq1 ** 2])
-    grav = g * np.array([(m1 / 2 + m2 + m_p) * l1 * math.cos(q1)
-                         + (m2 / 2 + m_p) * l2 * math.cos(q1 + q2),
-                         (m2 / 2 + m_p) * l2 * math.cos(q1 + q2)])
-    ddq = np.linalg.solve(mass, u - h - grav)
-    return np.array([dq1, ddq[0], dq2, ddq[1]])
+def _planar_rhs(x, u, m_p=2.0, m2=8.0):
+    return nm.planar_2r_f(x, u, m2=m2, mp=m_p, g=9.81)
 
 
 def test_heavier_cylindrical_plant_is_identified():

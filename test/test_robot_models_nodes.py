@@ -321,7 +321,7 @@ def test_plant_step_is_the_models_rk4():
     states = np.empty((2, 4))
     model.kernels.rollout(x, u, 1e-3, model.packed(), integrator_id('rk4'), states)
     # Independent RK4 of the planar_2r equations (test_cli's written-out version).
-    from test_cli import _planar_2r_rhs as f
+    from numpy_model import planar_2r_f as f
     h = 1e-3
     k1 = f(x, u[0])
     k2 = f(x + h / 2 * k1, u[0])
