@@ -269,23 +269,6 @@ def test_replanning_from_a_moving_state_with_the_plan_remainder():
     nm.assert_feasible(drifted, pair)
 
 
-def test_without_cold_fallback_a_failed_warm_start_is_reported_not_solved_again():
-    problem = replace(Problem(), n_intervals=200)
-    # A guess that goes the wrong way round the circle at full speed: the warm start fails
-    # within the warm budget, after which fast mode normally solves from scratch.
-    guess = (np.tile([-600.0, 500.0], (200, 1)), 0.3)
-    options = SolverOptions(max_iterations=fsv.WARM_BUDGET + 400)
-    cold = solve(problem, options)
-    fallback = solve(problem, options, initial_guess=guess)
-    assert fallback.status is Status.SOLVED, fallback.message
-    assert fallback.iterations == fsv.WARM_BUDGET + cold.iterations
-    assert fallback.final_time == pytest.approx(cold.final_time, rel=1e-9)
-    # Replan cycles: no cold fallback; the warm start runs on to the limit and says so.
-    warm_only = solve(problem, replace(options, cold_fallback=False), initial_guess=guess)
-    assert warm_only.status is Status.MAX_ITERATIONS
-    assert warm_only.iterations == options.max_iterations
-
-
 @pytest.mark.parametrize('guess, words', [
     ((np.zeros((10, 3)), 2.0), 'M x 2'),
     ((np.zeros((10, 2)), -1.0), 'positive final time'),

@@ -494,11 +494,9 @@ class FastSolve:
                 else:
                     mu, push = min(MU_WARM / n, max(MU_EXACT, 1e-4 * drift)), BOUND_PUSH
                 rho = None if duals is None else duals.get('rho')
-                budget = WARM_BUDGET if self.options.cold_fallback else self.limit
                 run, code = self._solve_on(n, states, controls, t_f, mu, duals,
-                                           budget=budget, push=push, elastic=rho)
-                if code != ipm.CONVERGED and self.done < self.limit \
-                        and self.options.cold_fallback:
+                                           budget=WARM_BUDGET, push=push, elastic=rho)
+                if code != ipm.CONVERGED and self.done < self.limit:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None
                     return self.solve()

@@ -197,9 +197,6 @@ class SolverOptions:
                                        unit='s', low=0.0, high=86400.0, none_value=0.0,
                                        ros_default=60.0)
     progress_period: float = 0.1         # [s] between progress callbacks
-    # Fast mode: a warm start that fails is solved again from scratch (cold attempts).  Replan
-    # cycles turn it off: a cold solve never fits their time limit, they keep the plan instead.
-    cold_fallback: bool = True
     paper: PaperOptions = field(default_factory=PaperOptions)
 
     def iteration_limit(self):

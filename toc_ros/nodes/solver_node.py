@@ -246,6 +246,7 @@ class _Request:
         self.event = ''                  # schema event of its result (e.g. a replacement)
         self.result = None               # SolveResult once solved (None when dropped)
         self.cycle = None                # a replan cycle's data (_Cycle), None for goals
+        self.published_at = None         # time.monotonic() when its trajectory was published
         self.path = None                 # nav_msgs/Path when a trajectory was published
         self.done = threading.Event()
         self._lock = threading.Lock()
@@ -872,7 +873,7 @@ class SolverNode(Node):
             problem = dataclasses.replace(problem, n_intervals=nodes)
             # A cycle is worthless once its plan should have started: that is its time limit.
             options = options_from_parameters(params)
-            options = dataclasses.replace(options, cold_fallback=False, timeout=max(min(
+            options = dataclasses.replace(options, timeout=max(min(
                 cycle.stamp_s - self._now(), options.timeout or math.inf), MIN_CYCLE_TIMEOUT_S))
             if guess.controls.shape[0] < MIN_CYCLE_GUESS_NODES:
                 why = f'only {guess.controls.shape[0]} plan nodes left'
@@ -897,7 +898,8 @@ class SolverNode(Node):
                 if not published:
                     why = 'the planning data changed during the cycle and the plan ' \
                           'violates the new data'
-        latency = time.monotonic() - cycle.received
+        # joint_states received -> trajectory published (the path and markers come after).
+        latency = (request.published_at if published else time.monotonic()) - cycle.received
         if result is not None and result.status is Status.SOLVED:
             # Solved cycles only (published or late): a timed-out one lasts as long as the lead
             # it was given and would only feed its own lead back.
@@ -1212,6 +1214,7 @@ class SolverNode(Node):
                                                   x_goal=problem.x_goal)
                 revision = self._revision
             self._trajectory_pub.publish(trajectory)
+            request.published_at = time.monotonic()
             self._executing = {
                 'start': start, 'duration': float(result.time_grid[-1]),
                 'times': np.asarray(result.time_grid, dtype=float),
