@@ -37,7 +37,7 @@ import time
 
 import numpy as np
 
-from . import ipm
+from . import homotopy, ipm
 from .obstacles import segment_clearance
 from .result import SolveResult, Status
 
@@ -80,12 +80,21 @@ ELASTIC_WEIGHT = 1.0
 COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
                  (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
 EXPLORE_NONCONVEX = 20
+# Attempts (elastic weight, initial barrier parameter) from each class start of homotopy.py
+# (collision-free starts, one per homotopy class of a two-joint configuration space): the first
+# cold attempt's pair and a large mu, whose central path stays away from the bounds longer
+# (on planar_2r each found optima the other missed).
+CLASS_ATTEMPT = (ELASTIC_WEIGHT, MU_COLD)
 # Fraction of a solve's timeout after which no further cold attempt starts.
 EXPLORE_TIME = 0.25
 # Converged coarse optima within REFINE_BAND of the shortest are refined on the N grid (at most
 # MAX_REFINE distinct ones); the shortest refined one is the result.
 REFINE_BAND = 0.02
 MAX_REFINE = 3
+# Grid of the cold attempts from the class starts (when the coarse grid is not the N grid).
+EXPLORE_INTERVALS = 50
+# Refinement from the coarse grid to N intervals in steps of at most LADDER_RATIO (ladder()).
+LADDER_RATIO = 4.0
 # [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
 STOP_POLL = 0.005
 # Box on t_f [s].
@@ -313,6 +322,16 @@ def interpolation_start(problem, n):
     states = np.empty((n + 1, model.nx))
     states[:, 0::2] = q
     states[:, 1::2] = dq
+    return states, controls_for(model, states, t_f), t_f
+
+
+def controls_for(model, states, t_f):
+    """
+    Return controls (n, nu) whose Euler steps follow states (n + 1, nx) over t_f, clipped.
+
+    Least squares through df/du at u = 0 (exact for models affine in u).
+    """
+    n = states.shape[0] - 1
     tau = t_f / n
     k = model.kernels
     p = model.packed()
@@ -326,7 +345,20 @@ def interpolation_start(problem, n):
     # One stacked pseudo-inverse instead of n lstsq calls (that loop was ~3 ms at n = 100).
     target = (states[1:] - states[:-1]) / tau - f
     u = np.matmul(np.linalg.pinv(fu), target[:, :, None])[:, :, 0]
-    return states, np.clip(u, -u_max, u_max), t_f
+    return np.clip(u, -u_max, u_max)
+
+
+def ladder(coarse, n):
+    """
+    Intermediate grids between coarse and n intervals, a geometric sequence (ratio <= 4).
+
+    A refinement that jumps by 10 needs ~45 iterations on the N grid (planar_2r, N = 1000),
+    one via 316 intervals ~20 there plus ~20 on the cheaper grid.
+    """
+    if n <= coarse:
+        return []
+    steps = int(math.ceil(math.log(n / coarse) / math.log(LADDER_RATIO) - 1e-12))
+    return [int(round(coarse * (n / coarse) ** (k / steps))) for k in range(1, steps)]
 
 
 def resample(states, controls, n):
@@ -523,47 +555,38 @@ class FastSolve:
         """
         Solve from the cold start and return (run, code).
 
-        Each attempt of COLD_ATTEMPTS (elastic weight, barrier parameter) runs from the cold
-        start on the coarse grid (on the N grid itself when N <= 2 COARSE_INTERVALS); the
-        distinct converged ones within REFINE_BAND of the shortest are refined on the N grid
-        from their primal-dual solution, and the shortest converged refinement is returned.
-        The attempts after the first run only when _explore says so.  When nothing converges,
-        the N grid from the cold start with each barrier parameter of MU_COLD_RETRIES in turn
-        (the central path from another mu can lead into another basin).
+        Attempts (start, elastic weight, barrier parameter) run on the coarse grid (on the N
+        grid itself when N <= 2 COARSE_INTERVALS): the interpolation start with the first pair
+        of COLD_ATTEMPTS; when _explore says so, the class starts of homotopy.py with each pair
+        of CLASS_ATTEMPTS, and only when none of those converges (or there are none: another
+        number of joints, no hole) the interpolation start with the other pairs of
+        COLD_ATTEMPTS.  The distinct converged ones within REFINE_BAND of the shortest are
+        refined (_finish).  When nothing converges, the N grid from the cold start with each
+        barrier parameter of MU_COLD_RETRIES in turn (the central path from another mu can
+        lead into another basin).
         """
         problem = self.problem
         grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
         found = []
-        first = None
         start = interpolation_start(problem, grid)
-        for k, (rho, mu) in enumerate(COLD_ATTEMPTS):
-            if self.done >= self.limit or (k > 0 and not self._explore(first)):
-                break
-            states, controls, t_f = start
-            run, code = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
-                                       budget=max(1, self.limit // (8 if grid < n else 4)))
-            first = first or (run, code)
-            if code == ipm.CONVERGED:
-                found.append(run)
+        # Class starts on a coarser grid still when the coarse grid is not the N grid (their
+        # candidates are carried up by _finish like the others).
+        explore = min(grid, EXPLORE_INTERVALS) if grid < n else grid
+        for point in self._class_starts(start, explore):
+            if self._may_explore():
+                self._attempt(explore, n, point, CLASS_ATTEMPT, found)
+        first = None
+        if not found:
+            first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
+            if self._explore(first):
+                for pair in COLD_ATTEMPTS[1:]:
+                    if self._may_explore():
+                        self._attempt(grid, n, start, pair, found)
         found.sort(key=lambda r: r.t_f)      # stable: ties keep the attempts' order
         if grid == n and found:
             return found[0], ipm.CONVERGED
-        # Refine the distinct coarse optima close to the best one (the coarse grid's ranking
-        # of nearby optima is not the N grid's), keep the shortest converged one.
-        refined = []
-        for coarse in found if grid < n else ():
-            if self.done >= self.limit or len(refined) >= MAX_REFINE \
-                    or coarse.t_f > (1.0 + REFINE_BAND) * found[0].t_f:
-                break
-            if any(abs(coarse.t_f - t) <= 1e-6 * t for t in refined):
-                continue
-            refined.append(coarse.t_f)
-            states, controls = resample(coarse.ws.x, coarse.controls(), n)
-            duals = resample_duals(coarse.duals(), grid, n)
-            run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
-                                       budget=max(1, self.limit // 4), elastic=duals['rho'])
-            if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
-                self.best = run
+        if found:
+            self._finish(found, n)
         if self.best is not None:
             return self.best, ipm.CONVERGED
         for mu in MU_COLD_RETRIES:
@@ -577,21 +600,103 @@ class FastSolve:
                 return run, code
         return first
 
+    def _class_starts(self, start, m):
+        """
+        Return the class starts of homotopy.py on m intervals, or [] when there are none.
+
+        Only when the interpolation start (on the coarse grid) crosses an obstacle: then the
+        side of each obstacle it ends on is arbitrary, while a start already on one side of
+        each keeps its iterates out of the obstacles (fewer, convex iterations).
+        """
+        model = self.problem.robot_model
+        if not len(self.problem.obstacles) or model.n_joints != 2:
+            return []
+        seg = model.link_segments(model.positions(start[0]))
+        if np.min(segment_clearance(seg, self.problem.circles())) >= 0.0:
+            return []
+        return [homotopy.path_start(self.problem, path, m)
+                for path in homotopy.class_paths(self.problem)]
+
+    def _attempt(self, grid, n, start, pair, found):
+        """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
+        states, controls, t_f = start
+        rho, mu = pair
+        run, code = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
+                                   budget=max(1, self.limit // (8 if grid < n else 4)))
+        if code == ipm.CONVERGED:
+            found.append(run)
+        return run, code
+
+    def _finish(self, found, n):
+        """
+        Refine the distinct coarse optima close to the best one; set self.best.
+
+        The coarse grid's ranking of nearby optima is not the N grid's, so the distinct
+        converged ones within REFINE_BAND of the shortest (at most MAX_REFINE) are carried up.
+        Through the intermediate grids of ladder() when there are any (each step a few cheap
+        iterations, fewer in all than one jump to N): every candidate to the last intermediate
+        grid, then the shortest converged there to N (the next one if it fails).  Without
+        intermediate grids each candidate goes to N and the shortest converged one is kept.
+        """
+        candidates = []
+        for coarse in found:
+            if self.done >= self.limit or len(candidates) >= MAX_REFINE:
+                break
+            # The band scales with the discretisation error, ~ 1 / intervals.
+            band = REFINE_BAND * COARSE_INTERVALS / min(coarse.n, COARSE_INTERVALS)
+            if coarse.t_f <= (1.0 + band) * found[0].t_f and \
+                    not any(abs(coarse.t_f - c.t_f) <= 1e-6 * c.t_f for c in candidates):
+                candidates.append(coarse)
+        # Rank on the last grid of the ladder from the coarse grid (N when there is none).
+        rank = (ladder(COARSE_INTERVALS, n) or [n])[-1]
+        ranked = []
+        for run in candidates:
+            code = ipm.CONVERGED
+            for m in ladder(run.n, rank) + [rank]:
+                if self.done >= self.limit or code != ipm.CONVERGED:
+                    break
+                run, code = self._refine(run, m)
+                if m == n and code == ipm.CONVERGED \
+                        and (self.best is None or run.t_f < self.best.t_f):
+                    self.best = run
+            if code == ipm.CONVERGED and run.n == rank:
+                ranked.append(run)
+        if rank == n:
+            return
+        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
+            if self.done >= self.limit:
+                break
+            run, code = self._refine(run, n)
+            if code == ipm.CONVERGED:
+                self.best = run
+                return
+
+    def _refine(self, run, n):
+        """Carry a converged run's primal-dual solution to n intervals and solve there."""
+        states, controls = resample(run.ws.x, run.controls(), n)
+        duals = resample_duals(run.duals(), run.n, n)
+        return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
+                              budget=max(1, self.limit // 4), elastic=duals['rho'])
+
+    def _may_explore(self):
+        """Return whether a further cold attempt may start (obstacles, budget and time)."""
+        if not len(self.problem.obstacles) or self.done >= self.limit // 2:
+            return False
+        timeout = self.options.timeout
+        return timeout is None or self.clock.elapsed() < EXPLORE_TIME * timeout
+
     def _explore(self, first):
         """
         Return whether to run the cold attempts after the first one (first: its run, code).
 
-        Only with obstacles, within half the iteration budget (and, with a timeout, within
-        EXPLORE_TIME of it, leaving the rest for the N grid), and only when the first attempt
-        failed or needed the inertia correction (negative curvature) on more than
-        EXPLORE_NONCONVEX iterations: its path crossed a nonconvex region, where other local
-        optima are likely.  A start that leads straight into its basin (the paper scenario:
-        5 such iterations of 35) is not re-solved.
+        Only when _may_explore (with obstacles, within half the iteration budget and, with a
+        timeout, within EXPLORE_TIME of it, leaving the rest for the N grid), and only when the
+        first attempt failed or needed the inertia correction (negative curvature) on more
+        than EXPLORE_NONCONVEX iterations: its path crossed a nonconvex region, where other
+        local optima are likely.  A start that leads straight into its basin (the paper
+        scenario: 5 such iterations of 35) is not re-solved.
         """
-        if not len(self.problem.obstacles) or self.done >= self.limit // 2:
-            return False
-        timeout = self.options.timeout
-        if timeout is not None and self.clock.elapsed() >= EXPLORE_TIME * timeout:
+        if not self._may_explore():
             return False
         run, code = first
         shifted = np.count_nonzero(run.ws.hist[:run.iterations, ipm.H_DELTA] > 0.0)
