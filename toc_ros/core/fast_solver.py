@@ -25,7 +25,10 @@ constraints:
           dist(link segment at node i, c_k) >= R_k    (eq. 41 for every link, any quadrant)
 
 A cold solve first runs on a coarse grid (COARSE_INTERVALS), whose solution (primal and dual)
-is carried to the requested grid, where a few Newton-type iterations finish.  A warm start
+is carried to the requested grid through intermediate grids (ladder), where a few Newton-type
+iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
+per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
+threads (workers.py).  A warm start
 (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
 being executed) skips the coarse grid.
 """
@@ -37,7 +40,7 @@ import time
 
 import numpy as np
 
-from . import homotopy, ipm
+from . import homotopy, ipm, workers
 from .obstacles import segment_clearance
 from .result import SolveResult, Status
 
@@ -80,18 +83,22 @@ ELASTIC_WEIGHT = 1.0
 COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
                  (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
 EXPLORE_NONCONVEX = 20
-# Attempts (elastic weight, initial barrier parameter) from each class start of homotopy.py
-# (collision-free starts, one per homotopy class of a two-joint configuration space): the first
-# cold attempt's pair and a large mu, whose central path stays away from the bounds longer
-# (on planar_2r each found optima the other missed).
+# (Elastic weight, initial barrier parameter) of the attempt from each class start of
+# homotopy.py (near collision-free starts, one per homotopy class of a two-joint configuration
+# space), tried instead of the interpolation start when that crosses an obstacle.  The first
+# cold attempt's pair: on the 12 planar_2r scenarios of bench_planar_2r.py it reached the best
+# known optimum from some class start in every one (so did mu0 = 1.0, at more iterations).
 CLASS_ATTEMPT = (ELASTIC_WEIGHT, MU_COLD)
 # Fraction of a solve's timeout after which no further cold attempt starts.
 EXPLORE_TIME = 0.25
-# Converged coarse optima within REFINE_BAND of the shortest are refined on the N grid (at most
-# MAX_REFINE distinct ones); the shortest refined one is the result.
+# Converged coarse optima within REFINE_BAND of the shortest (scaled by COARSE_INTERVALS / their
+# grid: the discretisation error ~ 1 / intervals) are refined (at most MAX_REFINE distinct
+# ones); the shortest refined one is the result (_finish).
 REFINE_BAND = 0.02
 MAX_REFINE = 3
-# Grid of the cold attempts from the class starts (when the coarse grid is not the N grid).
+# Grid of the cold attempts from the class starts (when the coarse grid is not the N grid):
+# half the cost per iteration and fewer iterations than on COARSE_INTERVALS, the same optima
+# after refinement on planar_2r (with mu0 = 0.01 on 100 intervals two of them were missed).
 EXPLORE_INTERVALS = 50
 # Refinement from the coarse grid to N intervals in steps of at most LADDER_RATIO (ladder()).
 LADDER_RATIO = 4.0
@@ -572,9 +579,15 @@ class FastSolve:
         # Class starts on a coarser grid still when the coarse grid is not the N grid (their
         # candidates are carried up by _finish like the others).
         explore = min(grid, EXPLORE_INTERVALS) if grid < n else grid
-        for point in self._class_starts(start, explore):
-            if self._may_explore():
-                self._attempt(explore, n, point, CLASS_ATTEMPT, found)
+        starts = self._class_starts(start, explore)
+        if starts and self._may_explore():
+            rho, mu = CLASS_ATTEMPT
+            # Each limit // 8 (// 4 on the N grid), all within the iteration limit.
+            budget = max(1, min(self.limit // (8 if explore < n else 4),
+                                (self.limit - self.done) // len(starts)))
+            tasks = [lambda solve, point=point: solve(explore, *point, mu, None, budget, rho)
+                     for point in starts]
+            found += [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED]
         first = None
         if not found:
             first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
@@ -637,6 +650,8 @@ class FastSolve:
         iterations, fewer in all than one jump to N): every candidate to the last intermediate
         grid, then the shortest converged there to N (the next one if it fails).  Without
         intermediate grids each candidate goes to N and the shortest converged one is kept.
+        The candidates climb the ladder side by side (_parallel), each within an equal share of
+        the iterations left.
         """
         candidates = []
         for coarse in found:
@@ -649,20 +664,34 @@ class FastSolve:
                 candidates.append(coarse)
         # Rank on the last grid of the ladder from the coarse grid (N when there is none).
         rank = (ladder(COARSE_INTERVALS, n) or [n])[-1]
-        ranked = []
-        for run in candidates:
-            code = ipm.CONVERGED
-            for m in ladder(run.n, rank) + [rank]:
-                if self.done >= self.limit or code != ipm.CONVERGED:
-                    break
-                run, code = self._refine(run, m)
-                if m == n and code == ipm.CONVERGED \
-                        and (self.best is None or run.t_f < self.best.t_f):
-                    self.best = run
-            if code == ipm.CONVERGED and run.n == rank:
-                ranked.append(run)
         if rank == n:
+            for coarse in candidates:
+                if self.done >= self.limit:
+                    break
+                run, code = self._refine(coarse, n)
+                if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
+                    self.best = run
             return
+        # The candidates side by side (_parallel), each up its own ladder within its share.
+        allowance = max(1, (self.limit - self.done) // len(candidates))
+
+        def climb(solve, run):
+            used, code = 0, ipm.CONVERGED
+            for m in ladder(run.n, rank) + [rank]:
+                if used >= allowance:
+                    return run, ipm.ITERATION_LIMIT
+                states, controls = resample(run.ws.x, run.controls(), m)
+                duals = resample_duals(run.duals(), run.n, m)
+                run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
+                                  min(self.limit // 4, allowance - used), duals['rho'])
+                used += run.iterations
+                if code != ipm.CONVERGED:
+                    break
+            return run, code
+
+        ranked = [run for run, code in self._parallel(
+            [lambda solve, run=run: climb(solve, run) for run in candidates])
+            if code == ipm.CONVERGED]
         for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
             if self.done >= self.limit:
                 break
@@ -670,6 +699,54 @@ class FastSolve:
             if code == ipm.CONVERGED:
                 self.best = run
                 return
+
+    def _parallel(self, tasks):
+        """
+        Run tasks (callables solve -> value) on the worker threads; return their values.
+
+        solve(n, states, controls, t_f, mu, duals, budget, elastic) is a worker's _solve_on:
+        it neither records its run nor reports progress (this thread does, meanwhile and, in
+        task order, afterwards), and only the fixed budget caps it, so a task's result does not
+        depend on the others' timing (workers.py).
+        """
+        logs = [[] for _ in tasks]
+        stop_requested = lambda: self.clock.stop_reason() is not None  # noqa: E731
+
+        caller = threading.current_thread()
+
+        def check(run):
+            reason = self.clock.stop_reason()
+            if reason is not None:
+                raise Stop(reason)
+            if threading.current_thread() is caller:
+                poll()          # the tasks run one after the other (workers.run_tasks)
+
+        def bind(task, log):
+            def solve(n, states, controls, t_f, mu, duals, budget, elastic):
+                run = InteriorPointRun(self.problem, n, budget, elastic)
+                run.start(states, controls, t_f, mu, duals)
+                log.append(run)
+                code = run.run(check, stop_requested)
+                if code == ipm.STOPPED:
+                    raise Stop(self.clock.stop_reason() or Status.CANCELED)
+                return run, code
+            return lambda: task(solve)
+
+        def poll():
+            runs = [run for log in logs for run in log]
+            if runs:
+                from .result import Progress
+                its = self.done + sum(run.iterations for run in runs)
+                self.clock.report(lambda: Progress(
+                    its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
+                    f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
+
+        try:
+            return workers.run_tasks([bind(t, log) for t, log in zip(tasks, logs)], poll)
+        finally:
+            for run in (run for log in logs for run in log):
+                self._record(run)
+                self.run = run
 
     def _refine(self, run, n):
         """Carry a converged run's primal-dual solution to n intervals and solve there."""
