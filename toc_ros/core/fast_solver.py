@@ -563,12 +563,13 @@ class FastSolve:
         Solve from the cold start and return (run, code).
 
         Attempts (start, elastic weight, barrier parameter) run on the coarse grid (on the N
-        grid itself when N <= 2 COARSE_INTERVALS): the interpolation start with the first pair
-        of COLD_ATTEMPTS; when _explore says so, the class starts of homotopy.py with each pair
-        of CLASS_ATTEMPTS, and only when none of those converges (or there are none: another
-        number of joints, no hole) the interpolation start with the other pairs of
-        COLD_ATTEMPTS.  The distinct converged ones within REFINE_BAND of the shortest are
-        refined (_finish).  When nothing converges, the N grid from the cold start with each
+        grid itself when N <= 2 COARSE_INTERVALS).  When N > 2 COARSE_INTERVALS and the
+        interpolation start crosses an obstacle of a two-joint model: the class starts of
+        homotopy.py with CLASS_ATTEMPT, on EXPLORE_INTERVALS, side by side.  When there are
+        none (another number of joints, no hole inside the grid) or none of them converges: the
+        interpolation start with the first pair of COLD_ATTEMPTS and, when _explore says so,
+        with the other pairs.  The distinct converged ones within REFINE_BAND of the shortest
+        are refined (_finish).  When nothing converges, the N grid from the cold start with each
         barrier parameter of MU_COLD_RETRIES in turn (the central path from another mu can
         lead into another basin).
         """
@@ -576,10 +577,10 @@ class FastSolve:
         grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
         found = []
         start = interpolation_start(problem, grid)
-        # Class starts on a coarser grid still when the coarse grid is not the N grid (their
-        # candidates are carried up by _finish like the others).
-        explore = min(grid, EXPLORE_INTERVALS) if grid < n else grid
-        starts = self._class_starts(start, explore)
+        # Class starts on a coarser grid still (their candidates are carried up by _finish like
+        # the others); not when the coarse grid is the N grid (short horizons, a few ms).
+        explore = min(grid, EXPLORE_INTERVALS)
+        starts = self._class_starts(start, explore) if grid < n else []
         if starts and self._may_explore():
             rho, mu = CLASS_ATTEMPT
             # Each limit // 8 (// 4 on the N grid), all within the iteration limit.
