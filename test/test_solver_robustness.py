@@ -201,6 +201,14 @@ def test_class_starts_reach_the_best_known_optimum_in_few_iterations(name):
     assert result.iterations <= 600, result.iterations
 
 
+@pytest.mark.parametrize('limit', [3, 40, 200])
+def test_class_starts_keep_the_iteration_limit(limit):
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    result = solve(problem, SolverOptions(mode='fast', max_iterations=limit))
+    assert result.iterations <= limit, (result.iterations, limit)
+    assert result.status in (Status.SOLVED, Status.MAX_ITERATIONS, Status.STALLED), result.status
+
+
 def _winding(loop, point):
     """Winding number of the closed polygon loop (M, 2) around point (2,)."""
     d = loop - point

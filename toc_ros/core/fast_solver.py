@@ -581,11 +581,10 @@ class FastSolve:
         # the others); not when the coarse grid is the N grid (short horizons, a few ms).
         explore = min(grid, EXPLORE_INTERVALS)
         starts = self._class_starts(start, explore) if grid < n else []
-        if starts and self._may_explore():
+        # Each limit // 8, all within the iteration limit.
+        budget = min(self.limit // 8, (self.limit - self.done) // max(len(starts), 1))
+        if starts and budget >= 1 and self._may_explore():
             rho, mu = CLASS_ATTEMPT
-            # Each limit // 8 (// 4 on the N grid), all within the iteration limit.
-            budget = max(1, min(self.limit // (8 if explore < n else 4),
-                                (self.limit - self.done) // len(starts)))
             tasks = [lambda solve, point=point: solve(explore, *point, mu, None, budget, rho)
                      for point in starts]
             found += [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED]
@@ -680,7 +679,11 @@ class FastSolve:
                     self.best = run
             return
         # The candidates side by side (_parallel), each up its own ladder within its share.
-        allowance = max(1, (self.limit - self.done) // len(candidates))
+        left = self.limit - self.done
+        if left < 1:
+            return
+        candidates = candidates[:left]
+        allowance = left // len(candidates)
 
         def climb(solve, run):
             used, code = 0, ipm.CONVERGED
