@@ -155,7 +155,7 @@ def _check_best_so_far(problem, result):
 
 # Long solves: paper mode with a million iterations; fast mode (milliseconds at N = 1000) on a
 # long horizon with several circles, whose single iterations take tens of milliseconds.
-LONG = {'paper': PAPER, 'fast': replace(SCENARIOS['several_circles'], n_intervals=20000)}
+LONG = {'paper': PAPER, 'fast': replace(SCENARIOS['several_circles'], n_intervals=40000)}
 
 
 @pytest.mark.parametrize('mode', ['fast', 'paper'])
@@ -186,7 +186,7 @@ def test_timeout_is_honoured_within_100_ms(mode):
 def test_progress_is_reported_at_least_every_100_ms(mode):
     calls = []
     options = SolverOptions(mode=mode, timeout=1.5)
-    problem = PAPER if mode == 'paper' else replace(LONG['fast'], n_intervals=8000)
+    problem = LONG[mode]
     start = time.monotonic()
     result = solve(problem, options, progress=lambda p: calls.append((time.monotonic(), p)))
     stamps = np.array([start] + [t for t, _ in calls])

@@ -25,6 +25,11 @@ Fast mode on cases it used to fail: former STALLED random scenarios and planar_2
   attempts.  Checked by an Euler re-integration with the arm's closed-form dynamics written
   here in numpy, and the clearance of both links by numpy segment geometry; t_f against the
   best IPOPT t_f the benchmark measured on the same discretisation.
+* The five planar_2r scenarios that took 1000-1500 iterations of further cold attempts (two
+  ending in poorer local optima) before the class starts of homotopy.py; the class starts
+  themselves checked by independent geometry (clearance of both links along the paths, and
+  winding numbers around configurations inside the obstacles for distinct classes); the
+  parallel attempts against the same attempts one after the other, bit for bit.
 """
 
 import importlib.util
@@ -36,7 +41,7 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
-from toc_ros.core import Problem, solve, SolverOptions, Status, warm_up
+from toc_ros.core import homotopy, Problem, solve, SolverOptions, Status, warm_up, workers
 from toc_ros.core.models import load_model
 
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
@@ -59,6 +64,7 @@ RANDOM = {
 # planar_2r: q = (0, 0.3) -> (1.6, 0.3) at rest, circle A of bench_planar_2r.py; the best
 # IPOPT t_f of that benchmark (same start, or from fast mode's solution), before this change.
 CIRCLE_A = (1.50 * math.cos(0.35), 1.50 * math.sin(0.35), 0.12)
+CIRCLE_B = (1.45 * math.cos(1.30), 1.45 * math.sin(1.30), 0.12)
 PLANAR = {'g0': (0.0, 0.643441), 'g9.81': (9.81, 0.758213)}
 
 
@@ -126,13 +132,9 @@ def _planar_problem(g):
                    obstacles=(CIRCLE_A,), n_intervals=1000)
 
 
-@pytest.mark.parametrize('name', sorted(PLANAR))
-def test_planar_2r_active_circle_is_solved_feasible_for_both_links(name):
-    g, best_ipopt = PLANAR[name]
-    problem = _planar_problem(g)
+def _assert_planar_feasible(problem, result):
+    """Re-integrate (Euler, numpy) and check bounds, the goal and both links' clearance."""
     model = problem.robot_model
-    result = solve(problem, SolverOptions(mode='fast'))
-    assert result.status is Status.SOLVED, result.message
     controls = np.asarray(result.controls)
     n = problem.n_intervals
     assert controls.shape == (n, 2)
@@ -146,15 +148,126 @@ def test_planar_2r_active_circle_is_solved_feasible_for_both_links(name):
         states[i + 1] = states[i] + tau * _planar_rhs(states[i], controls[i], prm)
     assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= TOL
     np.testing.assert_allclose(result.states, states, rtol=0, atol=1e-9)
-    # Both links, every node 1..N, outside the inflated circle.
+    # Both links, every node 1..N, outside every inflated circle.
     q1, q2 = states[:, 0], states[:, 2]
     elbow = prm[0] * np.column_stack([np.cos(q1), np.sin(q1)])
     hand = elbow + prm[1] * np.column_stack([np.cos(q1 + q2), np.sin(q1 + q2)])
-    centre = np.tile(CIRCLE_A[:2], (n + 1, 1))
-    radius = CIRCLE_A[2] + problem.margin
-    for a, b in ((np.zeros_like(elbow), elbow), (elbow, hand)):
-        assert np.min(_segment_distance(a, b, centre)[1:]) >= radius - TOL
+    for circle in problem.obstacles:
+        centre = np.tile(circle[:2], (n + 1, 1))
+        radius = circle[2] + problem.margin
+        for a, b in ((np.zeros_like(elbow), elbow), (elbow, hand)):
+            assert np.min(_segment_distance(a, b, centre)[1:]) >= radius - TOL
+
+
+@pytest.mark.parametrize('name', sorted(PLANAR))
+def test_planar_2r_active_circle_is_solved_feasible_for_both_links(name):
+    g, best_ipopt = PLANAR[name]
+    problem = _planar_problem(g)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
     assert result.final_time <= (1.0 + GAP) * best_ipopt, (result.final_time, best_ipopt)
+
+
+def _bench_problem(circles, g, moving):
+    model = load_model('planar_2r', g=g)
+    x0 = model.state(np.array([0.0, 0.3]), np.array([0.8, -0.5]) if moving else None)
+    return Problem(model=model, x0=tuple(float(v) for v in x0),
+                   x_goal=tuple(float(v) for v in model.state(np.array([1.6, 0.3]))),
+                   obstacles=circles, n_intervals=1000)
+
+
+# The five scenarios of bench_planar_2r.py that the further cold attempts from the straight
+# start solved in 1046-1486 iterations (328-1180 ms), two of them in poorer local optima
+# (0.817221 s and 0.854373 s), before the class starts of homotopy.py: (circles, g, moving
+# start, best known t_f (checked by IPOPT started from it, benchmarks/RESULTS.md)).
+CLASS_CASES = {
+    '2 circles, g = 0': ((CIRCLE_A, CIRCLE_B), 0.0, False, 0.639760),
+    '2 circles, g = 0, moving start': ((CIRCLE_A, CIRCLE_B), 0.0, True, 0.612745),
+    '1 circle, g = 9.81': ((CIRCLE_A,), 9.81, False, 0.758211),
+    '2 circles, g = 9.81': ((CIRCLE_A, CIRCLE_B), 9.81, False, 0.758211),
+    '2 circles, g = 9.81, moving start': ((CIRCLE_A, CIRCLE_B), 9.81, True, 0.704656),
+}
+
+
+@pytest.mark.parametrize('name', sorted(CLASS_CASES))
+def test_class_starts_reach_the_best_known_optimum_in_few_iterations(name):
+    circles, g, moving, best = CLASS_CASES[name]
+    problem = _bench_problem(circles, g, moving)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert result.final_time <= (1.0 + GAP) * best, (result.final_time, best)
+    assert result.iterations <= 600, result.iterations
+
+
+@pytest.mark.parametrize('limit', [3, 40, 200])
+def test_class_starts_keep_the_iteration_limit(limit):
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    result = solve(problem, SolverOptions(mode='fast', max_iterations=limit))
+    assert result.iterations <= limit, (result.iterations, limit)
+    assert result.status in (Status.SOLVED, Status.MAX_ITERATIONS, Status.STALLED), result.status
+
+
+def _winding(loop, point):
+    """Winding number of the closed polygon loop (M, 2) around point (2,)."""
+    d = loop - point
+    angle = np.arctan2(d[:, 1], d[:, 0])
+    step = np.diff(np.concatenate([angle, angle[:1]]))
+    return int(round(np.sum((step + np.pi) % (2.0 * np.pi) - np.pi) / (2.0 * np.pi)))
+
+
+def test_class_starts_are_collision_free_and_pairwise_not_homotopic():
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    model = problem.robot_model
+    l1, l2 = model.params.l1, model.params.l2
+    paths = homotopy.class_paths(problem)
+    assert len(paths) == 4
+    radius = CIRCLE_A[2] + problem.margin
+    for path in paths:
+        assert np.allclose(path[0], [0.0, 0.3]) and np.allclose(path[-1], [1.6, 0.3])
+        # Dense along the polyline: both links clear of both circles but for a fraction of
+        # a grid cell (the grid's corners).
+        s = np.linspace(0.0, 1.0, 20)[:, None]
+        q = np.concatenate([(1.0 - s) * a + s * b for a, b in zip(path[:-1], path[1:])])
+        elbow = l1 * np.column_stack([np.cos(q[:, 0]), np.sin(q[:, 0])])
+        hand = elbow + l2 * np.column_stack([np.cos(q[:, 0] + q[:, 1]),
+                                             np.sin(q[:, 0] + q[:, 1])])
+        for circle in (CIRCLE_A, CIRCLE_B):
+            centre = np.tile(circle[:2], (q.shape[0], 1))
+            for a, b in ((np.zeros_like(elbow), elbow), (elbow, hand)):
+                assert np.min(_segment_distance(a, b, centre)) >= radius - 0.02
+        states, _, _ = homotopy.path_start(problem, path, 50)
+        assert np.array_equal(states[0], problem.x0)
+        assert np.array_equal(states[-1], problem.x_goal)
+    # Configurations with the hand on a circle's centre (both elbow branches, and copies
+    # shifted by 2 pi) lie inside the obstacles: a loop through two class paths that winds
+    # around one of them cannot be contracted in the free space.
+    inside = []
+    for cx, cy, _ in (CIRCLE_A, CIRCLE_B):
+        r = math.hypot(cx, cy)
+        elbow_angle = math.acos((r * r - l1 * l1 - l2 * l2) / (2.0 * l1 * l2))
+        for q2 in (elbow_angle, -elbow_angle):
+            q1 = math.atan2(cy, cx) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
+            inside += [(q1 + 2.0 * math.pi * i, q2 + 2.0 * math.pi * j)
+                       for i in (-1, 0, 1) for j in (-1, 0, 1)]
+    for i in range(len(paths)):
+        for j in range(i + 1, len(paths)):
+            loop = np.concatenate([paths[i], paths[j][::-1][1:-1]])
+            assert any(_winding(loop, np.array(p)) != 0 for p in inside), (i, j)
+
+
+def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch):
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    results = []
+    for count in (2, 1):
+        monkeypatch.setattr(workers, 'WORKERS', count)
+        results.append(solve(problem, SolverOptions(mode='fast')))
+    first, second = results
+    assert first.status is second.status is Status.SOLVED
+    assert first.final_time == second.final_time and first.iterations == second.iterations
+    assert np.array_equal(first.controls, second.controls)
+    assert np.array_equal(first.history, second.history, equal_nan=True)
 
 
 def test_further_cold_attempts_are_deterministic():

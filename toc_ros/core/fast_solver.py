@@ -25,7 +25,10 @@ constraints:
           dist(link segment at node i, c_k) >= R_k    (eq. 41 for every link, any quadrant)
 
 A cold solve first runs on a coarse grid (COARSE_INTERVALS), whose solution (primal and dual)
-is carried to the requested grid, where a few Newton-type iterations finish.  A warm start
+is carried to the requested grid through intermediate grids (ladder), where a few Newton-type
+iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
+per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
+threads (workers.py).  A warm start
 (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
 being executed) skips the coarse grid.
 """
@@ -37,7 +40,7 @@ import time
 
 import numpy as np
 
-from . import ipm
+from . import homotopy, ipm, workers
 from .obstacles import segment_clearance
 from .result import SolveResult, Status
 
@@ -80,12 +83,25 @@ ELASTIC_WEIGHT = 1.0
 COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
                  (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
 EXPLORE_NONCONVEX = 20
+# (Elastic weight, initial barrier parameter) of the attempt from each class start of
+# homotopy.py (near collision-free starts, one per homotopy class of a two-joint configuration
+# space), tried instead of the interpolation start when that crosses an obstacle.  The first
+# cold attempt's pair: on the 12 planar_2r scenarios of bench_planar_2r.py it reached the best
+# known optimum from some class start in every one (so did mu0 = 1.0, at more iterations).
+CLASS_ATTEMPT = (ELASTIC_WEIGHT, MU_COLD)
 # Fraction of a solve's timeout after which no further cold attempt starts.
 EXPLORE_TIME = 0.25
-# Converged coarse optima within REFINE_BAND of the shortest are refined on the N grid (at most
-# MAX_REFINE distinct ones); the shortest refined one is the result.
+# Converged coarse optima within REFINE_BAND of the shortest (scaled by COARSE_INTERVALS / their
+# grid: the discretisation error ~ 1 / intervals) are refined (at most MAX_REFINE distinct
+# ones); the shortest refined one is the result (_finish).
 REFINE_BAND = 0.02
 MAX_REFINE = 3
+# Grid of the cold attempts from the class starts (when the coarse grid is not the N grid):
+# half the cost per iteration and fewer iterations than on COARSE_INTERVALS, the same optima
+# after refinement on planar_2r (with mu0 = 0.01 on 100 intervals two of them were missed).
+EXPLORE_INTERVALS = 50
+# Refinement from the coarse grid to N intervals in steps of at most LADDER_RATIO (ladder()).
+LADDER_RATIO = 4.0
 # [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
 STOP_POLL = 0.005
 # Box on t_f [s].
@@ -313,6 +329,16 @@ def interpolation_start(problem, n):
     states = np.empty((n + 1, model.nx))
     states[:, 0::2] = q
     states[:, 1::2] = dq
+    return states, controls_for(model, states, t_f), t_f
+
+
+def controls_for(model, states, t_f):
+    """
+    Return controls (n, nu) whose Euler steps follow states (n + 1, nx) over t_f, clipped.
+
+    Least squares through df/du at u = 0 (exact for models affine in u).
+    """
+    n = states.shape[0] - 1
     tau = t_f / n
     k = model.kernels
     p = model.packed()
@@ -326,7 +352,20 @@ def interpolation_start(problem, n):
     # One stacked pseudo-inverse instead of n lstsq calls (that loop was ~3 ms at n = 100).
     target = (states[1:] - states[:-1]) / tau - f
     u = np.matmul(np.linalg.pinv(fu), target[:, :, None])[:, :, 0]
-    return states, np.clip(u, -u_max, u_max), t_f
+    return np.clip(u, -u_max, u_max)
+
+
+def ladder(coarse, n):
+    """
+    Intermediate grids between coarse and n intervals, a geometric sequence (ratio <= 4).
+
+    A refinement that jumps by 10 needs ~45 iterations on the N grid (planar_2r, N = 1000),
+    one via 316 intervals ~20 there plus ~20 on the cheaper grid.
+    """
+    if n <= coarse:
+        return []
+    steps = int(math.ceil(math.log(n / coarse) / math.log(LADDER_RATIO) - 1e-12))
+    return [int(round(coarse * (n / coarse) ** (k / steps))) for k in range(1, steps)]
 
 
 def resample(states, controls, n):
@@ -523,47 +562,44 @@ class FastSolve:
         """
         Solve from the cold start and return (run, code).
 
-        Each attempt of COLD_ATTEMPTS (elastic weight, barrier parameter) runs from the cold
-        start on the coarse grid (on the N grid itself when N <= 2 COARSE_INTERVALS); the
-        distinct converged ones within REFINE_BAND of the shortest are refined on the N grid
-        from their primal-dual solution, and the shortest converged refinement is returned.
-        The attempts after the first run only when _explore says so.  When nothing converges,
-        the N grid from the cold start with each barrier parameter of MU_COLD_RETRIES in turn
-        (the central path from another mu can lead into another basin).
+        Attempts (start, elastic weight, barrier parameter) run on the coarse grid (on the N
+        grid itself when N <= 2 COARSE_INTERVALS).  When N > 2 COARSE_INTERVALS and the
+        interpolation start crosses an obstacle of a two-joint model: the class starts of
+        homotopy.py with CLASS_ATTEMPT, on EXPLORE_INTERVALS, side by side.  When there are
+        none (another number of joints, no hole inside the grid) or none of them converges: the
+        interpolation start with the first pair of COLD_ATTEMPTS and, when _explore says so,
+        with the other pairs.  The distinct converged ones within REFINE_BAND of the shortest
+        are refined (_finish).  When nothing converges, the N grid from the cold start with each
+        barrier parameter of MU_COLD_RETRIES in turn (the central path from another mu can
+        lead into another basin).
         """
         problem = self.problem
         grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
         found = []
-        first = None
         start = interpolation_start(problem, grid)
-        for k, (rho, mu) in enumerate(COLD_ATTEMPTS):
-            if self.done >= self.limit or (k > 0 and not self._explore(first)):
-                break
-            states, controls, t_f = start
-            run, code = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
-                                       budget=max(1, self.limit // (8 if grid < n else 4)))
-            first = first or (run, code)
-            if code == ipm.CONVERGED:
-                found.append(run)
+        # Class starts on a coarser grid still (their candidates are carried up by _finish like
+        # the others); not when the coarse grid is the N grid (short horizons, a few ms).
+        explore = min(grid, EXPLORE_INTERVALS)
+        starts = self._class_starts(start, explore) if grid < n else []
+        # Each limit // 8, all within the iteration limit.
+        budget = min(self.limit // 8, (self.limit - self.done) // max(len(starts), 1))
+        if starts and budget >= 1 and self._may_explore():
+            rho, mu = CLASS_ATTEMPT
+            tasks = [lambda solve, point=point: solve(explore, *point, mu, None, budget, rho)
+                     for point in starts]
+            found += [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED]
+        first = None
+        if not found:
+            first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
+            if self._explore(first):
+                for pair in COLD_ATTEMPTS[1:]:
+                    if self._may_explore():
+                        self._attempt(grid, n, start, pair, found)
         found.sort(key=lambda r: r.t_f)      # stable: ties keep the attempts' order
         if grid == n and found:
             return found[0], ipm.CONVERGED
-        # Refine the distinct coarse optima close to the best one (the coarse grid's ranking
-        # of nearby optima is not the N grid's), keep the shortest converged one.
-        refined = []
-        for coarse in found if grid < n else ():
-            if self.done >= self.limit or len(refined) >= MAX_REFINE \
-                    or coarse.t_f > (1.0 + REFINE_BAND) * found[0].t_f:
-                break
-            if any(abs(coarse.t_f - t) <= 1e-6 * t for t in refined):
-                continue
-            refined.append(coarse.t_f)
-            states, controls = resample(coarse.ws.x, coarse.controls(), n)
-            duals = resample_duals(coarse.duals(), grid, n)
-            run, code = self._solve_on(n, states, controls, coarse.t_f, MU_WARM / n, duals,
-                                       budget=max(1, self.limit // 4), elastic=duals['rho'])
-            if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
-                self.best = run
+        if found:
+            self._finish(found, n)
         if self.best is not None:
             return self.best, ipm.CONVERGED
         for mu in MU_COLD_RETRIES:
@@ -577,21 +613,177 @@ class FastSolve:
                 return run, code
         return first
 
+    def _class_starts(self, start, m):
+        """
+        Return the class starts of homotopy.py on m intervals, or [] when there are none.
+
+        Only when the interpolation start (on the coarse grid) crosses an obstacle: then the
+        side of each obstacle it ends on is arbitrary, while a start already on one side of
+        each keeps its iterates out of the obstacles (fewer, convex iterations).
+        """
+        model = self.problem.robot_model
+        if not len(self.problem.obstacles) or model.n_joints != 2:
+            return []
+        seg = model.link_segments(model.positions(start[0]))
+        if np.min(segment_clearance(seg, self.problem.circles())) >= 0.0:
+            return []
+        return [homotopy.path_start(self.problem, path, m)
+                for path in homotopy.class_paths(self.problem)]
+
+    def _attempt(self, grid, n, start, pair, found):
+        """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
+        states, controls, t_f = start
+        rho, mu = pair
+        run, code = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
+                                   budget=max(1, self.limit // (8 if grid < n else 4)))
+        if code == ipm.CONVERGED:
+            found.append(run)
+        return run, code
+
+    def _finish(self, found, n):
+        """
+        Refine the distinct coarse optima close to the best one; set self.best.
+
+        The coarse grid's ranking of nearby optima is not the N grid's, so the distinct
+        converged ones within REFINE_BAND of the shortest (at most MAX_REFINE) are carried up.
+        Through the intermediate grids of ladder() when there are any (each step a few cheap
+        iterations, fewer in all than one jump to N): every candidate to the last intermediate
+        grid, then the shortest converged there to N (the next one if it fails).  Without
+        intermediate grids each candidate goes to N and the shortest converged one is kept.
+        The candidates climb the ladder side by side (_parallel), each within an equal share of
+        the iterations left.
+        """
+        candidates = []
+        for coarse in found:
+            if self.done >= self.limit or len(candidates) >= MAX_REFINE:
+                break
+            # The band scales with the discretisation error, ~ 1 / intervals.
+            band = REFINE_BAND * COARSE_INTERVALS / min(coarse.n, COARSE_INTERVALS)
+            if coarse.t_f <= (1.0 + band) * found[0].t_f and \
+                    not any(abs(coarse.t_f - c.t_f) <= 1e-6 * c.t_f for c in candidates):
+                candidates.append(coarse)
+        # Rank on the last grid of the ladder from the coarse grid (N when there is none).  An
+        # RK4 coarse solution is already close to the N grid's (error O(tau^4), not O(tau)):
+        # there the intermediate grid saves no N-grid iterations (paper scenario: 17 there
+        # after 25 on 316, 19 straight), so a single candidate goes straight to N.
+        grids = ladder(COARSE_INTERVALS, n)
+        if self.problem.integrator != 'euler' and len(candidates) == 1:
+            grids = []
+        rank = (grids or [n])[-1]
+        if rank == n:
+            for coarse in candidates:
+                if self.done >= self.limit:
+                    break
+                run, code = self._refine(coarse, n)
+                if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
+                    self.best = run
+            return
+        # The candidates side by side (_parallel), each up its own ladder within its share.
+        left = self.limit - self.done
+        if left < 1:
+            return
+        candidates = candidates[:left]
+        allowance = left // len(candidates)
+
+        def climb(solve, run):
+            used, code = 0, ipm.CONVERGED
+            for m in ladder(run.n, rank) + [rank]:
+                if used >= allowance:
+                    return run, ipm.ITERATION_LIMIT
+                states, controls = resample(run.ws.x, run.controls(), m)
+                duals = resample_duals(run.duals(), run.n, m)
+                run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
+                                  min(self.limit // 4, allowance - used), duals['rho'])
+                used += run.iterations
+                if code != ipm.CONVERGED:
+                    break
+            return run, code
+
+        ranked = [run for run, code in self._parallel(
+            [lambda solve, run=run: climb(solve, run) for run in candidates])
+            if code == ipm.CONVERGED]
+        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
+            if self.done >= self.limit:
+                break
+            run, code = self._refine(run, n)
+            if code == ipm.CONVERGED:
+                self.best = run
+                return
+
+    def _parallel(self, tasks):
+        """
+        Run tasks (callables solve -> value) on the worker threads; return their values.
+
+        solve(n, states, controls, t_f, mu, duals, budget, elastic) is a worker's _solve_on:
+        it neither records its run nor reports progress (this thread does, meanwhile and, in
+        task order, afterwards), and only the fixed budget caps it, so a task's result does not
+        depend on the others' timing (workers.py).
+        """
+        logs = [[] for _ in tasks]
+        stop_requested = lambda: self.clock.stop_reason() is not None  # noqa: E731
+
+        caller = threading.current_thread()
+
+        def check(run):
+            reason = self.clock.stop_reason()
+            if reason is not None:
+                raise Stop(reason)
+            if threading.current_thread() is caller:
+                poll()          # the tasks run one after the other (workers.run_tasks)
+
+        def bind(task, log):
+            def solve(n, states, controls, t_f, mu, duals, budget, elastic):
+                run = InteriorPointRun(self.problem, n, budget, elastic)
+                run.start(states, controls, t_f, mu, duals)
+                log.append(run)
+                code = run.run(check, stop_requested)
+                if code == ipm.STOPPED:
+                    raise Stop(self.clock.stop_reason() or Status.CANCELED)
+                return run, code
+            return lambda: task(solve)
+
+        def poll():
+            runs = [run for log in logs for run in log]
+            if runs:
+                from .result import Progress
+                its = self.done + sum(run.iterations for run in runs)
+                self.clock.report(lambda: Progress(
+                    its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
+                    f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
+
+        try:
+            return workers.run_tasks([bind(t, log) for t, log in zip(tasks, logs)], poll)
+        finally:
+            for run in (run for log in logs for run in log):
+                self._record(run)
+                self.run = run
+
+    def _refine(self, run, n):
+        """Carry a converged run's primal-dual solution to n intervals and solve there."""
+        states, controls = resample(run.ws.x, run.controls(), n)
+        duals = resample_duals(run.duals(), run.n, n)
+        return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
+                              budget=max(1, self.limit // 4), elastic=duals['rho'])
+
+    def _may_explore(self):
+        """Return whether a further cold attempt may start (obstacles, budget and time)."""
+        if not len(self.problem.obstacles) or self.done >= self.limit // 2:
+            return False
+        timeout = self.options.timeout
+        return timeout is None or self.clock.elapsed() < EXPLORE_TIME * timeout
+
     def _explore(self, first):
         """
         Return whether to run the cold attempts after the first one (first: its run, code).
 
-        Only with obstacles, within half the iteration budget (and, with a timeout, within
-        EXPLORE_TIME of it, leaving the rest for the N grid), and only when the first attempt
-        failed or needed the inertia correction (negative curvature) on more than
-        EXPLORE_NONCONVEX iterations: its path crossed a nonconvex region, where other local
-        optima are likely.  A start that leads straight into its basin (the paper scenario:
-        5 such iterations of 35) is not re-solved.
+        Only when _may_explore (with obstacles, within half the iteration budget and, with a
+        timeout, within EXPLORE_TIME of it, leaving the rest for the N grid), and only when the
+        first attempt failed or needed the inertia correction (negative curvature) on more
+        than EXPLORE_NONCONVEX iterations: its path crossed a nonconvex region, where other
+        local optima are likely.  A start that leads straight into its basin (the paper
+        scenario: 5 such iterations of 35) is not re-solved.
         """
-        if not len(self.problem.obstacles) or self.done >= self.limit // 2:
-            return False
-        timeout = self.options.timeout
-        if timeout is not None and self.clock.elapsed() >= EXPLORE_TIME * timeout:
+        if not self._may_explore():
             return False
         run, code = first
         shifted = np.count_nonzero(run.ws.hist[:run.iterations, ipm.H_DELTA] > 0.0)

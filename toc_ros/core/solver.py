@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from . import homotopy
 from .fast_solver import FastSolve, warm_start_point
 from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
@@ -177,6 +178,7 @@ def _solve_fast(problem, options, clock, initial_guess, start_point=None):
 
 def warm_up(models=None):
     """Compile (or load from cache) every numba kernel, so no user request pays for it."""
+    homotopy.warm_up()
     for integrator in ('euler', 'rk4'):
         tiny = replace(Problem(), n_intervals=20, integrator=integrator)
         solve(tiny, SolverOptions(mode='paper', max_iterations=2))
