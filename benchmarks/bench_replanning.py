@@ -96,6 +96,8 @@ def main(argv=None):
                         help='solver.integrator (rk4: the plan is what the plant does under '
                         'its piecewise-constant controls)')
     parser.add_argument('--rate', type=float, default=20.0)
+    parser.add_argument('--max-nodes', type=int, default=None,
+                        help="solver_node's replan.max_nodes (default: the node's)")
     parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS),
                         choices=list(SCENARIOS))
     parser.add_argument('--markdown')
@@ -108,8 +110,10 @@ def main(argv=None):
     log_dir = tempfile.mkdtemp(prefix='bench_replanning_')
     client = harness.RosClient('bench_replanning')
     nodes = [harness.NodeProcess('solver_node', client.namespace, log_dir,
-                                 {'solver.N': args.N, 'solver.timeout': 30.0,
-                                  'solver.integrator': args.integrator}, params_file),
+                                 dict({'solver.N': args.N, 'solver.timeout': 30.0,
+                                       'solver.integrator': args.integrator},
+                                      **({} if args.max_nodes is None else
+                                         {'replan.max_nodes': args.max_nodes})), params_file),
              harness.NodeProcess('plant_node', client.namespace, log_dir, None, params_file)]
     rows = []
     try:
@@ -161,7 +165,8 @@ def main(argv=None):
         client.close()
     load = os.getloadavg()
     text = (f'bench_replanning: N = {args.N}, solver.integrator = {args.integrator}, '
-            f'replan.rate = {args.rate} Hz, load {load[0]:.2f}\n\n' + _table(rows))
+            f'replan.rate = {args.rate} Hz, replan.max_nodes = {args.max_nodes or "default"}, '
+            f'load {load[0]:.2f}\n\n' + _table(rows))
     data = {'N': args.N, 'integrator': args.integrator, 'rate': args.rate, 'rows': rows}
     write_outputs(text + '\n', data, args.markdown, args.json)
     return 0
