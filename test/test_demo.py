@@ -196,6 +196,11 @@ def test_recorded_joint_states_reach_each_goal(demo):
         goal = list(trajectory.points[-1].positions)
         during = [s for s in states if start <= s[0] < end]
         assert during, f'no joint_states recorded while plan {k + 1} ran'
+        # The closed-loop stage begins with a plant reset, which may be recorded just before
+        # its obstacles: cut at a jump back to the start.
+        jumps = [i for i in range(1, len(during))
+                 if max(abs(a - b) for a, b in zip(during[i][1], during[i - 1][1])) > 0.1]
+        during = during[:jumps[0]] if jumps else during
         _, position, velocity = during[-1]
         errors = [abs(p - g) for p, g in zip(position, goal)]
         assert errors[0] <= tolerance[0] and errors[1] <= tolerance[1], (k, errors)

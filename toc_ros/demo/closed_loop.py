@@ -101,14 +101,15 @@ def _now(client):
 
 def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
                   plant=None, replan_rate=20.0, moving=None, margin=None, estimate=(),
-                  integrator=None, timeout=20.0):
+                  integrator=None, max_nodes=None, timeout=20.0):
     """
     Run one goal in the loop and return an Execution.
 
     client: a harness.RosClient collecting 'joint_states', 'trajectory' and PROGRESS;
     publishers: (goal_joints, obstacles) publishers; plant: plant_node parameter values for
-    this run (mismatch knobs); moving: a MovingObstacle or None; margin, integrator: the
-    solver's obstacles.margin and solver.integrator for this run (restored afterwards);
+    this run (mismatch knobs); moving: a MovingObstacle or None; margin, integrator,
+    max_nodes: the solver's obstacles.margin, solver.integrator and replan.max_nodes for this
+    run (restored afterwards);
     estimate: its replan.estimate (set anew each run: every run estimates from scratch).
     """
     goal_pub, obstacles_pub = publishers
@@ -122,6 +123,8 @@ def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
         temporary['obstacles.margin'] = float(margin)
     if integrator is not None:
         temporary['solver.integrator'] = str(integrator)
+    if max_nodes is not None:
+        temporary['replan.max_nodes'] = int(max_nodes)
     restore = client.get_parameters('solver_node', list(temporary)) if temporary else {}
     solver.update(temporary)
     _set(client, 'solver_node', solver)

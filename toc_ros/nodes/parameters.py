@@ -67,7 +67,7 @@ class SolverNodeSettings:
         'starts a replan cycle at once instead of at the next replan.rate tick; 0 = off',
         unit='rad or m', low=0.0, high=1e3, ros_name='replan.deviation')
     replan_max_nodes: int = setting(
-        150, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
+        300, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
         'most this many intervals (fewer intervals, faster cycles)', low=20, high=100000,
         ros_name='replan.max_nodes')
     replan_lead: float = setting(
