@@ -119,7 +119,7 @@ def main(argv=None):
     try:
         client.collect(DiagnosticStatus, 'solver_node/progress', 100, keep=20000)
         client.collect(JointState, 'joint_states', 100, keep=20000)
-        client.collect(JointTrajectory, 'trajectory', harness.LATCHED, keep=2000)
+        client.collect(JointTrajectory, 'trajectory', harness.LATCHED_HISTORY, keep=2000)
         goal_pub = client.node.create_publisher(JointState, client.name('goal_joints'), 10)
         obstacles_pub = client.node.create_publisher(
             Float64MultiArray, client.name('obstacles'), 10)

@@ -24,7 +24,7 @@ import time
 from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from node_harness import A, JOINTS, LATCHED, NodeProcess, PAPER_GOAL, RosClient
+from node_harness import A, JOINTS, NodeProcess, PAPER_GOAL, RosClient
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
@@ -33,6 +33,7 @@ from std_srvs.srv import Trigger
 from toc_ros import progress as schema
 from toc_ros.core import Status
 from toc_ros.demo.closed_loop import MOVING, MOVING_MARGIN, MOVING_OBSTACLES
+from toc_ros.harness import LATCHED_HISTORY
 from trajectory_msgs.msg import JointTrajectory
 
 MARGIN = 0.01
@@ -52,7 +53,7 @@ def loop(tmp_path_factory):
         solver.wait_for_log('ready:')
         client.collect(JointState, 'joint_states', 1000, keep=5000)
         client.collect(DiagnosticStatus, 'solver_node/progress', 1000, keep=5000)
-        client.collect(JointTrajectory, 'trajectory', LATCHED, keep=1000)
+        client.collect(JointTrajectory, 'trajectory', LATCHED_HISTORY, keep=1000)
         create = client.node.create_publisher
         ctx = SimpleNamespace(
             client=client, solver=solver, plant=plant,

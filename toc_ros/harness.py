@@ -43,6 +43,10 @@ from rclpy.signals import SignalHandlerOptions
 PACKAGE_PARENT = str(Path(__file__).resolve().parents[1])
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
+# Collecting a latched topic: the latched message on joining, then every one (a subscription of
+# depth 1 drops a message when two arrive before the executor takes the first).
+LATCHED_HISTORY = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             reliability=ReliabilityPolicy.RELIABLE)
 STOP_TIMEOUT_S = 10.0
 
 

@@ -197,7 +197,7 @@ class Demo:
         client.collect(DiagnosticStatus, PROGRESS, 100)
         client.collect(JointState, 'joint_states', 10, keep=1000)
         client.collect(DiagnosticStatus, 'plant_node/tracking', 10, keep=50)
-        client.collect(JointTrajectory, 'trajectory', harness.LATCHED)
+        client.collect(JointTrajectory, 'trajectory', harness.LATCHED_HISTORY)
         self.goal_pub = client.node.create_publisher(PoseStamped, '/goal_pose', harness.LATCHED)
         self.obstacles_pub = client.node.create_publisher(Float64MultiArray, '/obstacles',
                                                           harness.LATCHED)
