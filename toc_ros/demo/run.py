@@ -377,7 +377,7 @@ class Demo:
 
     def run_closed_loop(self):
         """
-        Run the paper's goal with a mismatched plant and a moving circle: open loop, replanning.
+        Run the paper's goal with a mismatched plant and a moving circle (CLOSED_LOOP_RUNS).
 
         The plant gets payload +20 % and inertia x 1.2, a circle moves into the path during
         the execution; each run starts from the plant's initial_state (~/reset).  The numbers
@@ -385,7 +385,7 @@ class Demo:
         """
         out, client = self.out, self.client
         out.stage('closed loop: plant with payload +20 % and inertia x 1.2, a circle moving '
-                  'into the path; open loop, then replanning')
+                  'into the path; open loop, replanning, replanning with online estimation')
         params = config.load_parameters(self.params_file, 'solver_node')
         # The true plant around the circle's final place: what the best plan could achieve.
         final = closed_loop.MOVING.rows(closed_loop.MOVING_OBSTACLES, math.inf)
