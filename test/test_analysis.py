@@ -171,7 +171,8 @@ def build_run(path, result):
              '/markers': 'visualization_msgs/msg/MarkerArray',
              '/joint_states': 'sensor_msgs/msg/JointState',
              '/plant_node/tracking': 'diagnostic_msgs/msg/DiagnosticStatus'}
-    writer = BagWriter(path, chunk_size=64 * 1024).create()
+    # Chunks by size only (no flush thread): the cut below then lands at the same place.
+    writer = BagWriter(path, chunk_size=64 * 1024, flush_period=None).create()
     for topic, type_name in types.items():
         writer.add_topic(topic, type_name,
                          LATCHED if topic in ('/trajectory', '/markers') else [])
