@@ -111,9 +111,7 @@ def main(argv=None):
     log_dir = tempfile.mkdtemp(prefix='bench_replanning_')
     client = harness.RosClient('bench_replanning')
     nodes = [harness.NodeProcess('solver_node', client.namespace, log_dir,
-                                 {'solver.N': args.N, 'solver.timeout': 30.0,
-                                  'solver.integrator': args.integrator,
-                                  'replan.max_nodes': args.max_nodes}, params_file),
+                                 {'solver.N': args.N, 'solver.timeout': 30.0}, params_file),
              harness.NodeProcess('plant_node', client.namespace, log_dir, None, params_file)]
     rows = []
     try:

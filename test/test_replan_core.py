@@ -107,11 +107,15 @@ def test_arrival_is_the_first_time_after_which_the_goal_holds():
     assert metrics['final_error'] == pytest.approx(0.001)
 
 
-def test_vectorised_controls_match_the_pointwise_lookup():
+def test_vectorised_and_pointwise_control_lookup():
     rng = np.random.default_rng(3)
     times = np.linspace(0.0, 2.0, 301)
     controls = rng.normal(size=(300, 2))
     # Outside the plan, on every node, and between them.
     t = np.concatenate([rng.uniform(-0.5, 2.5, 2000), times])
-    expected = np.array([control_at(times, controls, v) for v in t])
+    # The lookup written out here: interval i holds on [times[i], times[i + 1]), zero outside.
+    expected = np.array([controls[min(int(np.searchsorted(times, v, side='right')) - 1, 299)]
+                         if times[0] <= v < times[-1] else np.zeros(2) for v in t])
     np.testing.assert_array_equal(controls_at(times, controls, t), expected)
+    np.testing.assert_array_equal(np.array([control_at(times, controls, v) for v in t]),
+                                  expected)

@@ -49,7 +49,8 @@ import numpy as np
 
 from toc_ros.config import model_from_parameters, obstacle_rows
 from toc_ros.conversions import (as_model, ConversionError, joint_state_arrays,
-                                 obstacle_rows_from_msg, pose_to_joint_goal, trajectory_arrays)
+                                 joint_state_to_state, obstacle_rows_from_msg,
+                                 pose_to_joint_goal, trajectory_arrays)
 from toc_ros.core import ProblemError, Status
 from toc_ros.core.obstacles import model_clearance, segment_clearance
 from toc_ros.progress import (EVENT_REPLACED, EVENT_REPLAN_KEPT, EVENT_REPLANNED, EVENT_STOPPED,
@@ -440,8 +441,7 @@ def _goal_for(run, time, previous_time, a, joint_names, end=None):
     joints = _latest(run.messages['goal_joints'], time, previous_time)
     if joints is not None:
         try:
-            pos, vel = joint_state_arrays(joints[1], joint_names)
-            candidates.append((joints[0], np.array([pos[0], vel[0], pos[1], vel[1]]),
+            candidates.append((joints[0], joint_state_to_state(joints[1], joint_names),
                                f'{run.topics["goal_joints"]} at {joints[0]:.3f} s'))
         except ConversionError:
             pass
@@ -896,8 +896,7 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
         start = None
         if before is not None:
             try:
-                pos, vel = joint_state_arrays(before[1], plan.joint_names)
-                start = np.array([pos[0], vel[0], pos[1], vel[1]])
+                start = joint_state_to_state(before[1], plan.joint_names)
             except ConversionError:
                 pass
         plan_entries.append(plan_numbers(plan, u_max, model, start))

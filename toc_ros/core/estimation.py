@@ -162,9 +162,9 @@ class ParameterEstimator:
         self.status = 'estimated'
         return {name: float(value) for name, value in zip(self.names, theta)}
 
-    def model(self):
-        """Return the model with the estimated values (None while estimate() is None)."""
-        values = self.estimate()
+    def model(self, values=None):
+        """Return the model with values (default: estimate()), None while there are none."""
+        values = self.estimate() if values is None else values
         if values is None:
             return None
         model = self.model_.with_parameters(values)

@@ -40,14 +40,11 @@ BRAKE_MAX_S = 5.0
 
 def control_at(times, controls, t):
     """Return the plan's piecewise-constant control at plan time t (zero outside the plan)."""
-    if t < times[0] or t >= times[-1]:
-        return np.zeros(controls.shape[1])
-    i = min(int(np.searchsorted(times, t, side='right')) - 1, controls.shape[0] - 1)
-    return controls[i]
+    return controls_at(times, controls, np.array([float(t)]))[0]
 
 
 def controls_at(times, controls, t):
-    """Return control_at for every time of the array t (rows), vectorised."""
+    """Return the controls at every time of the array t (rows; zero outside the plan)."""
     t = np.asarray(t, dtype=float)
     index = np.clip(np.searchsorted(times, t, side='right') - 1, 0, controls.shape[0] - 1)
     inside = (t >= times[0]) & (t < times[-1])

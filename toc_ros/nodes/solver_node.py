@@ -770,7 +770,7 @@ class SolverNode(Node):
             if held is None or held[0].keys() != values.keys() or any(
                     abs(values[k] - held[0][k]) > ESTIMATE_CHANGE * abs(held[0][k])
                     for k in values):
-                model = estimator.model()
+                model = estimator.model(values)
                 if model is None:
                     return None, estimator.status
                 held = self._planning_estimate = (values, model)
