@@ -22,7 +22,8 @@ the paper's start to its goal around its circle:
 
 * mismatch: the plant's payload +20 % (hand_mass 50 -> 60 kg) and inertia x 1.2; run a third
   time with replan.estimate = hand_mass, inertia (the cycles plan with the online estimate);
-* lag: a 10 ms first-order actuator lag on the plant (plant_node actuator_lag);
+* lag: a 10 ms first-order actuator lag on the plant (plant_node actuator_lag); run a third
+  time with the planner told the lag (robot.actuator_lag: plans with actuator states);
 * moving: a second circle moves into the path during the execution (the plant matches the
   model); the arm must keep clear of it and still arrive.
 
@@ -30,7 +31,8 @@ Reported per run (toc_ros.analysis.closed_loop.execution_metrics, from the joint
 trajectory and ~/progress messages received): the final position error 0.2 s after the end of
 the last plan, the arrival time (every joint within 1e-2 of the goal from then on) against
 the arrival time of the true plant's best plan by the same rule (fast mode on the plant's own
-parameters; for the lag the model's), the last plan's end (where the planner has the arm at
+parameters; for the lag the model with the lag's actuator states), the last plan's end
+(where the planner has the arm at
 rest at the goal) against that plan's t_min, the executed clearance to every true circle (no
 margin) over all joint_states, and the replan cycle latency (joint_states received ->
 trajectory published, measured in solver_node) median / p99 / max over the whole execution.
@@ -60,9 +62,12 @@ from toc_ros.demo.closed_loop import (  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
 
+# The plant's actuator lag in the lag scenario [s]; the planner is told it in a third run.
+LAG = 0.01
 SCENARIOS = {
     'mismatch': {'plant': MISMATCH, 'true': TRUE_ROBOT, 'estimate': ESTIMATED},
-    'lag': {'plant': {'actuator_lag': 0.01}, 'true': {}},
+    'lag': {'plant': {'actuator_lag': LAG}, 'true': {'robot.actuator_lag': LAG},
+            'actuators': {'robot.actuator_lag': LAG}},
     'moving': {'plant': {}, 'true': {}, 'moving': MOVING, 'obstacles': MOVING_OBSTACLES,
                'margin': MOVING_MARGIN},
 }
@@ -135,16 +140,19 @@ def main(argv=None):
             reference = true_reference(dict(params, **{'solver.N': args.N,
                                                        'solver.integrator': args.integrator}),
                                        spec['true'], PAPER_GOAL_Q, obstacles, spec.get('margin'))
-            loops = [('open loop', 0.0, ()), ('replanning', args.rate, ())]
+            loops = [('open loop', 0.0, (), None), ('replanning', args.rate, (), None)]
             if spec.get('estimate'):
-                loops.append(('replanning + estimation', args.rate, spec['estimate']))
-            for loop, rate, estimate in loops:
+                loops.append(('replanning + estimation', args.rate, spec['estimate'], None))
+            if spec.get('actuators'):
+                loops += [('open loop + actuator model', 0.0, (), spec['actuators']),
+                          ('replanning + actuator model', args.rate, (), spec['actuators'])]
+            for loop, rate, estimate, solver in loops:
                 plant = dict(NOMINAL_PLANT, **spec['plant'])
                 execution = run_execution(
                     client, (goal_pub, obstacles_pub), model, joint_names, PAPER_GOAL_Q,
                     spec.get('obstacles', PAPER_OBSTACLES), plant=plant, replan_rate=rate,
                     moving=spec.get('moving'), margin=spec.get('margin'), estimate=estimate,
-                    integrator=args.integrator, max_nodes=args.max_nodes)
+                    integrator=args.integrator, max_nodes=args.max_nodes, solver=solver)
                 cycles = [r for r in execution.reports if r.event == 'replanned']
                 row = {'scenario': name, 'loop': loop, 'true': reference,
                        'metrics': execution.metrics,

@@ -34,6 +34,7 @@ definitions of the paper and of issue 13:
     f, segments, u_max = casadi_model('planar_2r', {'g': 9.81})
     xdot = f(x, u)            # casadi Function (nx, 1) from x (nx,), u (nu,); SX/MX/DM
     seg = segments(q)         # casadi Function: (L, 4) rows (ax, ay, bx, by)
+    f_lag = with_actuators(f, u_max, 0.01)    # with first-order actuators (actuated.py)
 
 casadi is optional (setup.py extra 'bench'); importing this module without it works, calling
 casadi_model raises ImportError.
@@ -164,6 +165,21 @@ def _from_file(path, params):
         xdot = _euler_lagrange(x, u, ev(lag['kinetic']), ev(lag.get('potential', 0)),
                                forces)
     return _functions(x, u, qs, xdot, seg) + (u_max,)
+
+
+def with_actuators(f, u_max, lag):
+    """
+    Return f with first-order actuators: x = [joint states; s], s = a / u_max (scaled).
+
+    ds/dt = (u / u_max - s) / lag, the joints driven by the applied a = u_max s (the layout of
+    toc_ros.core.models.actuated, written here from its definition).
+    """
+    nxb, nu = f.size1_in(0), f.size1_in(1)
+    x, u = ca.SX.sym('x', nxb + nu), ca.SX.sym('u', nu)
+    scale = ca.DM(np.asarray(u_max, dtype=float))
+    s = x[nxb:]
+    xdot = ca.vertcat(f(x[:nxb], scale * s), (u / scale - s) / float(lag))
+    return ca.Function('f', [x, u], [xdot], ['x', 'u'], ['xdot'])
 
 
 def casadi_model(name, params=None):

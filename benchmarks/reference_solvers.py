@@ -65,9 +65,10 @@ except ImportError:  # pragma: no cover - exercised only where casadi is absent
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from casadi_models import casadi_model  # noqa: E402, I100
+from casadi_models import casadi_model, with_actuators  # noqa: E402, I100
 from toc_ros.core import measure_violations  # noqa: E402
 from toc_ros.core.fast_solver import interpolation_start, T_HIGH_FACTOR, T_LOW  # noqa: E402
+from toc_ros.core.models.actuated import ActuatedModel  # noqa: E402
 from toc_ros.core.models.cylindrical import CylindricalRobot  # noqa: E402
 from toc_ros.core.models.planar_2r import Planar2R  # noqa: E402
 
@@ -95,8 +96,8 @@ def have_solver(name):
 
 
 def model_spec(problem):
-    """(casadi_models name or file, parameter dict) of the problem's robot model."""
-    model = problem.robot_model
+    """(casadi_models name or file, parameter dict) of the problem's robot model's joints."""
+    model = problem.robot_model.joint_model
     if isinstance(model, (CylindricalRobot, Planar2R)):
         return model.name, dataclasses.asdict(model.params)
     source = getattr(model, '_source', None)
@@ -171,6 +172,8 @@ class Reference:
         model = problem.robot_model
         name, params = model_spec(problem)
         f, segments, u_max = casadi_model(name, params)
+        if isinstance(model, ActuatedModel):
+            f = with_actuators(f, u_max, model.lag)
         if not np.allclose(u_max, model.u_max, rtol=1e-12, atol=0.0):
             raise ValueError(f'CasADi u_max {u_max} differs from the model u_max {model.u_max}')
         self.u_max = np.asarray(model.u_max, dtype=float)
@@ -186,8 +189,9 @@ class Reference:
         self.t_bounds = (T_LOW, T_HIGH_FACTOR * max(problem.t_f0, 1.0))
         if self.n_obs:
             qx = ca.SX.sym('x', nx)
-            clear = _segment_constraint(segments, circles, nx // 2)
-            clear_x = ca.Function('clear_x', [qx], [clear(qx[0::2])])
+            nq = model.n_joints
+            clear = _segment_constraint(segments, circles, nq)
+            clear_x = ca.Function('clear_x', [qx], [clear(qx[0:2 * nq:2])])
         if self.layout == 'global':
             self._build_global(scaled, clear_x if self.n_obs else None, x0, xg)
         else:

@@ -27,7 +27,8 @@ import numpy as np
 import pytest
 
 from toc_ros.core import horizon
-from toc_ros.core.models import load_model, ModelError, MODELS, Planar2R, Planar2RParams
+from toc_ros.core.models import (ActuatedModel, load_model, ModelError, MODELS, Planar2R,
+                                 Planar2RParams, with_actuator_lag)
 
 pytest.importorskip('sympy')
 
@@ -93,6 +94,12 @@ MODEL_CASES = [
     ('planar_3r-text', lambda: symbolic.model_from_text(PLANAR_3R, 'planar_3r.yaml')),
     ('cylindrical-lagrangian-text', lambda: symbolic.model_from_text(
         CYLINDRICAL_LAGRANGIAN, 'cylindrical_lagrangian.yaml')),
+    # With first-order actuators (actuated.py): nx = 3 n.
+    ('cylindrical-actuated', lambda: with_actuator_lag(load_model('cylindrical'), 0.01)),
+    ('planar_2r-gravity-actuated', lambda: with_actuator_lag(
+        load_model('planar_2r', **PLANAR_OTHER), 0.02)),
+    ('planar_3r-text-actuated', lambda: with_actuator_lag(
+        symbolic.model_from_text(PLANAR_3R, 'planar_3r.yaml'), 0.005)),
 ]
 
 
@@ -165,7 +172,8 @@ def _close(actual, expected, rtol, what):
 # ------------------------------------------------------------------------------------------
 
 def test_interface_sizes(model):
-    assert model.nx == 2 * model.n_joints and model.nu == model.n_joints
+    actuators = model.n_joints if isinstance(model, ActuatedModel) else 0
+    assert model.nx == 2 * model.n_joints + actuators and model.nu == model.n_joints
     assert len(model.default_joint_names) == model.n_joints
     assert len(model.joint_kinds) == model.n_joints
     assert set(model.joint_kinds) <= {'revolute', 'prismatic'}
@@ -179,7 +187,7 @@ def test_every_output_entry_is_written(model):
     # The helpers fill the outputs with NaN first: a kernel must overwrite every entry.
     x, u, lam = _points(model, np.random.default_rng(0), 1)
     for out in (_rhs(model, x[0], u[0]),) + _jac(model, x[0], u[0]) + _hess(
-            model, x[0], u[0], lam[0]) + _seg(model, x[0, 0::2]):
+            model, x[0], u[0], lam[0]) + _seg(model, model.positions(x[0])):
         assert np.all(np.isfinite(out))
 
 
@@ -208,14 +216,14 @@ def test_rhs_hess_matches_finite_differences_of_the_jacobian(model):
 def test_segments_and_their_derivatives(model):
     rng = np.random.default_rng(3)
     x, _, _ = _points(model, rng, 30)
-    for q in x[:, 0::2]:
+    for q in model.positions(x):
         seg, seg_q, seg_qq = _seg(model, q)
         np.testing.assert_allclose(seg, model.link_segments(q), rtol=1e-13, atol=1e-13)
         _close(seg_q, _central(lambda z: _seg(model, z)[0], q), 1e-8, 'seg_q')
         _close(seg_qq, _central(lambda z: _seg(model, z)[1], q), 1e-8, 'seg_qq')
         np.testing.assert_array_equal(seg_qq, np.swapaxes(seg_qq, 2, 3))
     # Vectorised numpy geometry: rows of q, and the hand at the end of the last link.
-    qs = x[:, 0::2].reshape(5, 6, -1)
+    qs = model.positions(x).reshape(5, 6, -1)
     segs = model.link_segments(qs)
     assert segs.shape == (5, 6, model.n_links, 4)
     np.testing.assert_array_equal(model.hand_position(qs), segs[..., -1, 2:4])
@@ -235,6 +243,52 @@ def test_rollout_wrapper_matches_pointwise_euler(model):
     for i in range(20):
         expected = expected + tau * _rhs(model, expected, controls[i])
         np.testing.assert_allclose(states[i + 1], expected, rtol=1e-13, atol=1e-13)
+
+
+def test_actuated_model_is_the_base_driven_by_its_actuator_states():
+    # d(q, dq)/dt = f_base(q, dq, a), da/dt = (u - a) / T, from the base model's own kernel.
+    base = load_model('planar_2r', **PLANAR_OTHER)
+    model = with_actuator_lag(base, 0.02)
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        x = rng.uniform(-2.0, 2.0, size=6)
+        u = rng.uniform(-1.0, 1.0, size=2) * base.u_max
+        f = _rhs(model, x, u)
+        # The actuator states are the applied controls scaled by u_max.
+        applied = x[4:] * base.u_max
+        np.testing.assert_array_equal(f[:4], _rhs(base, x[:4], applied))
+        np.testing.assert_allclose(f[4:] * base.u_max, (u - applied) / 0.02, rtol=1e-14)
+    np.testing.assert_array_equal(model.positions(x), x[[0, 2]])
+    np.testing.assert_array_equal(model.velocities(x), x[[1, 3]])
+    np.testing.assert_array_equal(model.actuators(x), applied)
+    assert model.u_max.tolist() == base.u_max.tolist()
+    assert model.joint_model is base and base.joint_model is base
+    assert with_actuator_lag(model, 0.0) is base
+    assert with_actuator_lag(base, 0.02) == model and hash(with_actuator_lag(base, 0.02)) == \
+        hash(model)
+    assert pickle.loads(pickle.dumps(model)) == model
+    assert model.with_parameters({'m_p': 4.0}) == with_actuator_lag(
+        load_model('planar_2r', **dict(PLANAR_OTHER, m_p=4.0)), 0.02)
+    with pytest.raises(ModelError, match='time constant'):
+        with_actuator_lag(base, -0.01)
+
+
+def test_actuated_full_state_holds_the_joints():
+    # Without a measured effort the actuators start at the torques that hold the joints'
+    # velocities: at rest under gravity the hold torque, so the arm does not move.
+    base = load_model('planar_2r', **PLANAR_OTHER)
+    model = with_actuator_lag(base, 0.02)
+    x = base.state([0.3, -0.7])
+    full = model.full_state(x)
+    assert full.shape == (6,)
+    np.testing.assert_array_equal(full[:4], x)
+    f = _rhs(model, full, model.actuators(full))
+    np.testing.assert_allclose(f, 0.0, atol=1e-12)
+    np.testing.assert_allclose(model.actuators(model.full_state(x, effort=[1.0, -2.0])),
+                               [1.0, -2.0], rtol=1e-15)
+    np.testing.assert_array_equal(model.full_state(full), full)
+    with pytest.raises(ModelError, match='2 actuator'):
+        model.full_state(x, effort=[1.0])
 
 
 # ------------------------------------------------------------------------------------------

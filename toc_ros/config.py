@@ -29,7 +29,7 @@ from typing import Tuple
 import yaml
 
 from .core.model import RobotParams
-from .core.models import load_model, ModelChoice, ModelError
+from .core.models import load_model, ModelChoice, ModelError, with_actuator_lag
 from .core.problem import Problem, ProblemError, SolverOptions
 from .core.settings import from_parameters, parameter_table, setting
 
@@ -207,8 +207,16 @@ def model_from_parameters(params):
     Built once per (model, parameters, file modification time): a model file is derived and
     compiled at its first use.  Raises ProblemError with the reason for a bad model.
     """
-    from .core.models import CylindricalRobot
     choice = model_choice(params)
+    model = _joint_model(choice, params)
+    try:
+        return with_actuator_lag(model, choice.actuator_lag)
+    except ModelError as exc:
+        raise ProblemError(f'robot.actuator_lag: {exc}')
+
+
+def _joint_model(choice, params):
+    from .core.models import CylindricalRobot
     values = choice.parameter_values()
     key = resolve_model_name(choice.name)
     if key == 'cylindrical':
@@ -234,10 +242,7 @@ def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
         if isinstance(exc, ProblemError):
             raise
         raise ProblemError(str(exc))
-    model = model_from_parameters(params)
-    if model.name == 'cylindrical':
-        return replace(problem, robot=model.params) if model.params != problem.robot else problem
-    return replace(problem, model=model)
+    return problem.with_model(model_from_parameters(params))
 
 
 def options_from_parameters(params):

@@ -110,7 +110,7 @@ def accelerations(states, controls, packed_params, model=None):
         model.kernels.rhs(np.ascontiguousarray(states[i]),
                           np.ascontiguousarray(controls[min(i, controls.shape[0] - 1)]),
                           packed_params, f)
-        out[i] = f[1::2]
+        out[i] = model.velocities(f)        # d(dq)/dt
     return out
 
 
@@ -120,7 +120,8 @@ def trajectory_msg(result, joint_names, robot, stamp):
 
     robot: the RobotModel (or RobotParams of the cylindrical robot).  Positions q, velocities
     dq, accelerations from the model's dynamics, effort = u_i (the optimal controls,
-    zero-order hold from t_i; the last point repeats u_{N-1}).
+    zero-order hold from t_i; the last point repeats u_{N-1}; with actuator states
+    (models/actuated.py) the commands, which the drives turn into the applied efforts).
     """
     model = as_model(robot)
     states = np.asarray(result.states, dtype=float)
@@ -136,7 +137,8 @@ def trajectory_msg(result, joint_names, robot, stamp):
     # most of the cost: ~3x faster at N = 300); times rounded as in _sec_nanosec.
     last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
     total = np.round(np.asarray(result.time_grid, dtype=float) * 1e9).astype(np.int64)
-    rows = zip(states[:, 0::2].tolist(), states[:, 1::2].tolist(), np.asarray(acc).tolist(),
+    rows = zip(model.positions(states).tolist(), model.velocities(states).tolist(),
+               np.asarray(acc).tolist(),
                controls[last].tolist(), (total // 1_000_000_000).tolist(),
                (total % 1_000_000_000).tolist())
     msg.points = [JointTrajectoryPoint(positions=q, velocities=dq, accelerations=ddq, effort=u,

@@ -33,6 +33,7 @@ threads (workers.py).  A warm start
 being executed) skips the coarse grid.
 """
 
+import dataclasses
 import math
 import os
 import threading
@@ -128,7 +129,7 @@ class InteriorPointRun:
         self.circles = np.ascontiguousarray(problem.circles())
         self.ws = ipm.make_workspace(n, model.nx, model.nu, model.n_links, self.circles,
                                      model.packed(), problem.x0, problem.x_goal, self.u_max,
-                                     max_iter)
+                                     max_iter, nq=model.n_joints)
         fs, it = self.ws.fscal, self.ws.iscal
         it[ipm.I_N] = n
         it[ipm.I_METHOD] = problem.integrator_id
@@ -190,6 +191,7 @@ class InteriorPointRun:
         fs[ipm.F_THETA_MAX] = 0.0
         ws.iscal[ipm.I_N_FILTER] = 0
         ws.iscal[ipm.I_LS_FAILS] = 0
+        ws.iscal[ipm.I_ACCEPTABLE] = 0
         ws.iscal[ipm.I_ITER] = 0
 
     def constraint_values(self, states):
@@ -318,6 +320,7 @@ def interpolation_start(problem, n):
     xg = np.asarray(problem.x_goal, dtype=float)
     q0, qg = model.positions(x0), model.positions(xg)
     v0, vg = model.velocities(x0) * t_f, model.velocities(xg) * t_f
+    n_q = model.n_joints
     s = np.linspace(0.0, 1.0, n + 1)[:, None]
     # Cubic Hermite basis on s in [0, 1] (positions, and velocities scaled by t_f).
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, \
@@ -326,10 +329,41 @@ def interpolation_start(problem, n):
         3 * s**2 - 2 * s
     q = h00 * q0 + h10 * v0 + h01 * qg + h11 * vg
     dq = (d00 * q0 + d10 * v0 + d01 * qg + d11 * vg) / t_f
-    states = np.empty((n + 1, model.nx))
+    states = np.empty((n + 1, 2 * n_q))
     states[:, 0::2] = q
     states[:, 1::2] = dq
-    return states, controls_for(model, states, t_f), t_f
+    return start_along(problem, states, t_f) + (t_f,)
+
+
+def start_along(problem, joint_states, t_f):
+    """
+    Return (states, controls) of a start that moves the joints along joint_states over t_f.
+
+    joint_states (n + 1, 2 n) from the start's to the goal's joints; the controls by
+    controls_for the joints.  A model with actuator states (models/actuated.py) gets those
+    controls as its applied torques (actuator_states) and as commands.
+    """
+    model = problem.robot_model
+    joint = model.joint_model
+    controls = controls_for(joint, joint_states, t_f)
+    if not _has_actuators(model):
+        return joint_states, controls
+    return np.hstack([joint_states, actuator_states(problem, controls)]), controls
+
+
+def actuator_states(problem, controls):
+    """
+    Actuator states (N + 1, n) that apply controls (N, n) (models/actuated.py).
+
+    Each node's applied control is the command of the interval it starts (the lag as if
+    instant); the first and last nodes keep the start's and the goal's.
+    """
+    model = problem.robot_model
+    joints = model.joint_model.nx
+    states = np.vstack([model.actuator_states(controls),
+                        np.asarray(problem.x_goal, dtype=float)[None, joints:]])
+    states[0] = np.asarray(problem.x0, dtype=float)[joints:]
+    return states
 
 
 def controls_for(model, states, t_f):
@@ -461,6 +495,10 @@ def warm_start_point(problem, guess, n):
     return states, controls, t_f, duals, drift
 
 
+def _has_actuators(model):
+    return model.joint_model is not model
+
+
 def _guess_intervals(guess):
     if guess is None:
         return 0
@@ -539,6 +577,8 @@ class FastSolve:
                     # A poor guess: solve from scratch rather than report the failure.
                     self.initial_guess = None
                     return self.solve()
+            elif _has_actuators(problem.robot_model):
+                run, code = self._cold_actuated(n)
             else:
                 run, code = self._cold(n)
         except Stop as stop:
@@ -612,6 +652,41 @@ class FastSolve:
             if code == ipm.CONVERGED:
                 return run, code
         return first
+
+    def _cold_actuated(self, n):
+        """
+        Solve a model with actuator states (models/actuated.py) from a cold start.
+
+        The joints are solved first without the lag (the whole cold start: coarse grids,
+        class starts), then that solution on the N grid, its controls also as the applied
+        torques, is the start of the actuated problem.  The actuators' time constant is
+        usually far below the coarse grids' steps, where their (stiff) states would make the
+        explicit discretisation unstable; on the N grid the lag moves the optimum little.
+        Returns (run, code); the plain cold start of the actuated problem when that fails.
+        """
+        problem = self.problem
+        model = problem.robot_model
+        joint = model.joint_model
+        joints = dataclasses.replace(problem, x0=tuple(model.joint_states(problem.x0)),
+                                     x_goal=tuple(model.joint_states(problem.x_goal)))
+        inner = FastSolve(joints.with_model(joint), self.options, self.clock)
+        inner.limit = self.limit - self.done
+        try:
+            inner_run, code = inner._cold(n)
+        finally:
+            self.history += inner.history
+            self.done += inner.done
+        if code == ipm.CONVERGED and inner_run.n == n and self.done < self.limit:
+            controls = inner_run.controls()
+            states = np.hstack([inner_run.ws.x, actuator_states(problem, controls)])
+            duals = inner_run.duals()
+            duals['lam'] = np.hstack([duals['lam'], np.zeros((n + 1, joint.nu))])
+            duals['nu'] = np.concatenate([duals['nu'], np.zeros(joint.nu)])
+            run, code = self._solve_on(n, states, controls, inner_run.t_f, MU_WARM / n, duals,
+                                       budget=max(1, self.limit // 4), elastic=duals['rho'])
+            if code == ipm.CONVERGED:
+                return run, code
+        return self._cold(n)
 
     def _class_starts(self, start, m):
         """

@@ -188,12 +188,12 @@ def _metric(problem):
 
     Equal weighted lengths are then roughly equal times for bang-bang moves of single joints.
     """
-    model = problem.robot_model
+    model = problem.robot_model.joint_model      # the joints driven directly by u
     f = np.zeros(model.nx)
     fx = np.zeros((model.nx, model.nx))
     fu = np.zeros((model.nx, model.nu))
-    model.kernels.rhs_jac(np.asarray(problem.x0, dtype=float), np.zeros(model.nu),
-                          model.packed(), f, fx, fu)
+    model.kernels.rhs_jac(model.joint_states(np.asarray(problem.x0, dtype=float)),
+                          np.zeros(model.nu), model.packed(), f, fx, fu)
     acc = np.abs(np.diag(fu[1::2, :])) * np.asarray(model.u_max, dtype=float)
     return 1.0 / np.maximum(acc, 1e-12 * max(acc.max(), 1e-300))
 
@@ -262,7 +262,7 @@ def path_start(problem, path, n):
     The smoothed path is parameterised by arc length and traversed with s(t) = 3 t^2 - 2 t^3
     (rest at both ends); cubic Hermite velocity terms as in interpolation_start, over the first
     and last BLEND of the time only, add the start and goal velocities.  Controls as in
-    interpolation_start (fast_solver.controls_for).
+    interpolation_start (fast_solver.start_along).
     """
     model = problem.robot_model
     t_f = float(problem.t_f0)
@@ -290,12 +290,12 @@ def path_start(problem, path, n):
     joints = range(p.shape[1])
     q = np.column_stack([np.interp(sig, arc, p[:, j]) for j in joints])
     slope = np.column_stack([np.interp(sig, arc, np.gradient(p[:, j], arc)) for j in joints])
-    states = np.empty((n + 1, model.nx))
+    states = np.empty((n + 1, 2 * model.n_joints))
     states[:, 0::2] = q + BLEND * t_f * (h10[:, None] * v0 + h11[:, None] * vg)
     states[:, 1::2] = slope * dsig[:, None] + d10[:, None] * v0 + d11[:, None] * vg
-    states[0], states[-1] = x0, xg
-    from .fast_solver import controls_for
-    return states, controls_for(model, states, t_f), t_f
+    states[0], states[-1] = model.joint_states(x0), model.joint_states(xg)
+    from .fast_solver import start_along
+    return start_along(problem, states, t_f) + (t_f,)
 
 
 def warm_up():

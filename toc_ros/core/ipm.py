@@ -97,7 +97,8 @@ I_STATUS = 6
 I_REG_TRIES = 7      # factorizations of the last iteration
 I_BACKTRACKS = 8     # line-search trials of the last iteration
 I_STOP = 9           # set to 1 by another thread to stop the iterations (cancel, timeout)
-N_ISCAL = 10
+I_ACCEPTABLE = 10    # consecutive iterations at an acceptable point (ACCEPT_TOL)
+N_ISCAL = 11
 
 # Return codes of iterate().
 CONTINUE = 0
@@ -114,6 +115,10 @@ N_HIST = 6
 MAX_FILTER = 200
 MAX_BACKTRACKS = 40
 MAX_LS_FAILS = 8
+# Acceptable termination (IPOPT's acceptable_tol / acceptable_iter, with the full constraint
+# tolerance): see iterate().
+ACCEPT_TOL = 1e-6
+ACCEPT_ITERATIONS = 10
 KAPPA_SIGMA = 1e10
 # Monotone barrier update mu <- min(KAPPA_MU mu, mu^THETA_MU) once E_mu <= KAPPA_EPS mu.
 KAPPA_MU = 0.2
@@ -125,8 +130,9 @@ ELASTIC_MAX = 1e8
 Workspace = namedtuple('Workspace', [
     # state and control sizes as tuples of that length: their lengths are part of the numba
     # type, so every kernel is compiled for its model's (nx, nu) with constant loop bounds
-    # (factorize ~3x faster than with sizes read from array shapes; same arithmetic, same bits)
-    'size_x', 'size_u',
+    # (factorize ~3x faster than with sizes read from array shapes; same arithmetic, same bits);
+    # size_q: the joints, whose positions are the states 0, 2, ..., 2 (nq - 1)
+    'size_x', 'size_u', 'size_q',
     # problem data
     'p', 'x0', 'x_goal', 'u_max', 'circles',
     # primal: states, scaled controls; duals: dynamics, terminal, obstacles, control bounds
@@ -146,15 +152,20 @@ Workspace = namedtuple('Workspace', [
 ])
 
 
-def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
-    """Allocate a Workspace for N = n intervals (scalars still to be set by the caller)."""
+def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter, nq=None):
+    """
+    Allocate a Workspace for N = n intervals (scalars still to be set by the caller).
+
+    nq: number of joints (default nx / 2; a model with actuator states has more states).
+    """
+    nq = nx // 2 if nq is None else int(nq)
     circles = np.ascontiguousarray(np.reshape(circles, (-1, 3)), dtype=float)
     nb = n_links * circles.shape[0]
     nxi = nx + 1
     ncol = nx + 1
     z = np.zeros
     return Workspace(
-        size_x=(0,) * nx, size_u=(0,) * nu,
+        size_x=(0,) * nx, size_u=(0,) * nu, size_q=(0,) * nq,
         p=np.ascontiguousarray(p, dtype=float), x0=np.array(x0, dtype=float),
         x_goal=np.array(x_goal, dtype=float), u_max=np.array(u_max, dtype=float),
         circles=circles,
@@ -162,7 +173,7 @@ def make_workspace(n, nx, nu, n_links, circles, p, x0, x_goal, u_max, max_iter):
         e=z((n + 1, nb)),
         z=z((n + 1, nb)), zl=z((n, nu)), zu=z((n, nu)),
         jac_x=z((n, nx, nx)), jac_v=z((n, nx, nu)), jac_t=z((n, nx)), defect=z((n, nx)),
-        cons=z((n + 1, nb)), cons_q=z((n + 1, nb, nx // 2)),
+        cons=z((n + 1, nb)), cons_q=z((n + 1, nb, nq)),
         qq=z((n + 1, nxi, nxi)), ss=z((n, nu, nxi)), rr=z((n, nu, nu)), qv=z((n + 1, nxi)),
         rv=z((n, nu)),
         pp=z((n + 1, nxi, nxi)), pc=z((n + 1, nxi, ncol)), gain=z((n, nu, nxi)),
@@ -358,7 +369,7 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
     method = ws.iscal[I_METHOD]
     nx = len(ws.size_x)
     nu = len(ws.size_u)
-    nq = nx // 2
+    nq = len(ws.size_q)
     nb = ws.s.shape[1]
     fs = ws.fscal
     t_f = fs[F_T]
@@ -481,7 +492,7 @@ def derivative_terms(rhs_jac, rhs_hess, segments, ws):
                     acc += ws.jac_x[i, r, a] * ws.lam[i + 1, r]
             else:
                 acc += ws.nu[a]
-            if a % 2 == 0:
+            if a % 2 == 0 and a < 2 * nq:
                 for j in range(nb):
                     acc -= ws.cons_q[i, j, a // 2] * ws.z[i, j]
             dual = max(dual, abs(acc))
@@ -503,7 +514,7 @@ def barrier_terms(ws):
     n = ws.iscal[I_N]
     nx = len(ws.size_x)
     nu = len(ws.size_u)
-    nq = nx // 2
+    nq = len(ws.size_q)
     nb = ws.s.shape[1]
     fs = ws.fscal
     t_f = fs[F_T]
@@ -890,7 +901,7 @@ def recover_bound_steps(ws, dt):
     """Slack and bound-dual steps from the primal step (condensed per constraint)."""
     n = ws.iscal[I_N]
     nu = len(ws.size_u)
-    nq = len(ws.size_x) // 2
+    nq = len(ws.size_q)
     nb = ws.s.shape[1]
     mu = ws.fscal[F_MU]
     for i in range(n):
@@ -962,7 +973,7 @@ def trial_merit(rhs, segments, ws, alpha, dt):
     method = ws.iscal[I_METHOD]
     nx = len(ws.size_x)
     nu = len(ws.size_u)
-    nq = nx // 2
+    nq = len(ws.size_q)
     nb = ws.s.shape[1]
     fs = ws.fscal
     mu = fs[F_MU]
@@ -1253,8 +1264,16 @@ def iterate(rhs, rhs_jac, rhs_hess, segments, ws, n_iter):
             ws.hist[k, H_THETA] = fs[F_THETA]
             ws.hist[k, H_ERR] = fs[F_ERR]
             ws.hist[k, H_MU] = fs[F_MU]
-        if fs[F_ERR] <= fs[F_TOL] and fs[F_PRIMAL_INF] <= fs[F_CONSTR_TOL] \
-                and fs[F_ELASTIC_MAX] <= fs[F_CONSTR_TOL]:
+        feasible = fs[F_PRIMAL_INF] <= fs[F_CONSTR_TOL] and \
+            fs[F_ELASTIC_MAX] <= fs[F_CONSTR_TOL]
+        if feasible and fs[F_ERR] <= fs[F_TOL]:
+            return CONVERGED
+        # IPOPT's acceptable termination: a feasible point whose optimality error stays below
+        # ACCEPT_TOL for ACCEPT_ITERATIONS iterations.  Where the reduced Hessian is singular
+        # (a joint that is not time-critical: its controls are not unique) the inertia
+        # correction makes the last digits converge linearly, by ~0.1 % an iteration.
+        it[I_ACCEPTABLE] = it[I_ACCEPTABLE] + 1 if feasible and fs[F_ERR] <= ACCEPT_TOL else 0
+        if it[I_ACCEPTABLE] >= ACCEPT_ITERATIONS:
             return CONVERGED
         if it[I_ITER] >= it[I_MAX_ITER]:
             return ITERATION_LIMIT

@@ -80,10 +80,18 @@ class Problem:
         return CylindricalRobot(self.robot) if self.model is None else self.model
 
     def with_model(self, model):
-        """Return this problem for another RobotModel (the cylindrical one as `robot` data)."""
+        """
+        Return this problem for another RobotModel (the cylindrical one as `robot` data).
+
+        Joint states x0, x_goal (2 n entries) become the model's states (models with actuator
+        states: the torques that hold the joints' velocities, see actuated.py).
+        """
+        states = {name: _model_state(model, getattr(self, name)) for name in ('x0', 'x_goal')}
         if isinstance(model, CylindricalRobot):
-            return dataclasses.replace(self, robot=model.params, model=None)
-        return dataclasses.replace(self, model=model)
+            if model.params == self.robot and self.model is None:
+                return dataclasses.replace(self, **states)
+            return dataclasses.replace(self, robot=model.params, model=None, **states)
+        return dataclasses.replace(self, model=model, **states)
 
     @property
     def integrator_id(self):
@@ -246,6 +254,21 @@ def measure_violations(problem, controls, final_time):
         max_control_excess=max(float(excess), 0.0),
         terminal_error=float(np.linalg.norm(states[-1] - np.asarray(problem.x_goal, float))),
         min_clearance=clearance)
+
+
+def _model_state(model, x):
+    """Return x as the model's state when it is a joint state of a larger one, else x."""
+    try:
+        arr = np.array(x, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return x            # validate() reports it
+    if model.nx == arr.shape[0] or arr.shape[0] != 2 * model.n_joints \
+            or not np.all(np.isfinite(arr)):
+        return x
+    try:
+        return tuple(float(v) for v in model.full_state(arr))
+    except (ArithmeticError, ValueError) as exc:        # ModelError is a ValueError
+        raise ProblemError(f'no actuator state for the joint state {arr.tolist()}: {exc}')
 
 
 def _finite_number(value):

@@ -85,7 +85,7 @@ def brake(model, x, dt):
     pair = np.empty((2, model.nx))
     states, controls = [state.copy()], []
     for _ in range(int(BRAKE_MAX_S / dt)):
-        speed = state[1::2]
+        speed = model.velocities(state)
         if np.max(np.abs(speed)) < BRAKE_REST_SPEED:
             break
         u = -u_max * np.clip(speed / BRAKE_SMOOTHING_SPEED, -1.0, 1.0)
@@ -97,5 +97,5 @@ def brake(model, x, dt):
         states.append(state.copy())
         controls.append(np.zeros(model.nu))
     states = np.array(states)
-    states[-1, 1::2] = 0.0
+    states[-1, 1:2 * model.n_joints:2] = 0.0
     return dt * np.arange(len(states)), states, np.array(controls)

@@ -91,6 +91,7 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
                 start_point = warm_start_point(problem, initial_guess, problem.n_intervals)
             except (TypeError, ValueError) as exc:
                 raise ProblemError(f'bad initial guess: {exc}')
+        _check_resolution(problem, problem.t_f0 if start_point is None else start_point[2])
     except ProblemError as exc:
         return SolveResult(status=Status.INVALID_INPUT, message=str(exc),
                            mode=str(getattr(options, 'mode', '')),
@@ -110,6 +111,17 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
                                   result.final_time if result.success else math.nan,
                                   result.wall_time_s, 'done', result.violations), force=True)
     return result
+
+
+def _check_resolution(problem, t_f):
+    """Refuse a grid too coarse for the model's fast states (actuator lags: max_step)."""
+    step = problem.robot_model.max_step
+    n = problem.n_intervals
+    if t_f / n > step * (1.0 + 1e-9):
+        raise ProblemError(
+            f'N = {n} intervals is too coarse for the model: steps t_f / N up to {step:.4g} s '
+            f'resolve its actuators (robot.actuator_lag / 2.5), the final time (guess) '
+            f'{t_f:.4g} s needs N >= {math.ceil(t_f / step)}')
 
 
 def _finish(problem, controls, final_time, iterations, history, status, message):
@@ -184,6 +196,6 @@ def warm_up(models=None):
         solve(tiny, SolverOptions(mode='paper', max_iterations=2))
         solve(tiny, SolverOptions(mode='fast', max_iterations=3))
         for model in models or ():
-            solve(replace(tiny, model=model, x0=tuple(model.state(np.zeros(model.n_joints))),
+            solve(replace(tiny, obstacles=(), x0=tuple(model.state(np.zeros(model.n_joints))),
                           x_goal=tuple(model.state(np.full(model.n_joints, 0.1))),
-                          obstacles=()), SolverOptions(mode='fast', max_iterations=3))
+                          ).with_model(model), SolverOptions(mode='fast', max_iterations=3))

@@ -101,7 +101,7 @@ def _now(client):
 
 def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
                   plant=None, replan_rate=20.0, moving=None, margin=None, estimate=(),
-                  integrator=None, max_nodes=None, timeout=20.0):
+                  integrator=None, max_nodes=None, solver=None, timeout=20.0):
     """
     Run one goal in the loop and return an Execution.
 
@@ -109,15 +109,13 @@ def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
     publishers: (goal_joints, obstacles) publishers; plant: plant_node parameter values for
     this run (mismatch knobs); moving: a MovingObstacle or None; margin, integrator,
     max_nodes: the solver's obstacles.margin, solver.integrator and replan.max_nodes for this
-    run (restored afterwards);
+    run, solver: further solver_node parameters for this run (all restored afterwards);
     estimate: its replan.estimate (set anew each run: every run estimates from scratch).
     """
     goal_pub, obstacles_pub = publishers
 
     def send(rows):
         obstacles_pub.publish(conversions.obstacles_msg(rows))
-    solver = {'replan.rate': float(replan_rate), 'replan.estimate': Parameter(
-        'replan.estimate', Parameter.Type.STRING_ARRAY, [str(n) for n in estimate])}
     temporary = {}
     if margin is not None:
         temporary['obstacles.margin'] = float(margin)
@@ -125,9 +123,11 @@ def run_execution(client, publishers, model, joint_names, goal_q, obstacles, *,
         temporary['solver.integrator'] = str(integrator)
     if max_nodes is not None:
         temporary['replan.max_nodes'] = int(max_nodes)
+    temporary.update(solver or {})
     restore = client.get_parameters('solver_node', list(temporary)) if temporary else {}
-    solver.update(temporary)
-    _set(client, 'solver_node', solver)
+    values = dict(temporary, **{'replan.rate': float(replan_rate), 'replan.estimate': Parameter(
+        'replan.estimate', Parameter.Type.STRING_ARRAY, [str(n) for n in estimate])})
+    _set(client, 'solver_node', values)
     try:
         return _execute(client, goal_pub, send, model, joint_names, goal_q, obstacles, plant,
                         moving, timeout)
@@ -203,10 +203,10 @@ def true_reference(params, changes, goal_q, obstacles=None, margin=None):
     obstacles / margin: the obstacle rows and margin to plan around instead of params' (for a
     moving circle: its final place).
     """
-    result = _true_plan(params, changes, obstacles, margin)
+    result, model = _true_plan(params, changes, obstacles, margin)
     if not result.success:
         return {'t_min': math.nan, 'arrival_s': math.nan}
-    positions = np.asarray(result.states)[:, 0::2]
+    positions = model.positions(np.asarray(result.states))
     return {'t_min': float(result.final_time),
             'arrival_s': arrival_time(np.asarray(result.time_grid), positions, goal_q)}
 
@@ -220,7 +220,8 @@ def _true_plan(params, changes, obstacles, margin):
             values[f'obstacles.{key}'] = [float(row[i]) for row in obstacles]
     if margin is not None:
         values['obstacles.margin'] = float(margin)
-    return solve(config.problem_from_parameters(values), config.options_from_parameters(values))
+    problem = config.problem_from_parameters(values)
+    return solve(problem, config.options_from_parameters(values)), problem.robot_model
 
 
 def _set(client, node, values):

@@ -76,6 +76,11 @@ class SolverNodeSettings:
         'to 0.2 s), from the state predicted along the executing plan; a cycle not published '
         'by then keeps the executing plan', unit='s', low=0.001,
         high=1.0, ros_name='replan.lead')
+    start_lead: float = setting(
+        0.03, "a goal's plan from rest starts (header.stamp) this long after it is published, "
+        'so that the controller has it before its first point applies (the robot holds its '
+        'rest meanwhile; a plan stamped now would start partway, its first motion lost); '
+        'plans from a moving state start at once', unit='s', low=0.0, high=1.0)
     replan_estimate: Tuple[str, ...] = setting(
         (), 'model parameters (e.g. hand_mass, inertia; m_p) that the replan cycles estimate '
         'online from joint_states (position, velocity and effort = the applied u) and plan '
@@ -117,7 +122,8 @@ class PlantSettings:
         high=100.0)
     actuator_lag: float = setting(
         0.0, 'time constant of a first-order lag on the control applied to the simulated plant '
-        '(du/dt = (u_cmd - u) / actuator_lag; model mismatch); 0: off', unit='s', low=0.0,
+        '(du/dt = (u_cmd - u) / actuator_lag: the simulated drives; robot.actuator_lag is what '
+        'the planner assumes of them); 0: off', unit='s', low=0.0,
         high=MAX_ACTUATOR_LAG_S)
     control_delay: float = setting(
         0.0, 'pure delay of the commanded control in the simulated plant, rounded to the '

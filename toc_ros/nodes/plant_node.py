@@ -125,9 +125,11 @@ def plant_model(params):
     """
     Return the plant's RobotModel: the solver's model with the mismatch knobs applied.
 
-    Raises ProblemError for a bad model, or for mismatch knobs on a model without a mapping.
+    The joints' model: the plant's own actuator_lag and control_delay simulate the drives
+    (robot.actuator_lag is what the planner assumes of them).  Raises ProblemError for a bad
+    model, or for mismatch knobs on a model without a mapping.
     """
-    model = model_from_parameters(params)
+    model = model_from_parameters(params).joint_model
     offset, scale = float(params['payload_mass_offset']), float(params['inertia_scale'])
     if isinstance(model, CylindricalRobot):
         robot = model.params

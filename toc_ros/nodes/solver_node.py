@@ -79,6 +79,7 @@ from toc_ros.config import (model_from_parameters, obstacle_rows, options_from_p
                             problem_from_parameters)
 from toc_ros.core import ModelError, ProblemError, Progress, solve, Status, warm_up
 from toc_ros.core.estimation import estimate_text, ParameterEstimator
+from toc_ros.core.models import CylindricalRobot, with_actuator_lag
 from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.replan import brake, predict
 from toc_ros.core.result import CLEARANCE_TOL
@@ -103,6 +104,9 @@ MIN_CYCLE_GUESS_NODES = 5
 # A joint_states stamp further than this from the node clock is from another time base
 # (publish_clock without use_sim_time, say): its age is then taken as zero.
 MAX_STATE_AGE_S = 1.0
+# [rad/s, m/s] joint speeds up to which a goal's start is at rest (its plan starts start_lead
+# after it is published).
+REST_SPEED = 1e-3
 MIN_CYCLE_TIMEOUT_S = 0.002
 # The lead grows with the measured cycle latency (p90 of the last LATENCY_WINDOW cycles, x 1.5)
 # up to MAX_LEAD_S; new data may take up to half the time until the plan would hit a circle.
@@ -148,7 +152,7 @@ def parameter_errors(params):
     errors = parameters.joint_name_errors(params['joint_names'], model.n_joints, model.name)
     if params['replan.estimate']:
         try:
-            ParameterEstimator(model, params['replan.estimate'],
+            ParameterEstimator(model.joint_model, params['replan.estimate'],
                                float(params['replan.estimate_window']))
         except ModelError as exc:
             errors.append(f'replan.estimate: {exc}')
@@ -164,8 +168,8 @@ def parameter_errors(params):
         errors.append(f'{count} obstacles exceed obstacles.max_count = {limit}')
         return errors      # no per-obstacle work on a refused set
     state_errors = (
-        parameters.vector_errors('initial_state', params['initial_state'], model.nx)
-        + parameters.vector_errors('goal_state', params['goal_state'], model.nx))
+        parameters.vector_errors('initial_state', params['initial_state'], 2 * model.n_joints)
+        + parameters.vector_errors('goal_state', params['goal_state'], 2 * model.n_joints))
     errors += state_errors
     try:
         options_from_parameters(params).validate()
@@ -191,6 +195,21 @@ def planning_data(params):
     """Return the parameter values a plan depends on beyond its goal (one revision's data)."""
     return {k: v for k, v in params.items()
             if k.startswith(PLANNING_PREFIXES) and k != 'obstacles.max_count'}
+
+
+def model_state(params, joints, effort=None):
+    """
+    Return the state of the parameters' model from a measured joint state and its efforts.
+
+    A model with actuator states (robot.actuator_lag) takes the efforts as the applied ones
+    (without them: the torques that hold the joints' velocities); others the joint state.
+    """
+    if not params['robot.actuator_lag'] > 0.0:
+        return np.array(joints, dtype=float)
+    try:
+        return model_from_parameters(params).full_state(joints, effort)
+    except (ProblemError, ValueError):      # a bad model is refused where it is used
+        return np.array(joints, dtype=float)
 
 
 def obstacle_count(msg):
@@ -223,16 +242,17 @@ def recovery_params(params, start):
     return dict(params, **{'obstacles.margin': 0.5 * gap})
 
 
-def nearest_node(states, x):
+def nearest_node(model, states, x):
     """
-    Return the index of the plan node nearest to state x.
+    Return the index of the plan node nearest to state x in the joints' states.
 
     The plant lags or leads the plan's clock (mismatch, tracking error), so a warm start from
     the node nearest in state, scaled by each coordinate's spread along the plan, fits better
     than the node at the elapsed time.
     """
+    states, x = model.joint_states(states), model.joint_states(np.asarray(x))
     scale = np.maximum(np.ptp(states, axis=0), 1e-6)
-    return int(np.argmin(np.sum(((states - np.asarray(x)) / scale) ** 2, axis=1)))
+    return int(np.argmin(np.sum(((states - x) / scale) ** 2, axis=1)))
 
 
 class _Request:
@@ -451,7 +471,8 @@ class SolverNode(Node):
             raise parameters.ParameterError('; '.join(errors))
         self._name = self.get_fully_qualified_name()
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
-        self._measured = None               # latest state from joint_states
+        self._measured = None               # latest joint state from joint_states
+        self._measured_effort = None        # and its efforts (None: not given or not used)
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
         self._progress = None               # (Progress, solve start) of the running solve
@@ -516,7 +537,7 @@ class SolverNode(Node):
     def _warm_up(self):
         started = time.monotonic()
         try:
-            warm_up(None if self._model.name == 'cylindrical' else [self._model])
+            warm_up(None if isinstance(self._model, CylindricalRobot) else [self._model])
         except Exception as exc:  # noqa: B902 - reported; solves then compile on demand
             self.get_logger().error(f'loading the numba kernels failed: {exc!r}')
         elapsed = time.monotonic() - started
@@ -531,6 +552,24 @@ class SolverNode(Node):
         self.get_logger().info(
             f"ready: {len(params['obstacles.x'])} obstacle(s), mode "
             f"{params['solver.mode']}, N = {params['solver.N']}")
+
+    def _load_kernels_of(self, params):
+        """
+        Load the kernels of a new robot model in the background (goals wait for them).
+
+        E.g. robot.actuator_lag or robot.model set at run time: the new model's kernels are
+        compiled (or loaded from the cache) before any goal is solved with it, as at start-up.
+        """
+        try:
+            model = model_from_parameters(params)
+        except ProblemError:
+            return              # refused by the parameter check before it gets here
+        previous, self._model = self._model, model
+        if model.kernels is previous.kernels:
+            return
+        self._ready.clear()
+        self.get_logger().info(f'robot model changed: loading the kernels of {model!r}')
+        threading.Thread(target=self._warm_up, name='warm_up', daemon=True).start()
 
     def ready(self):
         """Tell whether the kernels are loaded (goals before that are queued)."""
@@ -566,6 +605,8 @@ class SolverNode(Node):
             self._params = parameters.candidate(self._params, changed)
             self._arm_dirty = True   # obstacles or frames may have changed
             params = dict(self._params)
+        if any(p.name.startswith('robot.') for p in changed):
+            self._load_kernels_of(params)
         planning = planning_data(params)
         with self._plan_lock:
             if planning == self._planning:
@@ -700,9 +741,10 @@ class SolverNode(Node):
         return None
 
     def _snapshot(self):
+        """Return (parameters, the measured state of their model or None)."""
         with self._lock:
-            return dict(self._params), (None if self._measured is None
-                                        else self._measured.copy())
+            params, joints, effort = dict(self._params), self._measured, self._measured_effort
+        return params, (None if joints is None else model_state(params, joints, effort))
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -711,6 +753,9 @@ class SolverNode(Node):
             names = self._params['joint_names']
         try:
             state = conversions.joint_state_to_state(msg, names)
+            # The applied efforts are the actuator states of a model with actuator lag.
+            effort = (conversions.joint_state_efforts(msg, names)
+                      if self._params['robot.actuator_lag'] > 0.0 else None)
         except conversions.ConversionError as exc:
             self.get_logger().warning(f'ignoring joint_states: {exc}', throttle_duration_sec=5.0)
             return
@@ -718,6 +763,7 @@ class SolverNode(Node):
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self._lock:
             self._measured = state
+            self._measured_effort = effort
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
@@ -725,7 +771,7 @@ class SolverNode(Node):
         state_time = stamp if stamp > 0.0 else self._now()
         if params['replan.estimate']:
             self._estimate_from(msg, params, state, state_time)
-        self._maybe_replan(params, state, state_time, received)
+        self._maybe_replan(params, model_state(params, state, effort), state_time, received)
 
     def _estimate_from(self, msg, params, state, state_time):
         """Feed the online estimator (replan.estimate) with one joint_states sample."""
@@ -739,7 +785,8 @@ class SolverNode(Node):
             self.get_logger().warning(f'replan.estimate: {why}; nothing estimated',
                                       throttle_duration_sec=5.0)
             return
-        key = (model_from_parameters(params), tuple(params['replan.estimate']),
+        # The joints' model: the efforts are the applied ones (after any actuator lag).
+        key = (model_from_parameters(params).joint_model, tuple(params['replan.estimate']),
                float(params['replan.estimate_window']))
         with self._estimation_lock:
             if key != self._estimator_key:      # new robot data or estimation settings
@@ -760,7 +807,8 @@ class SolverNode(Node):
             return None, ''
         with self._estimation_lock:
             estimator = self._estimator
-            if estimator is None or estimator.model_ != model_from_parameters(params):
+            if estimator is None or \
+                    estimator.model_ != model_from_parameters(params).joint_model:
                 return None, 'no samples yet'
             values = estimator.estimate()
             if values is None:
@@ -773,6 +821,7 @@ class SolverNode(Node):
                 model = estimator.model(values)
                 if model is None:
                     return None, estimator.status
+                model = with_actuator_lag(model, params['robot.actuator_lag'])
                 held = self._planning_estimate = (values, model)
             return held[1], estimate_text(held[0])
 
@@ -811,9 +860,11 @@ class SolverNode(Node):
                 return False
             state, measured_at = plan['states'][0], 0.0
         times = plan['times']
-        q_ref = np.array([np.interp(measured_at, times, plan['states'][:, j])
-                          for j in range(0, state.shape[0], 2)])
-        deviation = float(np.max(np.abs(state[0::2] - q_ref)))
+        model = plan['model']
+        q_plan = model.positions(plan['states'])
+        q_ref = np.array([np.interp(measured_at, times, q_plan[:, j])
+                          for j in range(q_plan.shape[1])])
+        deviation = float(np.max(np.abs(model.positions(state) - q_ref)))
         limit = float(params['replan.deviation'])
         if reason is None:
             if limit > 0.0 and deviation > limit:
@@ -861,15 +912,18 @@ class SolverNode(Node):
         result, problem, why = None, None, ''
         estimated, estimate = self._estimated_model(params)
         try:
-            guess = plan['result'].remainder(plan['times'][nearest_node(plan['states'],
-                                                                        cycle.start)])
+            guess = plan['result'].remainder(plan['times'][nearest_node(
+                plan['model'], plan['states'], cycle.start)])
             problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
             if estimated is not None:
                 problem = problem.with_model(estimated)
             # The remainder's own grid (same tau: the warm start is then nearly optimal), cut
-            # to replan.max_nodes intervals; resampling to another grid each cycle would move
-            # the control switches off it and cost many more iterations.
-            nodes = min(guess.controls.shape[0], int(params['replan.max_nodes']))
+            # to replan.max_nodes intervals (resampling to another grid each cycle would move
+            # the control switches off it and cost many more iterations), but with steps no
+            # longer than the model's max_step (actuator lags).
+            nodes = min(guess.controls.shape[0], max(
+                int(params['replan.max_nodes']),
+                math.ceil(guess.final_time / problem.robot_model.max_step)))
             problem = dataclasses.replace(problem, n_intervals=nodes)
             # A cycle is worthless once its plan should have started: that is its time limit.
             options = options_from_parameters(params)
@@ -900,9 +954,10 @@ class SolverNode(Node):
                           'violates the new data'
         # joint_states received -> trajectory published (the path and markers come after).
         latency = (request.published_at if published else time.monotonic()) - cycle.received
-        if result is not None and result.status is Status.SOLVED:
-            # Solved cycles only (published or late): a timed-out one lasts as long as the lead
-            # it was given and would only feed its own lead back.
+        if result is not None and result.status in (Status.SOLVED, Status.TIMEOUT):
+            # Solved cycles (published or late) and timed-out ones: a cycle cut at its lead
+            # needed more (a lone one leaves the 90th percentile as it is; cycles that keep
+            # timing out raise the lead by 1.5 each until they fit or reach MAX_LEAD_S).
             with self._lock:
                 self._latencies.append(min(latency, MAX_LEAD_S / 1.5))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
@@ -1175,12 +1230,14 @@ class SolverNode(Node):
         """
         with self._plan_lock:
             plan = self._executing
+        model = problem.robot_model
         if options.mode != 'fast' or plan is None or start_source != 'joint_states' \
-                or plan.get('result') is None \
-                or not np.allclose(plan['goal'], problem.x_goal, rtol=0.0, atol=1e-9):
+                or plan.get('result') is None or plan['model'] != model \
+                or not np.allclose(model.joint_states(plan['goal']),
+                                   model.joint_states(problem.x_goal), rtol=0.0, atol=1e-9):
             return problem, None
         elapsed = self._now() - plan['start']
-        k = nearest_node(plan['states'], problem.x0)
+        k = nearest_node(model, plan['states'], problem.x0)
         remainder = plan['result'].remainder(plan['times'][k])
         nodes = remainder.controls.shape[0]
         if elapsed >= plan['duration'] or nodes < MIN_WARM_NODES \
@@ -1197,9 +1254,12 @@ class SolverNode(Node):
         is published when it also satisfies the current data (checked as executing plans are).
         """
         now = self._now()
-        start = now if stamp_s is None else float(stamp_s)
-        stamp = conversions.time_msg(start)
         model = problem.robot_model
+        if stamp_s is None:
+            at_rest = np.max(np.abs(model.velocities(np.asarray(problem.x0)))) <= REST_SPEED
+            stamp_s = now + float(params['start_lead']) if at_rest else now
+        start = float(stamp_s)
+        stamp = conversions.time_msg(start)
         trajectory = conversions.trajectory_msg(result, params['joint_names'], model, stamp)
         with self._plan_lock:
             if revision != self._revision:
@@ -1252,6 +1312,8 @@ class SolverNode(Node):
         with self._plan_lock:
             plan = self._executing
             path_states = None if plan is None else plan['path_states']
+            if path_states is not None and plan.get('model') is not None:
+                path_states = plan['model'].joint_states(path_states)
             plan_info, revision = self._plan_info, self._revision
         if arm is None:
             arm = np.asarray(params['initial_state'], dtype=float)
@@ -1261,7 +1323,7 @@ class SolverNode(Node):
             rows = ()
         margin = float(params['obstacles.margin'])
         try:
-            model = model_from_parameters(params)
+            model = model_from_parameters(params).joint_model     # joint states drawn
         except ProblemError:
             model = float(params['robot.a'])
         if path_states is not None and np.shape(path_states)[-1] != np.shape(arm)[-1]:

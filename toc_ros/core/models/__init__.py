@@ -12,12 +12,18 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Robot models behind one interface (base.py): the paper's cylindrical robot, planar_2r."""
+"""
+Robot models behind one interface (base.py).
+
+The paper's cylindrical robot, planar_2r, model files (symbolic.py), each optionally with
+first-order actuators (actuated.py).
+"""
 
 import dataclasses
 import os
 from typing import Tuple
 
+from .actuated import ActuatedModel, with_actuator_lag
 from .base import ModelError, RobotModel
 from .cylindrical import CylindricalRobot
 from .planar_2r import Planar2R, Planar2RParams
@@ -39,6 +45,11 @@ class ModelChoice:
         (), "model parameters as 'name=value' (e.g. l1=0.9, g=9.81); empty: the model's "
         "defaults (for 'cylindrical': the robot.* values, which these override)",
         ros_name='model_parameters', ros_type='string_array')
+    actuator_lag: float = setting(
+        0.0, "time constant T of the drives' torque (force) response, a first-order lag per "
+        'joint that the plans model (models/actuated.py: the applied effort is a state, the '
+        'trajectory commands what the drives are asked for); 0 = ideal actuators',
+        unit='s', low=0.0, high=1.0)
 
     def parameter_values(self):
         """{name: value text} of the parameters (ModelError for an entry without '=')."""
@@ -99,5 +110,6 @@ def load_model(name_or_path, **params):
                      f'{", ".join(sorted(MODELS))}, or give the path of a model file (.yaml)')
 
 
-__all__ = ['CylindricalRobot', 'load_model', 'ModelChoice', 'ModelError', 'MODELS', 'Planar2R',
-           'Planar2RParams', 'RobotModel']
+__all__ = ['ActuatedModel', 'CylindricalRobot', 'load_model', 'ModelChoice', 'ModelError',
+           'MODELS', 'Planar2R',
+           'Planar2RParams', 'RobotModel', 'with_actuator_lag']

@@ -20,7 +20,8 @@ solvers are written once against this interface and never look inside a model.
 
 State and control layout (n joints, every model):
     x = (q_1, dq_1, q_2, dq_2, ..., q_n, dq_n)   (nx = 2 n),   u = (u_1, ..., u_n)  (nu = n)
-    q_j in rad (revolute) or m (prismatic), u_j in N m or N.
+    q_j in rad (revolute) or m (prismatic), u_j in N m or N.  A model with actuator states
+    (actuated.py) appends them: nx = 3 n, the joints keep the first 2 n entries.
 
 Pointwise kernels (module-level @njit(cache=True) functions of the model's kernel module; p is
 the model's packed parameter vector, float64; every output entry is written, nothing allocated):
@@ -118,12 +119,33 @@ class RobotModel:
 
     # Helpers shared by every model -------------------------------------------------------
     def positions(self, states):
-        """Joint positions q (..., n) of states (..., 2 n)."""
-        return np.asarray(states)[..., 0::2]
+        """Joint positions q (..., n) of states (..., nx): the even entries of the first 2 n."""
+        return np.asarray(states)[..., 0:2 * self.n_joints:2]
 
     def velocities(self, states):
-        """Joint velocities dq (..., n) of states (..., 2 n)."""
-        return np.asarray(states)[..., 1::2]
+        """Joint velocities dq (..., n) of states (..., nx): the odd entries of the first 2 n."""
+        return np.asarray(states)[..., 1:2 * self.n_joints:2]
+
+    def joint_states(self, states):
+        """Joint part (q_1, dq_1, ..., q_n, dq_n) (..., 2 n) of states (..., nx)."""
+        return np.asarray(states)[..., :2 * self.n_joints]
+
+    # Largest time step [s] of a plan that resolves the model's fast states (inf: none).
+    max_step = float('inf')
+
+    @property
+    def joint_model(self):
+        """Return the model of the joints driven directly by u (actuated.py wraps one)."""
+        return self
+
+    def full_state(self, x, effort=None):
+        """
+        Return the model's state from a joint state (q_1, dq_1, ..., q_n, dq_n).
+
+        effort: the applied controls (joint_states effort), used by models with actuator
+        states (actuated.py); here the joint state is the whole state.
+        """
+        return np.asarray(x, dtype=float).reshape(-1).copy()
 
     def state(self, q, dq=None):
         """State vector (2 n,) from positions and (default zero) velocities."""

@@ -72,7 +72,6 @@ machine code is cached with the core's (toc_ros/core/_numba_cache.py).
 
 from dataclasses import dataclass
 import hashlib
-import importlib.util
 import keyword
 import math
 import os
@@ -84,6 +83,7 @@ import yaml
 
 from . import hand_ik
 from .base import ModelError, RobotModel
+from .generated import cache_root, import_file, write_once
 
 try:
     import sympy as sp
@@ -113,16 +113,6 @@ _IDENT = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 # ------------------------------------------------------------------------------------------
 # Cache location
 # ------------------------------------------------------------------------------------------
-
-def cache_root():
-    """Directory of the generated model modules (NUMBA_CACHE_DIR or XDG_CACHE_HOME based)."""
-    base = os.environ.get('NUMBA_CACHE_DIR')
-    if base:
-        return os.path.join(base, 'toc_ros-models')
-    return os.path.join(os.environ.get('XDG_CACHE_HOME')
-                        or os.path.join(os.path.expanduser('~'), '.cache'),
-                        'toc_ros', 'models')
-
 
 def _generator_digest():
     with open(os.path.abspath(__file__), 'rb') as stream:
@@ -1088,36 +1078,15 @@ def generate_source(text, source='<string>'):
 # Loading
 # ------------------------------------------------------------------------------------------
 
-def _import(path, module_name):
-    if module_name in sys.modules:
-        return sys.modules[module_name]
-    spec = importlib.util.spec_from_file_location(module_name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[module_name] = module      # before exec: the wrappers look themselves up
-    try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        del sys.modules[module_name]
-        raise
-    return module
-
-
 def kernel_module(text, source='<string>', cache_dir=None):
     """Return the kernel module of a model file's text (generated on the first use)."""
     model_hash = content_hash(text)
     module_name = f'toc_ros_model_{model_hash}'
     if module_name in sys.modules:
         return sys.modules[module_name]
-    folder = os.path.join(cache_dir or cache_root(), model_hash)
-    path = os.path.join(folder, f'model_{model_hash}.py')
-    if not os.path.exists(path):
-        code, _ = generate_source(text, source)
-        os.makedirs(folder, exist_ok=True)
-        tmp = f'{path}.{os.getpid()}.tmp'
-        with open(tmp, 'w', encoding='utf-8') as stream:
-            stream.write(code)
-        os.replace(tmp, path)            # atomic: concurrent loaders see a whole file
-    return _import(path, module_name)
+    path = os.path.join(cache_dir or cache_root(), model_hash, f'model_{model_hash}.py')
+    write_once(path, lambda: generate_source(text, source)[0])
+    return import_file(path, module_name)
 
 
 @dataclass(frozen=True)
