@@ -297,3 +297,51 @@ def test_unknown_estimated_parameter_is_refused(loop):
     results = loop.client.set_parameters('solver_node', {'replan.estimate': ['wheel_radius']})
     assert not results[0].successful
     assert 'wheel_radius' in results[0].reason and 'hand_mass' in results[0].reason
+
+
+def _arrival(ctx, since, t0):
+    """Return the time [s after t0] from which every joint stays within 1e-2 of the goal."""
+    samples = ctx.client.stamped('joint_states', since)
+    times = np.array([stamp_of(m) for _, m in samples]) - t0
+    error = np.array([np.max(np.abs(np.array(m.position) - GOAL_Q)) for _, m in samples])
+    outside = np.flatnonzero(error > 1e-2)
+    return times[outside[-1] + 1] if len(outside) else times[0]
+
+
+def test_actuator_lag_in_the_plan(loop):
+    """
+    A plant whose drives lag by 10 ms: plans that model the lag (robot.actuator_lag) arrive.
+
+    Without the actuator model each bang-bang switch reaches the arm late and the cycles' plans
+    end later and later; with it the arm arrives within 2 % of the lag-aware plan's own arrival.
+    """
+    arrivals = {}
+    try:
+        set_params(loop, 'plant_node', {'actuator_lag': 0.01})
+        for lag in (0.0, 0.01):
+            # The grid resolves the lag (steps <= lag / 2.5 at t_f0 = 2.5 s: N >= 625).
+            since, first = start(loop, 20.0, **{'robot.actuator_lag': lag, 'solver.N': 700,
+                                                'solver.integrator': 'rk4'})
+            settle(loop, first)
+            t0 = stamp_of(first)
+            arrivals[lag] = (_arrival(loop, since, t0), first, since)
+    finally:
+        set_params(loop, 'plant_node', {'actuator_lag': 0.0})
+        set_params(loop, 'solver_node', {'robot.actuator_lag': 0.0, 'solver.N': PARAMS['solver.N'],
+                                         'solver.integrator': 'euler'})
+    arrived, first, since = arrivals[0.01]
+    # The plan's efforts are the commands (within the bounds), its end the lag-aware t_min.
+    efforts = np.array([p.effort for p in first.points])
+    assert np.all(np.abs(efforts) <= np.array([600.0, 500.0]))
+    assert duration_of(first) > duration_of(arrivals[0.0][1])
+    # Its own arrival by the same rule, from its points.
+    times = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                      for p in first.points])
+    error = np.max(np.abs(np.array([p.positions for p in first.points]) - GOAL_Q), axis=1)
+    planned = times[np.flatnonzero(error > 1e-2)[-1] + 1]
+    assert arrived <= 1.02 * planned, (arrived, planned)
+    assert arrivals[0.0][0] > arrived
+    replanned = [r for r in cycle_reports(loop, since) if r.event == schema.EVENT_REPLANNED]
+    assert len(replanned) >= 3
+    final = positions_since(loop, since)[-1]
+    assert np.max(np.abs(final - GOAL_Q)) < 1e-3

@@ -108,10 +108,16 @@ MAX_STATE_AGE_S = 1.0
 # after it is published).
 REST_SPEED = 1e-3
 MIN_CYCLE_TIMEOUT_S = 0.002
-# The lead grows with the measured cycle latency (p90 of the last LATENCY_WINDOW cycles, x 1.5)
-# up to MAX_LEAD_S; new data may take up to half the time until the plan would hit a circle.
+# The lead grows with the measured cycle latency (the median of the last LATENCY_WINDOW cycles,
+# x LEAD_PER_MEDIAN) up to MAX_LEAD_S; new data may take up to half the time until the plan
+# would hit a circle.
 LATENCY_WINDOW = 20
 MAX_LEAD_S = 0.2
+# The lead is at least this many times the median of recent cycle latencies (_cycle_latency).
+LEAD_PER_MEDIAN = 2.0
+# [s] a cycle's solve may run this long past its plan's stamp: not published, its plan warm-starts
+# the next cycle (a new switching structure takes one slow solve, then the next is fast).
+SEED_EXTRA_S = 0.15
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
@@ -224,9 +230,10 @@ def recovery_params(params, start):
     """
     Return params with obstacles.margin reduced so that start clears the inflated circles.
 
-    For the replan after a stop: braking may end inside the margin (never inside a true
-    circle, which the plans keep out of), and the plan out of there may use half the start's
-    true clearance as its margin.  None when start clears the margin or is inside a circle.
+    For the replan after a stop, and replan cycles: braking or tracking errors may leave the
+    arm inside the margin (never inside a true circle, which the plans keep out of), and the
+    plan out of there may use half the start's true clearance as its margin.  None when start
+    clears the margin or is inside a circle.
     """
     try:
         model = model_from_parameters(params)
@@ -484,6 +491,7 @@ class SolverNode(Node):
         self._revision = 0
         self._planning = planning_data(self._params)
         self._executing = None              # dict of the last published plan
+        self._seed = None                   # a late cycle's plan: the next cycle's warm start
         self._plan_info = None              # (hash, revision) of the last published plan
         self._next_cycle = 0.0              # time.monotonic() of the next replan.rate cycle
         self._latencies = collections.deque(maxlen=LATENCY_WINDOW)   # of recent cycles [s]
@@ -896,10 +904,16 @@ class SolverNode(Node):
         return True
 
     def _cycle_latency(self):
-        """Return 1.5 x the 90th percentile of recent cycle latencies (0 without any) [s]."""
+        """
+        Return LEAD_PER_MEDIAN x the median of recent cycle latencies (0 without five) [s].
+
+        The median, not a high percentile: the rare cycle whose warm start needs a new
+        switching structure (a new estimate, the final braking) runs late and seeds the next
+        one (_run_cycle) instead of stretching every cycle's lead, and with it the prediction.
+        """
         with self._lock:
             recent = list(self._latencies)
-        return 1.5 * float(np.percentile(recent, 90)) if len(recent) >= 5 else 0.0
+        return LEAD_PER_MEDIAN * float(np.median(recent)) if len(recent) >= 5 else 0.0
 
     def _run_cycle(self, request, cancel):
         """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
@@ -909,26 +923,35 @@ class SolverNode(Node):
             revision = self._revision
             if self._executing is not plan:
                 return          # a newer plan was published meanwhile: nothing to replace
+            seed = self._seed
+        # The warm start: the executing plan, or a late cycle's plan for it (same data).
+        source = plan if seed is None or seed['plan'] is not plan \
+            or seed['revision'] != revision else seed
         result, problem, why = None, None, ''
         estimated, estimate = self._estimated_model(params)
+        # A predicted start inside the margin (tracking error near a circle) but clear of the
+        # true circles plans with half its clearance as margin, as the replan after a stop.
+        params = recovery_params(params, cycle.start) or params
         try:
-            guess = plan['result'].remainder(plan['times'][nearest_node(
-                plan['model'], plan['states'], cycle.start)])
+            guess = source['result'].remainder(source['times'][nearest_node(
+                source['model'], source['states'], cycle.start)])
             problem = problem_from_parameters(params, x0=cycle.start, x_goal=plan['goal'])
             if estimated is not None:
                 problem = problem.with_model(estimated)
             # The remainder's own grid (same tau: the warm start is then nearly optimal), cut
             # to replan.max_nodes intervals (resampling to another grid each cycle would move
             # the control switches off it and cost many more iterations), but with steps no
-            # longer than the model's max_step (actuator lags).
-            nodes = min(guess.controls.shape[0], max(
-                int(params['replan.max_nodes']),
-                math.ceil(guess.final_time / problem.robot_model.max_step)))
+            # longer than the model's max_step (actuator lags; 2 % to spare: the plan's t_f
+            # may grow a little, and its remainders keep its grid).
+            nodes = max(min(guess.controls.shape[0], int(params['replan.max_nodes'])),
+                        math.ceil(1.02 * guess.final_time / problem.robot_model.max_step))
             problem = dataclasses.replace(problem, n_intervals=nodes)
-            # A cycle is worthless once its plan should have started: that is its time limit.
+            # A cycle's plan is published only before its stamp; a solve that runs late goes
+            # on for up to SEED_EXTRA_S, and its plan seeds the next cycle's warm start.
             options = options_from_parameters(params)
             options = dataclasses.replace(options, timeout=max(min(
-                cycle.stamp_s - self._now(), options.timeout or math.inf), MIN_CYCLE_TIMEOUT_S))
+                cycle.stamp_s - self._now() + SEED_EXTRA_S, options.timeout or math.inf),
+                MIN_CYCLE_TIMEOUT_S))
             if guess.controls.shape[0] < MIN_CYCLE_GUESS_NODES:
                 why = f'only {guess.controls.shape[0]} plan nodes left'
             else:
@@ -945,7 +968,14 @@ class SolverNode(Node):
                 why = f'{result.status.value}: {request.stop_reason or result.message}'
             elif late > 0.0:
                 why = (f'late: solved {1e3 * late:.1f} ms after the new plan was to start '
-                       f'(replan.lead {1e3 * float(params["replan.lead"]):.0f} ms)')
+                       f'(replan.lead {1e3 * float(params["replan.lead"]):.0f} ms); it seeds '
+                       'the next cycle')
+                with self._plan_lock:
+                    if self._executing is plan and self._revision == revision:
+                        self._seed = {'plan': plan, 'revision': revision, 'result': result,
+                                      'times': np.asarray(result.time_grid),
+                                      'states': np.asarray(result.states),
+                                      'model': problem.robot_model}
             else:
                 published = self._publish_plan(request, result, problem, params, revision,
                                                stamp_s=cycle.stamp_s)
@@ -955,11 +985,10 @@ class SolverNode(Node):
         # joint_states received -> trajectory published (the path and markers come after).
         latency = (request.published_at if published else time.monotonic()) - cycle.received
         if result is not None and result.status in (Status.SOLVED, Status.TIMEOUT):
-            # Solved cycles (published or late) and timed-out ones: a cycle cut at its lead
-            # needed more (a lone one leaves the 90th percentile as it is; cycles that keep
-            # timing out raise the lead by 1.5 each until they fit or reach MAX_LEAD_S).
+            # Solved cycles (published or late) and timed-out ones (they needed at least as
+            # long): cycles that keep needing more than the lead raise it.
             with self._lock:
-                self._latencies.append(min(latency, MAX_LEAD_S / 1.5))
+                self._latencies.append(min(latency, MAX_LEAD_S / LEAD_PER_MEDIAN))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
                       goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
                       data_revision=revision, latency_s=latency, deviation=cycle.deviation,
@@ -1250,17 +1279,18 @@ class SolverNode(Node):
         Publish the plan unless its data revision is stale (then return False).
 
         stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
-        cycles: ahead of now); None: now.  A replan cycle's plan whose data changed meanwhile
-        is published when it also satisfies the current data (checked as executing plans are).
+        cycles: ahead of now); None: start_lead after publication for a start at rest (the
+        stamp is taken once the message is built), else now.  A replan cycle's plan whose data
+        changed meanwhile is published when it also satisfies the current data (checked as
+        executing plans are).
         """
-        now = self._now()
         model = problem.robot_model
-        if stamp_s is None:
-            at_rest = np.max(np.abs(model.velocities(np.asarray(problem.x0)))) <= REST_SPEED
-            stamp_s = now + float(params['start_lead']) if at_rest else now
-        start = float(stamp_s)
-        stamp = conversions.time_msg(start)
-        trajectory = conversions.trajectory_msg(result, params['joint_names'], model, stamp)
+        at_rest = np.max(np.abs(model.velocities(np.asarray(problem.x0)))) <= REST_SPEED
+        lead = float(params['start_lead']) if stamp_s is None and at_rest else 0.0
+        trajectory = conversions.trajectory_msg(result, params['joint_names'], model,
+                                                conversions.time_msg(0.0))
+        start = self._now() + lead if stamp_s is None else float(stamp_s)
+        stamp = trajectory.header.stamp = conversions.time_msg(start)
         with self._plan_lock:
             if revision != self._revision:
                 with self._lock:
