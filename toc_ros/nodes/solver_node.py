@@ -230,10 +230,9 @@ def recovery_params(params, start):
     """
     Return params with obstacles.margin reduced so that start clears the inflated circles.
 
-    For the replan after a stop, and replan cycles: braking or tracking errors may leave the
-    arm inside the margin (never inside a true circle, which the plans keep out of), and the
-    plan out of there may use half the start's true clearance as its margin.  None when start
-    clears the margin or is inside a circle.
+    For the replan after a stop: braking may end inside the margin (never inside a true
+    circle, which the plans keep out of), and the plan out of there may use half the start's
+    true clearance as its margin.  None when start clears the margin or is inside a circle.
     """
     try:
         model = model_from_parameters(params)
@@ -929,9 +928,6 @@ class SolverNode(Node):
             or seed['revision'] != revision else seed
         result, problem, why = None, None, ''
         estimated, estimate = self._estimated_model(params)
-        # A predicted start inside the margin (tracking error near a circle) but clear of the
-        # true circles plans with half its clearance as margin, as the replan after a stop.
-        params = recovery_params(params, cycle.start) or params
         try:
             guess = source['result'].remainder(source['times'][nearest_node(
                 source['model'], source['states'], cycle.start)])
