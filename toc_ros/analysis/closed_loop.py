@@ -108,8 +108,7 @@ def execution_metrics(model, goal_q, plans: Sequence[PlanSpan], times, positions
         k = int(np.searchsorted(times, end))
         final_error = float(np.max(np.abs(positions[min(k, len(times) - 1)] - goal_q)))
     clearance = executed_clearance(model, times, positions, schedule)
-    latencies = np.asarray(latencies, dtype=float)
-    return {
+    return dict({
         'planned_t_min': plans[0].duration,
         'plans': len(plans),
         'replans_kept': int(kept),
@@ -117,11 +116,16 @@ def execution_metrics(model, goal_q, plans: Sequence[PlanSpan], times, positions
         'last_plan_end_s': plans[-1].end - t0,
         'final_error': final_error,
         'min_clearance': float(np.min(clearance)) if clearance.size else math.nan,
-        'latency_median_s': _percentile(latencies, 50),
-        'latency_p99_s': _percentile(latencies, 99),
-        'latency_max_s': float(np.max(latencies)) if latencies.size else math.nan,
-        'latencies': int(latencies.size),
-    }
+    }, **latency_stats(latencies))
+
+
+def latency_stats(latencies):
+    """Return the median, p99 and max [s] and the count of replan cycle latencies [s]."""
+    latencies = np.asarray(latencies, dtype=float)
+    return {'latency_median_s': _percentile(latencies, 50),
+            'latency_p99_s': _percentile(latencies, 99),
+            'latency_max_s': float(np.max(latencies)) if latencies.size else math.nan,
+            'latencies': int(latencies.size)}
 
 
 def _percentile(values, q) -> Optional[float]:

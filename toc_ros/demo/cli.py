@@ -95,6 +95,7 @@ def main(argv=None):
                 demo.run_stage(number, stage)
             if demo.closed_loop and args.closed_loop:
                 demo.run_closed_loop()
+            demo.summarize_replanning()
         except DemoError as error:
             demo.summary['error'] = str(error)
             print(f'toc-demo: error: {error}', file=sys.stderr)

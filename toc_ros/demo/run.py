@@ -25,10 +25,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import config, conversions, harness
+from toc_ros.analysis.closed_loop import latency_stats
 from toc_ros.core import Status
 from toc_ros.demo import checks, closed_loop
 from toc_ros.demo.summary import recording_facts
-from toc_ros.progress import EVENT_READY, progress_from_msg
+from toc_ros.progress import (EVENT_READY, EVENT_REPLAN_KEPT, EVENT_REPLANNED,
+                              progress_from_msg)
 from toc_ros.recording.process import recorder_command
 from trajectory_msgs.msg import JointTrajectory
 
@@ -424,6 +426,18 @@ class Demo:
         finally:
             self.client.set_parameters('plant_node', closed_loop.NOMINAL_PLANT)
             self.client.set_parameters('solver_node', rate)
+
+    def summarize_replanning(self):
+        """Put the replan cycles of the whole run (every stage) in summary['replanning']."""
+        reports = [progress_from_msg(m) for m in self.client.messages(PROGRESS)]
+        latencies = [r.latency_s for r in reports if r.event == EVENT_REPLANNED]
+        kept = sum(r.event == EVENT_REPLAN_KEPT for r in reports)
+        stats = self.summary['replanning'] = dict(latency_stats(latencies), kept=kept)
+        if latencies:
+            self.out.stage(f"replan cycles of the whole demo: {stats['latencies']} published, "
+                           f"{kept} kept; latency median {1e3 * stats['latency_median_s']:.1f} "
+                           f"ms, p99 {1e3 * stats['latency_p99_s']:.1f} ms, max "
+                           f"{1e3 * stats['latency_max_s']:.1f} ms")
 
     # stop ---------------------------------------------------------------------------------------
 

@@ -66,6 +66,13 @@ def format_summary(summary):
                          f"final error {m['final_error']:.2e} (0.2 s after the last plan), "
                          f"min clearance {m['min_clearance']:.4f} m{latency}"
                          + (f", estimate {m['last_estimate']}" if m.get('last_estimate') else ''))
+    cycles = summary.get('replanning')
+    if cycles and cycles['latencies']:
+        lines.append(f"  replan cycles of the whole demo: {cycles['latencies']} published, "
+                     f"{cycles['kept']} kept; latency (joint_states received -> trajectory "
+                     f"published) median {1e3 * cycles['latency_median_s']:.1f} ms, p99 "
+                     f"{1e3 * cycles['latency_p99_s']:.1f} ms, max "
+                     f"{1e3 * cycles['latency_max_s']:.1f} ms")
     recording = summary.get('recording')
     if recording:
         count = recording['messages']

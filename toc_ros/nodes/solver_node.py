@@ -109,15 +109,17 @@ MAX_STATE_AGE_S = 1.0
 REST_SPEED = 1e-3
 MIN_CYCLE_TIMEOUT_S = 0.002
 # The lead grows with the measured cycle latency (the median of the last LATENCY_WINDOW cycles,
-# x LEAD_PER_MEDIAN) up to MAX_LEAD_S; new data may take up to half the time until the plan
-# would hit a circle.
+# x LEAD_PER_MEDIAN) up to MAX_LEAD_S.
 LATENCY_WINDOW = 20
 MAX_LEAD_S = 0.2
 # The lead is at least this many times the median of recent cycle latencies (_cycle_latency).
 LEAD_PER_MEDIAN = 2.0
 # [s] a cycle's solve may run this long past its plan's stamp: not published, its plan warm-starts
-# the next cycle (a new switching structure takes one slow solve, then the next is fast).
-SEED_EXTRA_S = 0.15
+# the next cycle (a new switching structure takes one slow solve, then the next is fast).  Not
+# longer: the solves that need more (an overshoot in the final braking: 700-2000 iterations)
+# would take a core from the plant for 0.1-0.2 s and delay the next cycles.
+SEED_EXTRA_S = 0.05
+GIL_SWITCH_INTERVAL_S = 0.0005
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
@@ -273,6 +275,7 @@ class _Request:
         self.result = None               # SolveResult once solved (None when dropped)
         self.cycle = None                # a replan cycle's data (_Cycle), None for goals
         self.published_at = None         # time.monotonic() when its trajectory was published
+        self.late = False                # a cycle's plan was ready only after its stamp
         self.path = None                 # nav_msgs/Path when a trajectory was published
         self.done = threading.Event()
         self._lock = threading.Lock()
@@ -646,17 +649,12 @@ class SolverNode(Node):
         conflict = self._true_conflict_time(plan, params, elapsed)
         if measured is not None and (conflict is None or conflict > BRAKE_HORIZON_S) \
                 and self._maybe_replan(params, measured, self._now(), time.monotonic(),
-                                       reason='data change', lead=self._data_lead(conflict)):
+                                       reason='data change'):
             self.get_logger().warning(
                 f'the executing trajectory {violation} under data revision {revision}: '
                 'replanning from the current state')
             return
         self._stop(plan, params, revision, violation)
-
-    @staticmethod
-    def _data_lead(conflict):
-        """Return the lead of a data-change cycle: half the time the old plan stays clear."""
-        return MAX_LEAD_S if conflict is None else min(MAX_LEAD_S, 0.5 * conflict)
 
     def _stop(self, plan, params, revision, violation):
         """
@@ -838,15 +836,15 @@ class SolverNode(Node):
         """Return the node clock's time [s] (simulated time under use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _maybe_replan(self, params, state, state_time, received, reason=None, lead=None):
+    def _maybe_replan(self, params, state, state_time, received, reason=None):
         """
         Start a replan cycle from a measured state when one is due; True when it was queued.
 
         Due: at replan.rate, at once when the state deviates from the executing plan by more
         than replan.deviation, or for a reason (new data).  The cycle's plan starts at
-        stamp = now + replan.lead from the state predicted along the executing plan, and only
-        while more than replan.min_remaining of it is left; the worker takes it only when no
-        goal is queued or solving.
+        stamp = now + lead (replan.lead, or more when recent cycles took longer) from the state
+        predicted along the executing plan, and only while more than replan.min_remaining of it
+        is left; the worker takes it only when no goal is queued or solving.
         """
         rate = float(params['replan.rate'])
         if rate <= 0.0 or params['solver.mode'] != 'fast' or not self._ready.is_set():
@@ -880,9 +878,10 @@ class SolverNode(Node):
                 reason = 'rate'
             else:
                 return False
-        # The lead covers the solve: replan.lead, or more when recent cycles took longer
-        # (a loaded machine); new data may allow more still (lead given by the caller).
-        lead = max(float(params['replan.lead']), self._cycle_latency(), lead or 0.0)
+        # The lead covers the solve: replan.lead, or more when recent cycles took longer (a
+        # loaded machine, a slower model).  New data gets the same: its first cycle usually
+        # needs a new switching structure, runs late and seeds the next (_run_cycle).
+        lead = max(float(params['replan.lead']), self._cycle_latency())
         # The new plan starts on a node of the executing one (the first at or after now +
         # lead): its warm start, that plan's remainder from the node, then starts where the
         # predicted state is, not up to half an interval away (which costs iterations).
@@ -923,9 +922,9 @@ class SolverNode(Node):
             if self._executing is not plan:
                 return          # a newer plan was published meanwhile: nothing to replace
             seed = self._seed
-        # The warm start: the executing plan, or a late cycle's plan for it (same data).
-        source = plan if seed is None or seed['plan'] is not plan \
-            or seed['revision'] != revision else seed
+        # The warm start: the executing plan, or a late cycle's plan for it (when the data
+        # changed since, still closer to the new optimum than the executing plan).
+        source = plan if seed is None or seed['plan'] is not plan else seed
         result, problem, why = None, None, ''
         estimated, estimate = self._estimated_model(params)
         try:
@@ -959,32 +958,31 @@ class SolverNode(Node):
             why = f'internal solver error: {exc!r}'
         published = False
         if result is not None:
-            late = self._now() - cycle.stamp_s
             if result.status is not Status.SOLVED or not result.has_trajectory:
                 why = f'{result.status.value}: {request.stop_reason or result.message}'
-            elif late > 0.0:
-                why = (f'late: solved {1e3 * late:.1f} ms after the new plan was to start '
-                       f'(replan.lead {1e3 * float(params["replan.lead"]):.0f} ms); it seeds '
-                       'the next cycle')
-                with self._plan_lock:
-                    if self._executing is plan and self._revision == revision:
-                        self._seed = {'plan': plan, 'revision': revision, 'result': result,
-                                      'times': np.asarray(result.time_grid),
-                                      'states': np.asarray(result.states),
-                                      'model': problem.robot_model}
             else:
-                published = self._publish_plan(request, result, problem, params, revision,
-                                               stamp_s=cycle.stamp_s)
-                if not published:
+                # Published only when its message is ready before its stamp (else late).
+                request.late = self._now() > cycle.stamp_s
+                published = not request.late and self._publish_plan(
+                    request, result, problem, params, revision, stamp_s=cycle.stamp_s)
+                if request.late:
+                    why = (f'late: ready {1e3 * (self._now() - cycle.stamp_s):.1f} ms after '
+                           'the new plan was to start (lead '
+                           f'{1e3 * (cycle.stamp_s - cycle.state_stamp):.0f} ms); it seeds '
+                           'the next cycle')
+                    self._seed_next(plan, revision, result, problem)
+                elif not published:
                     why = 'the planning data changed during the cycle and the plan ' \
                           'violates the new data'
         # joint_states received -> trajectory published (the path and markers come after).
         latency = (request.published_at if published else time.monotonic()) - cycle.received
         if result is not None and result.status in (Status.SOLVED, Status.TIMEOUT):
-            # Solved cycles (published or late) and timed-out ones (they needed at least as
-            # long): cycles that keep needing more than the lead raise it.
+            # Solved cycles, and late or timed-out ones as the lead they had (they needed at
+            # least that): when most recent cycles need more than the lead, it doubles.
+            lead = cycle.stamp_s - cycle.state_stamp
             with self._lock:
-                self._latencies.append(min(latency, MAX_LEAD_S / LEAD_PER_MEDIAN))
+                self._latencies.append(min(latency, lead) if request.late or not published
+                                       else min(latency, MAX_LEAD_S / LEAD_PER_MEDIAN))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
                       goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
                       data_revision=revision, latency_s=latency, deviation=cycle.deviation,
@@ -1007,9 +1005,17 @@ class SolverNode(Node):
                                              **values))
         self._publish_progress(dataclasses.replace(
             report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
-        self._stop_if_violating(plan, self._snapshot()[0], cycle)
+        self._stop_if_violating(plan, self._snapshot()[0], cycle, request.late)
 
-    def _stop_if_violating(self, plan, params, cycle):
+    def _seed_next(self, plan, revision, result, problem):
+        """Keep a late cycle's plan: the next cycle for the same plan and data starts from it."""
+        with self._plan_lock:
+            if self._executing is plan:
+                self._seed = {'plan': plan, 'result': result,
+                              'times': np.asarray(result.time_grid),
+                              'states': np.asarray(result.states), 'model': problem.robot_model}
+
+    def _stop_if_violating(self, plan, params, cycle, late=False):
         """
         After a failed cycle: act on the plan it kept if that violates the current data.
 
@@ -1026,12 +1032,13 @@ class SolverNode(Node):
             return
         conflict = self._true_conflict_time(plan, params, elapsed)
         measured = self._snapshot()[1]
-        # Try again unless this was a data-change cycle on the same data (it would fail alike).
-        again = cycle.reason != 'data change' or cycle.revision != revision
+        # Try again unless this was a data-change cycle on the same data that failed (it would
+        # fail alike); a late one seeded the next, which starts where it ended.
+        again = cycle.reason != 'data change' or cycle.revision != revision or late
         if again and measured is not None \
                 and (conflict is None or conflict > BRAKE_HORIZON_S) \
                 and self._maybe_replan(params, measured, self._now(), time.monotonic(),
-                                       reason='data change', lead=self._data_lead(conflict)):
+                                       reason='data change'):
             return
         self._stop(plan, params, revision, violation)
 
@@ -1285,7 +1292,11 @@ class SolverNode(Node):
         lead = float(params['start_lead']) if stamp_s is None and at_rest else 0.0
         trajectory = conversions.trajectory_msg(result, params['joint_names'], model,
                                                 conversions.time_msg(0.0))
-        start = self._now() + lead if stamp_s is None else float(stamp_s)
+        now = self._now()
+        if request.cycle is not None and now > stamp_s:
+            request.late = True         # the plant would start it partway: keep the old one
+            return False
+        start = now + lead if stamp_s is None else float(stamp_s)
         stamp = trajectory.header.stamp = conversions.time_msg(start)
         with self._plan_lock:
             if revision != self._revision:
@@ -1373,6 +1384,10 @@ class SolverNode(Node):
 
 def main(args=None):
     """Run solver_node until shutdown; exit code 2 for invalid parameters."""
+    # The solver thread waits for the GIL after each kernel call while the executor thread
+    # handles joint_states: CPython's 5 ms default switch interval was up to 5 ms of every
+    # replan cycle's latency.
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     return run_node('solver_node', SolverNode, SingleThreadedExecutor,
                     args=args, errors=(parameters.ParameterError, InvalidParameterValueException,
                                        InvalidParameterTypeException),
