@@ -977,12 +977,11 @@ class SolverNode(Node):
         # joint_states received -> trajectory published (the path and markers come after).
         latency = (request.published_at if published else time.monotonic()) - cycle.received
         if result is not None and result.status in (Status.SOLVED, Status.TIMEOUT):
-            # Solved cycles, and late or timed-out ones as the lead they had (they needed at
-            # least that): when most recent cycles need more than the lead, it doubles.
-            lead = cycle.stamp_s - cycle.state_stamp
+            # Solved cycles, published or late, and timed-out ones (they needed at least as
+            # long): the median follows cycles that are slow most of the time, not the rare
+            # one that seeds the next.
             with self._lock:
-                self._latencies.append(min(latency, lead) if request.late or not published
-                                       else min(latency, MAX_LEAD_S / LEAD_PER_MEDIAN))
+                self._latencies.append(min(latency, MAX_LEAD_S / LEAD_PER_MEDIAN))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
                       goal=tuple(float(v) for v in np.round(plan['goal'], 9)),
                       data_revision=revision, latency_s=latency, deviation=cycle.deviation,
