@@ -607,6 +607,9 @@ class SolverNode(Node):
         return result
 
     def _after_set_parameters(self, changed):
+        if any(p.name in ('replan.lead', 'robot.model', 'robot.actuator_lag') for p in changed):
+            with self._lock:    # another lead or model: cycle latencies measured afresh
+                self._latencies.clear()
         if any(p.name.startswith('replan.estimate') for p in changed):
             with self._estimation_lock:     # set (even to the same value): start afresh
                 self._estimator, self._estimator_key = None, None
