@@ -119,7 +119,6 @@ LEAD_PER_MEDIAN = 2.0
 # longer: the solves that need more (an overshoot in the final braking: 700-2000 iterations)
 # would take a core from the plant for 0.1-0.2 s and delay the next cycles.
 SEED_EXTRA_S = 0.05
-GIL_SWITCH_INTERVAL_S = 0.0005
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
@@ -1386,10 +1385,6 @@ class SolverNode(Node):
 
 def main(args=None):
     """Run solver_node until shutdown; exit code 2 for invalid parameters."""
-    # The solver thread waits for the GIL after each kernel call while the executor thread
-    # handles joint_states: CPython's 5 ms default switch interval was up to 5 ms of every
-    # replan cycle's latency.
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     return run_node('solver_node', SolverNode, SingleThreadedExecutor,
                     args=args, errors=(parameters.ParameterError, InvalidParameterValueException,
                                        InvalidParameterTypeException),
