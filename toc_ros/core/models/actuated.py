@@ -41,7 +41,7 @@ import os
 import numpy as np
 
 from .base import ModelError, RobotModel
-from .generated import cache_root, import_file, write_once
+from .generated import cache_root, import_file, WRAPPERS, write_once
 
 KERNEL_VERSION = 2
 # Grid steps per actuator time constant (max_step).
@@ -128,22 +128,6 @@ def segments(q, p, seg, seg_q, seg_qq):
 this = sys.modules[__name__]
 
 
-@njit(cache=True, nogil=True)
-def rollout(x0, controls, tau, p, method, states):
-    """Trajectory from x0 under piecewise-constant controls (N x nu) into states (N+1 x nx)."""
-    horizon.rollout(this.rhs, x0, controls, tau, p, method, states)
-
-
-@njit(cache=True, nogil=True)
-def ipm_iterate(ws, n_iter):
-    """Run up to n_iter interior-point iterations on workspace ws (see ipm.py)."""
-    return ipm.iterate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws, n_iter)
-
-
-@njit(cache=True, nogil=True)
-def ipm_evaluate(ws):
-    """Evaluate derivatives and KKT residuals at the current point of ws (see ipm.py)."""
-    return ipm.evaluate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws)
 '''
 
 
@@ -161,7 +145,7 @@ def kernel_module(base_kernels, n_joints):
 def _load_kernel_module(base_kernels, n_joints):
     applied = ' '.join(f'x[NXB + {j}] * p[off + {j}],' for j in range(n_joints))
     source = _KERNELS.format(base=base_kernels.__name__, nxb=2 * n_joints, nu=n_joints,
-                             applied=applied)
+                             applied=applied) + WRAPPERS + '\n'
     # The name carries the base module's file content: a changed base is a new module.
     with open(base_kernels.__file__, 'rb') as stream:
         base_digest = hashlib.sha256(stream.read()).hexdigest()

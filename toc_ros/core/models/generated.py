@@ -25,6 +25,26 @@ import importlib.util
 import os
 import sys
 
+# The cached wrappers of every generated kernel module: they name its kernels through the
+# module object `this` (numba refuses to cache a function that passes a plain global
+# dispatcher on to another one), so machine code is cached per model.
+WRAPPERS = '''@njit(cache=True, nogil=True)
+def rollout(x0, controls, tau, p, method, states):
+    """Trajectory from x0 under piecewise-constant controls (N x nu) into states (N+1 x nx)."""
+    horizon.rollout(this.rhs, x0, controls, tau, p, method, states)
+
+
+@njit(cache=True, nogil=True)
+def ipm_iterate(ws, n_iter):
+    """Run up to n_iter interior-point iterations on workspace ws (see ipm.py)."""
+    return ipm.iterate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws, n_iter)
+
+
+@njit(cache=True, nogil=True)
+def ipm_evaluate(ws):
+    """Evaluate derivatives and KKT residuals at the current point of ws (see ipm.py)."""
+    return ipm.evaluate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws)'''
+
 
 def cache_root():
     """Directory of the generated model modules (NUMBA_CACHE_DIR or XDG_CACHE_HOME based)."""

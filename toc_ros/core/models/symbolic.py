@@ -83,7 +83,7 @@ import yaml
 
 from . import hand_ik
 from .base import ModelError, RobotModel
-from .generated import cache_root, import_file, write_once
+from .generated import cache_root, import_file, WRAPPERS, write_once
 
 try:
     import sympy as sp
@@ -122,7 +122,7 @@ def _generator_digest():
 def content_hash(text):
     """Cache key of a model file: its content and the generator's source (16 hex digits)."""
     digest = hashlib.sha256(b'toc_ros symbolic model\0')
-    digest.update(_generator_digest().encode() + b'\0')
+    digest.update(_generator_digest().encode() + b'\0' + WRAPPERS.encode() + b'\0')
     digest.update(text.encode('utf-8'))
     return digest.hexdigest()[:16]
 
@@ -1045,26 +1045,8 @@ class _Generator:
                       '    """M(q) into m (n x n)."""', *mass]
         else:
             lines += ['', '', 'mass_matrix = None']
-        lines += ['', '', 'this = sys.modules[__name__]', '', '', _WRAPPERS]
+        lines += ['', '', 'this = sys.modules[__name__]', '', '', WRAPPERS]
         return '\n'.join(lines) + '\n'
-
-
-_WRAPPERS = '''@njit(cache=True, nogil=True)
-def rollout(x0, controls, tau, p, method, states):
-    """Trajectory from x0 under piecewise-constant controls (N x nu) into states (N+1 x nx)."""
-    horizon.rollout(this.rhs, x0, controls, tau, p, method, states)
-
-
-@njit(cache=True, nogil=True)
-def ipm_iterate(ws, n_iter):
-    """Run up to n_iter interior-point iterations on workspace ws (see ipm.py)."""
-    return ipm.iterate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws, n_iter)
-
-
-@njit(cache=True, nogil=True)
-def ipm_evaluate(ws):
-    """Evaluate derivatives and KKT residuals at the current point of ws (see ipm.py)."""
-    return ipm.evaluate(this.rhs, this.rhs_jac, this.rhs_hess, this.segments, ws)'''
 
 
 def generate_source(text, source='<string>'):
