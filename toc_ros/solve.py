@@ -300,7 +300,9 @@ def summary(result, problem):
     v = result.violations
     lines = [f'status      {result.status.value}',
              f'message     {result.message}',
-             f'model       {problem.robot_model.name}',
+             f'model       {problem.robot_model.name}' + (
+                 f', actuator lag {problem.robot_model.lag:g} s'
+                 if getattr(problem.robot_model, 'lag', None) else ''),
              f'mode        {result.mode}, {problem.integrator}, N = {problem.n_intervals}, '
              f'{len(problem.obstacles)} obstacle(s), margin {problem.margin} m',
              f't_min       {_seconds(result.final_time)}',
