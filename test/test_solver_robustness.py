@@ -43,6 +43,7 @@ import pytest
 
 from toc_ros.core import homotopy, Problem, solve, SolverOptions, Status, warm_up, workers
 from toc_ros.core.models import load_model
+from toc_ros.core.obstacles import segment_clearance
 
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 GAP = 1e-3              # 0.1 %
@@ -278,3 +279,39 @@ def test_further_cold_attempts_are_deterministic():
     assert first.final_time == second.final_time and first.iterations == second.iterations
     assert np.array_equal(first.controls, second.controls)
     assert np.array_equal(first.history, second.history, equal_nan=True)
+
+
+def test_compiled_clearance_has_the_bits_of_segment_clearance():
+    rng = np.random.default_rng(3)
+    seg = rng.normal(size=(500, 2, 4))
+    seg[::7, 1, 2:] = seg[::7, 1, :2]                 # zero-length segments
+    seg[1::7, 0, :] = [0.0, 0.0, 1.0, 0.0]            # projections at an end and beyond
+    circles = np.array([[0.0, 1.0, 0.3], [1.5, 0.0, 0.2], [-0.5, 0.0, 0.1]])
+    circles = np.concatenate([circles, np.column_stack([rng.normal(size=(3, 2)),
+                                                        rng.uniform(0.05, 0.5, 3)])])
+    for squared in (False, True):
+        assert np.array_equal(homotopy.clearance(seg, circles, squared),
+                              segment_clearance(seg, circles, squared=squared))
+
+
+def test_class_search_stops_with_the_goal_states_of_the_full_search(monkeypatch):
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    calls = []
+    search = homotopy.class_search
+    monkeypatch.setattr(homotopy, 'class_search', lambda *a: calls.append(a) or search(*a))
+    assert len(homotopy.class_paths(problem)) == 4
+    args = calls[0]
+    early_dist, early_parent = search(*args)
+    full_dist, full_parent = search(*args[:-2], 1 << 30, np.inf)
+    free, goal = args[0], args[2]
+    s_count = 1 << len(args[3])
+    base = (goal[0] * free.shape[1] + goal[1]) * s_count
+    kept = [state for state in range(base, base + s_count) if np.isfinite(early_dist[state])]
+    assert len(kept) == 4
+    for state in kept:
+        assert early_dist[state] == full_dist[state]
+        while state >= 0:           # the same path back to the start
+            assert early_parent[state] == full_parent[state]
+            state = early_parent[state]
+    # It did stop early: states the full search reached are left out.
+    assert np.count_nonzero(np.isfinite(early_dist)) < np.count_nonzero(np.isfinite(full_dist))
