@@ -36,12 +36,14 @@ import importlib.util
 import math
 from pathlib import Path
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import numpy_model as nm
 import pytest
 
-from toc_ros.core import homotopy, Problem, solve, SolverOptions, Status, warm_up, workers
+from toc_ros.core import fast_solver, homotopy, ipm, Problem, solve, SolverOptions, Status, \
+    warm_up, workers
 from toc_ros.core.models import load_model
 from toc_ros.core.obstacles import segment_clearance
 
@@ -258,12 +260,25 @@ def test_class_starts_are_collision_free_and_pairwise_not_homotopic():
             assert any(_winding(loop, np.array(p)) != 0 for p in inside), (i, j)
 
 
-def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch):
-    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+@pytest.mark.parametrize('g', [0.0, 9.81])
+def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch, g):
+    # g = 9.81: two class starts end at the same coarse optimum (the first one's climb counts).
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), g, False)
+    prefetched = []
+    run = fast_solver._Prefetch.run
+
+    def counted(self):
+        found, climbs = run(self)
+        prefetched.append(len(climbs))
+        return found, climbs
+
+    monkeypatch.setattr(fast_solver._Prefetch, 'run', counted)
     results = []
     for count in (2, 1):
         monkeypatch.setattr(workers, 'WORKERS', count)
         results.append(solve(problem, SolverOptions(mode='fast')))
+    # Two workers: the candidates' climbs ran in the pipeline of the attempts; one: after them.
+    assert len(prefetched) == 1 and prefetched[0] >= 1, prefetched
     first, second = results
     assert first.status is second.status is Status.SOLVED
     assert first.final_time == second.final_time and first.iterations == second.iterations
@@ -315,3 +330,40 @@ def test_class_search_stops_with_the_goal_states_of_the_full_search(monkeypatch)
             state = early_parent[state]
     # It did stop early: states the full search reached are left out.
     assert np.count_nonzero(np.isfinite(early_dist)) < np.count_nonzero(np.isfinite(full_dist))
+
+
+def _coarse(t_f):
+    return SimpleNamespace(t_f=t_f, n=fast_solver.EXPLORE_INTERVALS)
+
+
+def _candidates(found):
+    solver = SimpleNamespace(done=0, limit=2000)
+    return fast_solver.FastSolve._candidates(solver, found)
+
+
+def test_candidates_are_the_distinct_optima_in_the_band_and_the_first_attempt_of_equal_ones():
+    band = fast_solver.REFINE_BAND * fast_solver.COARSE_INTERVALS / fast_solver.EXPLORE_INTERVALS
+    a, b, c = _coarse(0.70), _coarse(0.70 * (1.0 + 0.5 * band)), _coarse(0.70 * (1.0 + 2 * band))
+    same = _coarse(0.70 * (1.0 - 1e-7))      # the same optimum as a, slightly shorter
+    assert _candidates([c, b, a]) == [a, b]
+    assert _candidates([a, same, b]) == [a, b]      # a's attempt came first
+    assert _candidates([same, a, b]) == [same, b]
+    many = [_coarse(0.70 * (1.0 + 0.01 * band * k)) for k in range(5)]
+    assert _candidates(many[::-1]) == many[:fast_solver.MAX_REFINE]
+
+
+def test_prefetch_cancels_the_climbs_of_displaced_candidates():
+    solver = SimpleNamespace(done=0, limit=2000)
+    solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
+    prefetch = fast_solver._Prefetch(solver, [None] * 4, None)
+    slow, fast, again, other = _coarse(0.80), _coarse(0.70), _coarse(0.70), _coarse(0.71)
+    prefetch._finished(('attempt', 2), (again, ipm.CONVERGED))
+    prefetch._finished(('attempt', 0), (slow, ipm.CONVERGED))
+    prefetch.climbs = {0: [[], None, True], 2: [[], None, True]}
+    prefetch._finished(('attempt', 3), (other, ipm.CONVERGED))
+    # 0.80 is out of the band of 0.70 (attempt 2): its climb is cancelled, attempt 2's is not.
+    assert prefetch.climbs[0][2] is False and prefetch.climbs[2][2] is True
+    prefetch._finished(('attempt', 1), (fast, ipm.CONVERGED))
+    # Attempt 1 ends at attempt 2's optimum and stands for it: attempt 2's climb is cancelled.
+    assert prefetch.climbs[2][2] is False
+    assert prefetch._candidates() == [fast, other]

@@ -28,7 +28,8 @@ A cold solve first runs on a coarse grid (COARSE_INTERVALS), whose solution (pri
 is carried to the requested grid through intermediate grids (ladder), where a few Newton-type
 iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
 per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
-threads (workers.py).  A warm start
+threads (workers.py); a candidate's climb up the ladder starts as soon as its attempt converges
+(_Prefetch), with the same result as after all attempts.  A warm start
 (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
 being executed) skips the coarse grid.
 """
@@ -41,7 +42,6 @@ import time
 import numpy as np
 
 from . import homotopy, ipm, workers
-from .obstacles import segment_clearance
 from .result import SolveResult, Status
 
 # Grids: a cold solve on N > 2 COARSE_INTERVALS starts on COARSE_INTERVALS intervals.
@@ -113,6 +113,17 @@ CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITE
 
 class Stop(Exception):
     """Raised between iteration chunks to stop a solve (argument: the Status)."""
+
+
+class _Cancelled(Exception):
+    """Raised in a prefetched climb that is no longer wanted (FastSolve._class_attempts)."""
+
+
+def _in_band(run, shortest):
+    """Return whether a converged coarse run is within REFINE_BAND of the shortest t_f."""
+    # The band scales with the discretisation error, ~ 1 / intervals.
+    band = REFINE_BAND * COARSE_INTERVALS / min(run.n, COARSE_INTERVALS)
+    return run.t_f <= (1.0 + band) * shortest
 
 
 class InteriorPointRun:
@@ -197,7 +208,7 @@ class InteriorPointRun:
         if self.circles.shape[0] == 0:
             return np.zeros((states.shape[0] - 1, 0))
         seg = self.model.link_segments(self.model.positions(states[1:]))
-        return segment_clearance(seg, self.circles, squared=True)
+        return homotopy.clearance(seg, self.circles, squared=True)
 
     def duals(self):
         """Copy of the multipliers (for a warm start of another run)."""
@@ -303,6 +314,96 @@ class _StopWatcher:
 _WATCHER = _StopWatcher()
 
 
+class _Prefetch:
+    """
+    The class attempts of one FastSolve, with the climbs of their candidates started early.
+
+    The caller's thread picks each next task as a worker frees up: first the climb of an
+    attempt that is a candidate among the converged ones so far, else the next attempt.  When
+    all attempts have ended, the climbs of the final candidates that have not started do.
+    """
+
+    def __init__(self, solver, tasks, climb):
+        self.solver = solver
+        self.tasks = tasks
+        self.climb = climb
+        self.logs = [[] for _ in tasks]          # runs of the attempts, in task order
+        self.all_logs = list(self.logs)          # and of the climbs (progress reports)
+        self.results = {}                        # attempt index -> (run, code)
+        self.climbs = {}                         # attempt index -> [runs, value or None, wanted]
+        self.waiting = list(range(len(tasks)))   # attempts not started
+
+    def run(self):
+        """Return (converged attempt runs in task order, {id(run): (climb value, runs)})."""
+        solver = self.solver
+        pool = workers.Pool()
+        poll = solver._poller(self.all_logs)
+        failure = None
+        try:
+            while True:
+                while failure is None and pool.idle and self._submit_next(pool, poll):
+                    pass
+                if not pool.running:
+                    break
+                for key, future in pool.wait(poll):
+                    try:
+                        self._finished(key, future.result())
+                    except _Cancelled:
+                        pass
+                    except Stop as stop:
+                        failure = failure or stop
+        finally:
+            if failure is not None or pool.running:
+                pool.drain()
+            for run in (run for log in self.logs for run in log):
+                solver._record(run)
+                solver.run = run
+        if failure is not None:
+            raise failure
+        found = [self.results[k][0] for k in sorted(self.results)
+                 if self.results[k][1] == ipm.CONVERGED]
+        wanted = {id(run) for run in self._candidates()}
+        done = {id(self.results[k][0]): (c[1], c[0]) for k, c in self.climbs.items()
+                if c[1] is not None}
+        return found, {key: value for key, value in done.items() if key in wanted}
+
+    def _candidates(self):
+        """_finish's candidates among the attempts converged so far."""
+        return self.solver._candidates([self.results[k][0] for k in sorted(self.results)
+                                        if self.results[k][1] == ipm.CONVERGED])
+
+    def _submit_next(self, pool, poll):
+        """Submit the next task (a candidate's climb before an attempt); False if none."""
+        index = {id(self.results[k][0]): k for k in self.results}
+        for run in self._candidates():
+            k = index[id(run)]
+            if k not in self.climbs:
+                log = []
+                self.all_logs.append(log)
+                self.climbs[k] = [log, None, True]
+                task = self.solver._bind(lambda solve, run=run: self.climb(solve, run), log,
+                                         poll, cancelled=lambda c=self.climbs[k]: not c[2])
+                pool.submit(('climb', k), task)
+                return True
+        if self.waiting:
+            k = self.waiting.pop(0)
+            pool.submit(('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], poll))
+            return True
+        return False
+
+    def _finished(self, key, value):
+        kind, k = key
+        if kind == 'climb':
+            self.climbs[k][1] = value
+            return
+        self.results[k] = value
+        # A later, shorter attempt may put earlier candidates out: cancel their climbs.
+        wanted = {id(run) for run in self._candidates()}
+        for j, climb in self.climbs.items():
+            if id(self.results[j][0]) not in wanted:
+                climb[2] = False
+
+
 def interpolation_start(problem, n):
     """
     Return the cold starting point for n intervals over t_f0.
@@ -312,6 +413,12 @@ def interpolation_start(problem, n):
     (least squares through df/du; exact for models affine in u).  The same point is handed to
     the reference solvers in benchmarks/ so that all start alike.
     """
+    states, t_f = interpolation_states(problem, n), float(problem.t_f0)
+    return states, controls_for(problem.robot_model, states, t_f), t_f
+
+
+def interpolation_states(problem, n):
+    """Return the states (n + 1, nx) of interpolation_start (its controls cost more)."""
     model = problem.robot_model
     t_f = float(problem.t_f0)
     x0 = np.asarray(problem.x0, dtype=float)
@@ -329,7 +436,7 @@ def interpolation_start(problem, n):
     states = np.empty((n + 1, model.nx))
     states[:, 0::2] = q
     states[:, 1::2] = dq
-    return states, controls_for(model, states, t_f), t_f
+    return states
 
 
 def controls_for(model, states, t_f):
@@ -511,8 +618,11 @@ class FastSolve:
         return run, code
 
     def _record(self, run):
-        for t_f, theta in run.history():
-            self.history.append((len(self.history), t_f, t_f, theta))
+        rows = run.history()
+        if rows.shape[0]:
+            first = sum(block.shape[0] for block in self.history)
+            self.history.append(np.column_stack([np.arange(first, first + rows.shape[0]),
+                                                 rows[:, 0], rows[:, 0], rows[:, 1]]))
         self.done += run.iterations
 
     def solve(self):
@@ -576,30 +686,33 @@ class FastSolve:
         problem = self.problem
         grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
         found = []
-        start = interpolation_start(problem, grid)
+        states = interpolation_states(problem, grid)
         # Class starts on a coarser grid still (their candidates are carried up by _finish like
         # the others); not when the coarse grid is the N grid (short horizons, a few ms).
         explore = min(grid, EXPLORE_INTERVALS)
-        starts = self._class_starts(start, explore) if grid < n else []
+        paths = self._class_paths(states) if grid < n else []
         # Each limit // 8, all within the iteration limit.
-        budget = min(self.limit // 8, (self.limit - self.done) // max(len(starts), 1))
-        if starts and budget >= 1 and self._may_explore():
-            rho, mu = CLASS_ATTEMPT
-            tasks = [lambda solve, point=point: solve(explore, *point, mu, None, budget, rho)
-                     for point in starts]
-            found += [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED]
+        budget = min(self.limit // 8, (self.limit - self.done) // max(len(paths), 1))
+        allowance, prefetched = None, None
+        if paths and budget >= 1 and self._may_explore():
+            # The candidates' climbs get a share fixed now, so that they can start as soon as
+            # their attempt converges (_class_attempts).
+            allowance = max(1, (self.limit - self.done - len(paths) * budget) // MAX_REFINE)
+            found, prefetched = self._class_attempts(paths, explore, budget, n, allowance)
         first = None
         if not found:
+            allowance, prefetched = None, None      # today's shares for these attempts
+            t_f0 = float(problem.t_f0)
+            start = (states, controls_for(problem.robot_model, states, t_f0), t_f0)
             first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
             if self._explore(first):
                 for pair in COLD_ATTEMPTS[1:]:
                     if self._may_explore():
                         self._attempt(grid, n, start, pair, found)
-        found.sort(key=lambda r: r.t_f)      # stable: ties keep the attempts' order
         if grid == n and found:
-            return found[0], ipm.CONVERGED
+            return min(found, key=lambda r: r.t_f), ipm.CONVERGED   # ties: the first attempt
         if found:
-            self._finish(found, n)
+            self._finish(found, n, allowance, prefetched)
         if self.best is not None:
             return self.best, ipm.CONVERGED
         for mu in MU_COLD_RETRIES:
@@ -613,22 +726,47 @@ class FastSolve:
                 return run, code
         return first
 
-    def _class_starts(self, start, m):
+    def _class_paths(self, states):
         """
-        Return the class starts of homotopy.py on m intervals, or [] when there are none.
+        Return the class paths of homotopy.py, or [] when there are none.
 
-        Only when the interpolation start (on the coarse grid) crosses an obstacle: then the
-        side of each obstacle it ends on is arbitrary, while a start already on one side of
+        Only when the interpolation start's states (on the coarse grid) cross an obstacle: then
+        the side of each obstacle it ends on is arbitrary, while a start already on one side of
         each keeps its iterates out of the obstacles (fewer, convex iterations).
         """
         model = self.problem.robot_model
         if not len(self.problem.obstacles) or model.n_joints != 2:
             return []
-        seg = model.link_segments(model.positions(start[0]))
-        if np.min(segment_clearance(seg, self.problem.circles())) >= 0.0:
+        seg = model.link_segments(model.positions(states))
+        if np.min(homotopy.clearance(seg, self.problem.circles())) >= 0.0:
             return []
-        return [homotopy.path_start(self.problem, path, m)
-                for path in homotopy.class_paths(self.problem)]
+        return homotopy.class_paths(self.problem)
+
+    def _class_attempts(self, paths, explore, budget, n, allowance):
+        """
+        Solve the class starts on explore intervals; return (converged runs, prefetched climbs).
+
+        The attempts (CLASS_ATTEMPT, budget each) run two at a time.  With two workers and an
+        Euler ladder, a converged attempt that is a candidate among those converged so far
+        (_candidates) starts its climb at once, ahead of the attempts still waiting: the chain
+        to the N grid then overlaps the other attempts instead of following them.  The climb
+        is _finish's, with the same allowance, so its result is the one _finish would get (a
+        prefetch); one that a later attempt puts out of the candidates is cancelled.  Only the
+        attempts' runs are recorded here (in task order), the climbs by _finish.
+        """
+        rho, mu = CLASS_ATTEMPT
+        problem = self.problem
+
+        def attempt(solve, path):
+            # The start is built on the worker: its numpy overlaps the other's kernel.
+            point = homotopy.path_start(problem, path, explore)
+            return solve(explore, *point, mu, None, budget, rho)
+
+        tasks = [lambda solve, path=path: attempt(solve, path) for path in paths]
+        rank = self._rank_grid(n, MAX_REFINE)
+        if workers.WORKERS < 2 or problem.integrator != 'euler' or rank == n:
+            return [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED], {}
+        return _Prefetch(self, tasks, self._climber(rank, allowance)).run()
 
     def _attempt(self, grid, n, start, pair, found):
         """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
@@ -640,7 +778,7 @@ class FastSolve:
             found.append(run)
         return run, code
 
-    def _finish(self, found, n):
+    def _finish(self, found, n, allowance=None, prefetched=None):
         """
         Refine the distinct coarse optima close to the best one; set self.best.
 
@@ -650,26 +788,12 @@ class FastSolve:
         iterations, fewer in all than one jump to N): every candidate to the last intermediate
         grid, then the shortest converged there to N (the next one if it fails).  Without
         intermediate grids each candidate goes to N and the shortest converged one is kept.
-        The candidates climb the ladder side by side (_parallel), each within an equal share of
-        the iterations left.
+        The candidates climb the ladder side by side (_parallel), each within allowance
+        iterations (default: an equal share of the iterations left); prefetched maps a
+        candidate to its climb already run (_class_attempts), with the same allowance.
         """
-        candidates = []
-        for coarse in found:
-            if self.done >= self.limit or len(candidates) >= MAX_REFINE:
-                break
-            # The band scales with the discretisation error, ~ 1 / intervals.
-            band = REFINE_BAND * COARSE_INTERVALS / min(coarse.n, COARSE_INTERVALS)
-            if coarse.t_f <= (1.0 + band) * found[0].t_f and \
-                    not any(abs(coarse.t_f - c.t_f) <= 1e-6 * c.t_f for c in candidates):
-                candidates.append(coarse)
-        # Rank on the last grid of the ladder from the coarse grid (N when there is none).  An
-        # RK4 coarse solution is already close to the N grid's (error O(tau^4), not O(tau)):
-        # there the intermediate grid saves no N-grid iterations (paper scenario: 17 there
-        # after 25 on 316, 19 straight), so a single candidate goes straight to N.
-        grids = ladder(COARSE_INTERVALS, n)
-        if self.problem.integrator != 'euler' and len(candidates) == 1:
-            grids = []
-        rank = (grids or [n])[-1]
+        candidates = self._candidates(found)
+        rank = self._rank_grid(n, len(candidates))
         if rank == n:
             for coarse in candidates:
                 if self.done >= self.limit:
@@ -683,8 +807,58 @@ class FastSolve:
         if left < 1:
             return
         candidates = candidates[:left]
-        allowance = left // len(candidates)
+        climb = self._climber(rank, allowance or left // len(candidates))
+        prefetched = prefetched or {}
+        ranked = [run for run, code in self._parallel(
+            [lambda solve, run=run: climb(solve, run) for run in candidates],
+            {k: prefetched[id(run)] for k, run in enumerate(candidates) if id(run) in prefetched})
+            if code == ipm.CONVERGED]
+        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
+            if self.done >= self.limit:
+                break
+            run, code = self._refine(run, n)
+            if code == ipm.CONVERGED:
+                self.best = run
+                return
 
+    def _candidates(self, found):
+        """
+        Return the distinct runs of found (in attempt order) within the band of the shortest.
+
+        Shortest first, at most MAX_REFINE.  Of runs that end at the same t_f (within 1e-6: the
+        same optimum reached from two starts) the first attempt's stands for them: it usually
+        converges first, so its climb may have started already (_class_attempts).
+        """
+        order = sorted(range(len(found)), key=lambda k: found[k].t_f)   # stable
+        chosen = []
+        for k in order:
+            if self.done >= self.limit or len(chosen) >= MAX_REFINE:
+                break
+            if not _in_band(found[k], found[order[0]].t_f):
+                continue
+            same = [i for i, c in enumerate(chosen)
+                    if abs(found[k].t_f - found[c].t_f) <= 1e-6 * found[c].t_f]
+            if not same:
+                chosen.append(k)
+            elif k < chosen[same[0]]:
+                chosen[same[0]] = k
+        return [found[k] for k in chosen]
+
+    def _rank_grid(self, n, count):
+        """
+        Return the grid the count candidates are ranked on: the ladder's last (N if none).
+
+        An RK4 coarse solution is already close to the N grid's (error O(tau^4), not O(tau)):
+        there the intermediate grid saves no N-grid iterations (paper scenario: 17 there after
+        25 on 316, 19 straight), so a single candidate goes straight to N.
+        """
+        grids = ladder(COARSE_INTERVALS, n)
+        if self.problem.integrator != 'euler' and count == 1:
+            grids = []
+        return (grids or [n])[-1]
+
+    def _climber(self, rank, allowance):
+        """Return climb(solve, run): run's solution up the ladder to rank, within allowance."""
         def climb(solve, run):
             used, code = 0, ipm.CONVERGED
             for m in ladder(run.n, rank) + [rank]:
@@ -698,50 +872,69 @@ class FastSolve:
                 if code != ipm.CONVERGED:
                     break
             return run, code
+        return climb
 
-        ranked = [run for run, code in self._parallel(
-            [lambda solve, run=run: climb(solve, run) for run in candidates])
-            if code == ipm.CONVERGED]
-        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
-            if self.done >= self.limit:
-                break
-            run, code = self._refine(run, n)
-            if code == ipm.CONVERGED:
-                self.best = run
-                return
-
-    def _parallel(self, tasks):
+    def _parallel(self, tasks, done=None):
         """
         Run tasks (callables solve -> value) on the worker threads; return their values.
 
         solve(n, states, controls, t_f, mu, duals, budget, elastic) is a worker's _solve_on:
         it neither records its run nor reports progress (this thread does, meanwhile and, in
         task order, afterwards), and only the fixed budget caps it, so a task's result does not
-        depend on the others' timing (workers.py).
+        depend on the others' timing (workers.py).  done: {index: (value, runs)} of tasks
+        already run (_class_attempts); their runs are recorded in their place.
         """
-        logs = [[] for _ in tasks]
-        stop_requested = lambda: self.clock.stop_reason() is not None  # noqa: E731
+        done = done or {}
+        logs = [list(done[k][1]) if k in done else [] for k in range(len(tasks))]
+        todo = [k for k in range(len(tasks)) if k not in done]
+        poll = self._poller(logs)
+        values = {k: value for k, (value, _) in done.items()}
+        try:
+            out = workers.run_tasks([self._bind(tasks[k], logs[k], poll) for k in todo], poll)
+            values.update(zip(todo, out))
+            return [values[k] for k in range(len(tasks))]
+        finally:
+            for run in (run for log in logs for run in log):
+                self._record(run)
+                self.run = run
 
+    def _bind(self, task, log, poll, cancelled=None):
+        """
+        Return a worker's callable: task(solve), its runs appended to log.
+
+        poll() runs between iteration chunks when this is the caller's thread (the tasks then
+        run one after the other).  cancelled(): a prefetch no longer wanted; its kernel stops
+        within one phase and _Cancelled is raised.
+        """
         caller = threading.current_thread()
 
+        def stop_requested():
+            return self.clock.stop_reason() is not None or (cancelled is not None and
+                                                            cancelled())
+
         def check(run):
+            if cancelled is not None and cancelled():
+                raise _Cancelled()
             reason = self.clock.stop_reason()
             if reason is not None:
                 raise Stop(reason)
             if threading.current_thread() is caller:
-                poll()          # the tasks run one after the other (workers.run_tasks)
+                poll()
 
-        def bind(task, log):
-            def solve(n, states, controls, t_f, mu, duals, budget, elastic):
-                run = InteriorPointRun(self.problem, n, budget, elastic)
-                run.start(states, controls, t_f, mu, duals)
-                log.append(run)
-                code = run.run(check, stop_requested)
-                if code == ipm.STOPPED:
-                    raise Stop(self.clock.stop_reason() or Status.CANCELED)
-                return run, code
-            return lambda: task(solve)
+        def solve(n, states, controls, t_f, mu, duals, budget, elastic):
+            run = InteriorPointRun(self.problem, n, budget, elastic)
+            run.start(states, controls, t_f, mu, duals)
+            log.append(run)
+            code = run.run(check, stop_requested)
+            if code == ipm.STOPPED:
+                if cancelled is not None and cancelled():
+                    raise _Cancelled()
+                raise Stop(self.clock.stop_reason() or Status.CANCELED)
+            return run, code
+        return lambda: task(solve)
 
+    def _poller(self, logs):
+        """Return poll(): a progress report on the newest run of logs (lists of runs)."""
         def poll():
             runs = [run for log in logs for run in log]
             if runs:
@@ -750,13 +943,7 @@ class FastSolve:
                 self.clock.report(lambda: Progress(
                     its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
                     f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
-
-        try:
-            return workers.run_tasks([bind(t, log) for t, log in zip(tasks, logs)], poll)
-        finally:
-            for run in (run for log in logs for run in log):
-                self._record(run)
-                self.run = run
+        return poll
 
     def _refine(self, run, n):
         """Carry a converged run's primal-dual solution to n intervals and solve there."""
@@ -790,7 +977,7 @@ class FastSolve:
         return code != ipm.CONVERGED or shifted > EXPLORE_NONCONVEX
 
     def _history(self):
-        return np.array(self.history, dtype=float).reshape(-1, 4)
+        return np.concatenate(self.history) if self.history else np.zeros((0, 4))
 
     def _result(self, run, status, message):
         from .problem import measure_violations

@@ -15,7 +15,9 @@
 """
 Run independent tasks WORKERS at a time on worker threads.
 
-Fast mode's cold attempts from the class starts and the refinements of their candidates.
+Fast mode's cold attempts from the class starts and the refinements of their candidates
+(run_tasks: a list of tasks; Pool: tasks submitted one at a time, the caller picking each next
+one from the results so far).
 
 The interior-point kernels release the GIL, so two solves run on two cores at once.  A task
 owns its workspaces and shares no state with the others, and its iteration budget is fixed
@@ -25,7 +27,7 @@ order).  Tasks never submit tasks, so a pool shared by concurrent solves cannot 
 tasks only queue).
 """
 
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 import os
 import threading
 
@@ -83,3 +85,49 @@ def run_tasks(tasks, poll):
     if failure is not None:
         raise failure
     return out
+
+
+class Pool:
+    """
+    The worker threads for a caller that submits its tasks one at a time.
+
+    The caller picks each next task when a worker is idle, from the results so far (fast mode
+    starts a candidate's refinement before the remaining attempts), so at most WORKERS run
+    and the rest wait in the caller's order, not the executor's queue.
+    """
+
+    def __init__(self):
+        self._running = {}
+
+    @property
+    def idle(self):
+        """Return the number of workers without a task of this pool."""
+        return WORKERS - len(self._running)
+
+    @property
+    def running(self):
+        """Return the number of submitted tasks that have not been collected by wait()."""
+        return len(self._running)
+
+    def submit(self, key, task):
+        """Start task() on a worker; wait() returns it under key."""
+        self._running[_executor().submit(task)] = key
+
+    def wait(self, poll):
+        """
+        Wait until a task ends (poll() every POLL s meanwhile); return [(key, future)].
+
+        The finished ones in submission order.
+        """
+        while True:
+            done, _ = wait(list(self._running), timeout=POLL, return_when=FIRST_COMPLETED)
+            if done:
+                break
+            poll()
+        return [(self._running.pop(future), future) for future in list(self._running)
+                if future in done]
+
+    def drain(self):
+        """Wait for every running task (their results and exceptions are dropped)."""
+        wait(list(self._running))
+        self._running.clear()
