@@ -32,10 +32,13 @@ Fast mode on cases it used to fail: former STALLED random scenarios and planar_2
   parallel attempts against the same attempts one after the other, bit for bit.
 """
 
+from dataclasses import replace
 import importlib.util
 import math
 from pathlib import Path
 import sys
+import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -353,7 +356,7 @@ def test_candidates_are_the_distinct_optima_in_the_band_and_the_first_attempt_of
 
 
 def test_prefetch_cancels_the_climbs_of_displaced_candidates():
-    solver = SimpleNamespace(done=0, limit=2000)
+    solver = SimpleNamespace(done=0, limit=2000, _poller=lambda logs: None)
     solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
     prefetch = fast_solver._Prefetch(solver, [None] * 4, None)
     slow, fast, again, other = _coarse(0.80), _coarse(0.70), _coarse(0.70), _coarse(0.71)
@@ -367,3 +370,25 @@ def test_prefetch_cancels_the_climbs_of_displaced_candidates():
     # Attempt 1 ends at attempt 2's optimum and stands for it: attempt 2's climb is cancelled.
     assert prefetch.climbs[2][2] is False
     assert prefetch._candidates() == [fast, other]
+
+
+@pytest.mark.parametrize('delay', [0.02, 0.08])
+def test_a_cancel_during_the_class_attempts_and_climbs_is_honoured(delay):
+    # N = 20000: the attempts take ~10 ms, the climbs to 6034 intervals a few hundred ms.
+    problem = replace(_bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False), n_intervals=20000)
+    cancel, stamp = threading.Event(), {}
+
+    def fire():
+        stamp['set'] = time.monotonic()
+        cancel.set()
+
+    timer = threading.Timer(delay, fire)
+    timer.start()
+    try:
+        result = solve(problem, SolverOptions(mode='fast'), cancel=cancel)
+        returned = time.monotonic()
+    finally:
+        timer.cancel()
+    assert 'set' in stamp, 'the solve ended before the cancel'
+    assert result.status is Status.CANCELED, result.message
+    assert returned - stamp['set'] <= 0.1

@@ -318,9 +318,11 @@ class _Prefetch:
     """
     The class attempts of one FastSolve, with the climbs of their candidates started early.
 
-    The caller's thread picks each next task as a worker frees up: first the climb of an
-    attempt that is a candidate among the converged ones so far, else the next attempt.  When
-    all attempts have ended, the climbs of the final candidates that have not started do.
+    The calling thread and the workers.share helpers each take the next task when theirs ends
+    (no hand-over through a waiting thread: a wake-up cost milliseconds on a loaded machine):
+    first the climb of an attempt that is a candidate among the converged ones so far, else
+    the next attempt.  When all attempts have ended, the climbs of the final candidates that
+    have not started yet.
     """
 
     def __init__(self, solver, tasks, climb):
@@ -332,34 +334,23 @@ class _Prefetch:
         self.results = {}                        # attempt index -> (run, code)
         self.climbs = {}                         # attempt index -> [runs, value or None, wanted]
         self.waiting = list(range(len(tasks)))   # attempts not started
+        self.busy = 0                            # tasks running
+        self.failure = None
+        self.cond = threading.Condition()
+        self.poll = solver._poller(self.all_logs)
+        self.caller = threading.current_thread()       # reports progress
 
     def run(self):
         """Return (converged attempt runs in task order, {id(run): (climb value, runs)})."""
         solver = self.solver
-        pool = workers.Pool()
-        poll = solver._poller(self.all_logs)
-        failure = None
         try:
-            while True:
-                while failure is None and pool.idle and self._submit_next(pool, poll):
-                    pass
-                if not pool.running:
-                    break
-                for key, future in pool.wait(poll):
-                    try:
-                        self._finished(key, future.result())
-                    except _Cancelled:
-                        pass
-                    except Stop as stop:
-                        failure = failure or stop
+            workers.share(self._work)
         finally:
-            if failure is not None or pool.running:
-                pool.drain()
             for run in (run for log in self.logs for run in log):
                 solver._record(run)
                 solver.run = run
-        if failure is not None:
-            raise failure
+        if self.failure is not None:
+            raise self.failure
         found = [self.results[k][0] for k in sorted(self.results)
                  if self.results[k][1] == ipm.CONVERGED]
         wanted = {id(run) for run in self._candidates()}
@@ -367,13 +358,45 @@ class _Prefetch:
                 if c[1] is not None}
         return found, {key: value for key, value in done.items() if key in wanted}
 
+    def _work(self):
+        """Run tasks until none is left and none can come (a thread's loop)."""
+        caller = threading.current_thread() is self.caller
+        while True:
+            with self.cond:
+                job = self._next()
+                while job is None and self.busy and self.failure is None:
+                    self.cond.wait(workers.POLL)
+                    if caller:
+                        self.poll()
+                    job = self._next()
+                if job is None:
+                    return
+                self.busy += 1
+            key, task = job
+            value, error = None, None
+            try:
+                value = task()
+            except _Cancelled:
+                key = None
+            except BaseException as exc:        # Stop, or a bug: raised by run()
+                error = exc
+            with self.cond:
+                self.busy -= 1
+                if error is not None:
+                    self.failure = self.failure or error
+                elif key is not None:
+                    self._finished(key, value)
+                self.cond.notify_all()
+
     def _candidates(self):
         """_finish's candidates among the attempts converged so far."""
         return self.solver._candidates([self.results[k][0] for k in sorted(self.results)
                                         if self.results[k][1] == ipm.CONVERGED])
 
-    def _submit_next(self, pool, poll):
-        """Submit the next task (a candidate's climb before an attempt); False if none."""
+    def _next(self):
+        """Return the next (key, task): a candidate's climb before an attempt; None if none."""
+        if self.failure is not None:
+            return None
         index = {id(self.results[k][0]): k for k in self.results}
         for run in self._candidates():
             k = index[id(run)]
@@ -381,15 +404,14 @@ class _Prefetch:
                 log = []
                 self.all_logs.append(log)
                 self.climbs[k] = [log, None, True]
-                task = self.solver._bind(lambda solve, run=run: self.climb(solve, run), log,
-                                         poll, cancelled=lambda c=self.climbs[k]: not c[2])
-                pool.submit(('climb', k), task)
-                return True
+                return ('climb', k), self.solver._bind(
+                    lambda solve, run=run: self.climb(solve, run), log, self.poll,
+                    cancelled=lambda c=self.climbs[k]: not c[2], caller=self.caller)
         if self.waiting:
             k = self.waiting.pop(0)
-            pool.submit(('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], poll))
-            return True
-        return False
+            return ('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], self.poll,
+                                                     caller=self.caller)
+        return None
 
     def _finished(self, key, value):
         kind, k = key
@@ -763,7 +785,7 @@ class FastSolve:
             return solve(explore, *point, mu, None, budget, rho)
 
         tasks = [lambda solve, path=path: attempt(solve, path) for path in paths]
-        rank = self._rank_grid(n, MAX_REFINE)
+        rank = self._rank_grid(explore, n, MAX_REFINE)
         if workers.WORKERS < 2 or problem.integrator != 'euler' or rank == n:
             return [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED], {}
         return _Prefetch(self, tasks, self._climber(rank, allowance)).run()
@@ -793,7 +815,9 @@ class FastSolve:
         candidate to its climb already run (_class_attempts), with the same allowance.
         """
         candidates = self._candidates(found)
-        rank = self._rank_grid(n, len(candidates))
+        if not candidates:
+            return
+        rank = self._rank_grid(min(run.n for run in candidates), n, len(candidates))
         if rank == n:
             for coarse in candidates:
                 if self.done >= self.limit:
@@ -844,18 +868,21 @@ class FastSolve:
                 chosen[same[0]] = k
         return [found[k] for k in chosen]
 
-    def _rank_grid(self, n, count):
+    def _rank_grid(self, coarse, n, count):
         """
-        Return the grid the count candidates are ranked on: the ladder's last (N if none).
+        Return the grid count candidates from coarse intervals are ranked on.
 
-        An RK4 coarse solution is already close to the N grid's (error O(tau^4), not O(tau)):
-        there the intermediate grid saves no N-grid iterations (paper scenario: 17 there after
-        25 on 316, 19 straight), so a single candidate goes straight to N.
+        The last grid of the ladder from coarse to N (N if none): from the class attempts' 50
+        intervals 136, 368 (the last step to N 2.7, 15-20 iterations there on planar_2r; via
+        126 and 316 it was 17-25).  Never coarser than from COARSE_INTERVALS: nearby optima
+        swap places on coarse grids (planar_2r: on 126 intervals, not on 316).  An RK4 coarse
+        solution is already close to the N grid's (error O(tau^4), not O(tau)): there the
+        intermediate grid saves no N-grid iterations (paper scenario: 17 there after 25 on
+        316, 19 straight), so a single candidate goes straight to N.
         """
-        grids = ladder(COARSE_INTERVALS, n)
         if self.problem.integrator != 'euler' and count == 1:
-            grids = []
-        return (grids or [n])[-1]
+            return n
+        return max((ladder(coarse, n) or [n])[-1], (ladder(COARSE_INTERVALS, n) or [n])[-1])
 
     def _climber(self, rank, allowance):
         """Return climb(solve, run): run's solution up the ladder to rank, within allowance."""
@@ -898,15 +925,15 @@ class FastSolve:
                 self._record(run)
                 self.run = run
 
-    def _bind(self, task, log, poll, cancelled=None):
+    def _bind(self, task, log, poll, cancelled=None, caller=None):
         """
         Return a worker's callable: task(solve), its runs appended to log.
 
-        poll() runs between iteration chunks when this is the caller's thread (the tasks then
-        run one after the other).  cancelled(): a prefetch no longer wanted; its kernel stops
-        within one phase and _Cancelled is raised.
+        poll() runs between iteration chunks when this is the caller's thread (default: the
+        current one).  cancelled(): a prefetch no longer wanted; its kernel stops within one
+        phase and _Cancelled is raised.
         """
-        caller = threading.current_thread()
+        caller = caller or threading.current_thread()
 
         def stop_requested():
             return self.clock.stop_reason() is not None or (cancelled is not None and

@@ -16,8 +16,8 @@
 Run independent tasks WORKERS at a time on worker threads.
 
 Fast mode's cold attempts from the class starts and the refinements of their candidates
-(run_tasks: a list of tasks; Pool: tasks submitted one at a time, the caller picking each next
-one from the results so far).
+(run_tasks: a list of tasks; share: threads that take their next task from the caller's queue
+themselves).
 
 The interior-point kernels release the GIL, so two solves run on two cores at once.  A task
 owns its workspaces and shares no state with the others, and its iteration budget is fixed
@@ -27,7 +27,7 @@ order).  Tasks never submit tasks, so a pool shared by concurrent solves cannot 
 tasks only queue).
 """
 
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor, wait
 import os
 import threading
 
@@ -87,47 +87,19 @@ def run_tasks(tasks, poll):
     return out
 
 
-class Pool:
+def share(work):
     """
-    The worker threads for a caller that submits its tasks one at a time.
+    Run work() on the calling thread and on WORKERS - 1 worker threads; return when all have.
 
-    The caller picks each next task when a worker is idle, from the results so far (fast mode
-    starts a candidate's refinement before the remaining attempts), so at most WORKERS run
-    and the rest wait in the caller's order, not the executor's queue.
+    work() takes tasks from a queue of its own (fast mode's prefetching class attempts) until
+    none is left: a thread that ends a task takes the next one itself, without waking another
+    thread (which cost milliseconds on a loaded machine), and the caller works too.  work()
+    handles its tasks' exceptions; one it raises is re-raised here once all have returned.
     """
-
-    def __init__(self):
-        self._running = {}
-
-    @property
-    def idle(self):
-        """Return the number of workers without a task of this pool."""
-        return WORKERS - len(self._running)
-
-    @property
-    def running(self):
-        """Return the number of submitted tasks that have not been collected by wait()."""
-        return len(self._running)
-
-    def submit(self, key, task):
-        """Start task() on a worker; wait() returns it under key."""
-        self._running[_executor().submit(task)] = key
-
-    def wait(self, poll):
-        """
-        Wait until a task ends (poll() every POLL s meanwhile); return [(key, future)].
-
-        The finished ones in submission order.
-        """
-        while True:
-            done, _ = wait(list(self._running), timeout=POLL, return_when=FIRST_COMPLETED)
-            if done:
-                break
-            poll()
-        return [(self._running.pop(future), future) for future in list(self._running)
-                if future in done]
-
-    def drain(self):
-        """Wait for every running task (their results and exceptions are dropped)."""
-        wait(list(self._running))
-        self._running.clear()
+    helpers = [_executor().submit(work) for _ in range(WORKERS - 1)]
+    try:
+        work()
+    finally:
+        wait(helpers)
+    for future in helpers:
+        future.result()
