@@ -271,17 +271,18 @@ def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch,
     run = fast_solver._Prefetch.run
 
     def counted(self):
-        found, climbs = run(self)
-        prefetched.append(len(climbs))
-        return found, climbs
+        found, done = run(self)
+        prefetched.append((len(done['climbs']), len(done['finals'])))
+        return found, done
 
     monkeypatch.setattr(fast_solver._Prefetch, 'run', counted)
     results = []
     for count in (2, 1):
         monkeypatch.setattr(workers, 'WORKERS', count)
         results.append(solve(problem, SolverOptions(mode='fast')))
-    # Two workers: the candidates' climbs ran in the pipeline of the attempts; one: after them.
-    assert len(prefetched) == 1 and prefetched[0] >= 1, prefetched
+    # Two workers: the candidates' climbs and the best one's refinement to N ran in the
+    # pipeline of the attempts; one worker: after them.
+    assert len(prefetched) == 1 and prefetched[0][0] >= 1 and prefetched[0][1] == 1, prefetched
     first, second = results
     assert first.status is second.status is Status.SOLVED
     assert first.final_time == second.final_time and first.iterations == second.iterations
@@ -355,10 +356,10 @@ def test_candidates_are_the_distinct_optima_in_the_band_and_the_first_attempt_of
     assert _candidates(many[::-1]) == many[:fast_solver.MAX_REFINE]
 
 
-def test_prefetch_cancels_the_climbs_of_displaced_candidates():
+def test_prefetch_cancels_the_climbs_and_refinements_of_displaced_candidates():
     solver = SimpleNamespace(done=0, limit=2000, _poller=lambda logs: None)
     solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
-    prefetch = fast_solver._Prefetch(solver, [None] * 4, None)
+    prefetch = fast_solver._Prefetch(solver, [None] * 5, None, None)
     slow, fast, again, other = _coarse(0.80), _coarse(0.70), _coarse(0.70), _coarse(0.71)
     prefetch._finished(('attempt', 2), (again, ipm.CONVERGED))
     prefetch._finished(('attempt', 0), (slow, ipm.CONVERGED))
@@ -370,6 +371,18 @@ def test_prefetch_cancels_the_climbs_of_displaced_candidates():
     # Attempt 1 ends at attempt 2's optimum and stands for it: attempt 2's climb is cancelled.
     assert prefetch.climbs[2][2] is False
     assert prefetch._candidates() == [fast, other]
+    # The refinement to N goes to the best climbed candidate (not the best coarse one) once
+    # both climbs have ended, and is cancelled when a later attempt puts it out.
+    prefetch.climbs[1] = [[], None, True]
+    prefetch.climbs[3] = [[], None, True]
+    prefetch._finished(('climb', 1), (SimpleNamespace(t_f=0.65), ipm.CONVERGED))
+    assert prefetch._best_climbed() is None          # attempt 3's climb still runs
+    best = SimpleNamespace(t_f=0.64)
+    prefetch._finished(('climb', 3), (best, ipm.CONVERGED))
+    assert prefetch._best_climbed() is best
+    prefetch.finals[id(best)] = [[], None, True]
+    prefetch._finished(('attempt', 4), (_coarse(0.60), ipm.CONVERGED))
+    assert prefetch._best_climbed() is None and prefetch.finals[id(best)][2] is False
 
 
 @pytest.mark.parametrize('delay', [0.02, 0.08])

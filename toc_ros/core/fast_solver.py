@@ -320,15 +320,17 @@ class _Prefetch:
 
     The calling thread and the workers.share helpers each take the next task when theirs ends
     (no hand-over through a waiting thread: a wake-up cost milliseconds on a loaded machine):
-    first the climb of an attempt that is a candidate among the converged ones so far, else
-    the next attempt.  When all attempts have ended, the climbs of the final candidates that
-    have not started yet.
+    first the climb of an attempt that is a candidate among the converged ones so far, then,
+    once all of their climbs have ended, the refinement to N of the best climbed one (refine),
+    else the next attempt.  A task that later results put out is cancelled.
     """
 
-    def __init__(self, solver, tasks, climb):
+    def __init__(self, solver, tasks, climb, refine):
         self.solver = solver
         self.tasks = tasks
         self.climb = climb
+        self.refine = refine
+        self.finals = {}                         # id(climbed run) -> [runs, value, wanted]
         self.logs = [[] for _ in tasks]          # runs of the attempts, in task order
         self.all_logs = list(self.logs)          # and of the climbs (progress reports)
         self.results = {}                        # attempt index -> (run, code)
@@ -341,7 +343,12 @@ class _Prefetch:
         self.caller = threading.current_thread()       # reports progress
 
     def run(self):
-        """Return (converged attempt runs in task order, {id(run): (climb value, runs)})."""
+        """
+        Return (converged attempt runs in task order, prefetched).
+
+        prefetched: {'climbs': {id(attempt run): (climb value, runs)}, 'finals': {id(climbed
+        run): (refinement value, runs)}} for the final candidates and the best climbed one.
+        """
         solver = self.solver
         try:
             workers.share(self._work)
@@ -354,9 +361,12 @@ class _Prefetch:
         found = [self.results[k][0] for k in sorted(self.results)
                  if self.results[k][1] == ipm.CONVERGED]
         wanted = {id(run) for run in self._candidates()}
-        done = {id(self.results[k][0]): (c[1], c[0]) for k, c in self.climbs.items()
-                if c[1] is not None}
-        return found, {key: value for key, value in done.items() if key in wanted}
+        climbs = {id(self.results[k][0]): (c[1], c[0]) for k, c in self.climbs.items()
+                  if c[1] is not None and id(self.results[k][0]) in wanted}
+        best = self._best_climbed()
+        finals = {key: (f[1], f[0]) for key, f in self.finals.items()
+                  if f[1] is not None and best is not None and key == id(best)}
+        return found, {'climbs': climbs, 'finals': finals}
 
     def _work(self):
         """Run tasks until none is left and none can come (a thread's loop)."""
@@ -407,23 +417,50 @@ class _Prefetch:
                 return ('climb', k), self.solver._bind(
                     lambda solve, run=run: self.climb(solve, run), log, self.poll,
                     cancelled=lambda c=self.climbs[k]: not c[2], caller=self.caller)
+        best = self._best_climbed()
+        if best is not None and id(best) not in self.finals:
+            log = []
+            self.all_logs.append(log)
+            self.finals[id(best)] = [log, None, True]
+            return ('final', id(best)), self.solver._bind(
+                lambda solve: self.refine(solve, best), log, self.poll,
+                cancelled=lambda f=self.finals[id(best)]: not f[2], caller=self.caller)
         if self.waiting:
             k = self.waiting.pop(0)
             return ('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], self.poll,
                                                      caller=self.caller)
         return None
 
+    def _best_climbed(self):
+        """Return the shortest converged climb once every candidate's has ended, else None."""
+        climbs = [self.climbs.get(self._index(run)) for run in self._candidates()]
+        if not climbs or any(c is None or c[1] is None for c in climbs):
+            return None
+        ranked = [c[1][0] for c in climbs if c[1][1] == ipm.CONVERGED]
+        return min(ranked, key=lambda r: r.t_f) if ranked else None
+
+    def _index(self, run):
+        return next(k for k in self.results if self.results[k][0] is run)
+
     def _finished(self, key, value):
         kind, k = key
+        if kind == 'final':
+            self.finals[k][1] = value
+            return
         if kind == 'climb':
             self.climbs[k][1] = value
-            return
-        self.results[k] = value
-        # A later, shorter attempt may put earlier candidates out: cancel their climbs.
+        else:
+            self.results[k] = value
+        # A later, shorter attempt may put earlier candidates out, a later climb the best one:
+        # cancel their climbs and refinements.
         wanted = {id(run) for run in self._candidates()}
         for j, climb in self.climbs.items():
             if id(self.results[j][0]) not in wanted:
                 climb[2] = False
+        best = self._best_climbed()
+        for key, final in self.finals.items():
+            if best is None or key != id(best):
+                final[2] = False
 
 
 def interpolation_start(problem, n):
@@ -717,9 +754,11 @@ class FastSolve:
         budget = min(self.limit // 8, (self.limit - self.done) // max(len(paths), 1))
         allowance, prefetched = None, None
         if paths and budget >= 1 and self._may_explore():
-            # The candidates' climbs get a share fixed now, so that they can start as soon as
-            # their attempt converges (_class_attempts).
-            allowance = max(1, (self.limit - self.done - len(paths) * budget) // MAX_REFINE)
+            # The candidates' climbs get a share fixed now, and limit // 4 is left for the N
+            # grid (_refine), so that both can start before the last attempt ends
+            # (_class_attempts).
+            allowance = max(1, (self.limit - self.done - len(paths) * budget
+                                - self.limit // 4) // MAX_REFINE)
             found, prefetched = self._class_attempts(paths, explore, budget, n, allowance)
         first = None
         if not found:
@@ -788,7 +827,15 @@ class FastSolve:
         rank = self._rank_grid(explore, n, MAX_REFINE)
         if workers.WORKERS < 2 or problem.integrator != 'euler' or rank == n:
             return [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED], {}
-        return _Prefetch(self, tasks, self._climber(rank, allowance)).run()
+
+        def refine(solve, run):
+            # _refine's solve on a worker (the budget is limit // 4 there too: see _cold).
+            states, controls = resample(run.ws.x, run.controls(), n)
+            duals = resample_duals(run.duals(), run.n, n)
+            return solve(n, states, controls, run.t_f, MU_WARM / n, duals,
+                         max(1, self.limit // 4), duals['rho'])
+
+        return _Prefetch(self, tasks, self._climber(rank, allowance), refine).run()
 
     def _attempt(self, grid, n, start, pair, found):
         """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
@@ -811,8 +858,8 @@ class FastSolve:
         grid, then the shortest converged there to N (the next one if it fails).  Without
         intermediate grids each candidate goes to N and the shortest converged one is kept.
         The candidates climb the ladder side by side (_parallel), each within allowance
-        iterations (default: an equal share of the iterations left); prefetched maps a
-        candidate to its climb already run (_class_attempts), with the same allowance.
+        iterations (default: an equal share of the iterations left); prefetched: climbs and a
+        refinement to N already run (_Prefetch.run), with the same allowance and budget.
         """
         candidates = self._candidates(found)
         if not candidates:
@@ -832,15 +879,22 @@ class FastSolve:
             return
         candidates = candidates[:left]
         climb = self._climber(rank, allowance or left // len(candidates))
-        prefetched = prefetched or {}
+        climbs = (prefetched or {}).get('climbs', {})
+        finals = (prefetched or {}).get('finals', {})
         ranked = [run for run, code in self._parallel(
             [lambda solve, run=run: climb(solve, run) for run in candidates],
-            {k: prefetched[id(run)] for k, run in enumerate(candidates) if id(run) in prefetched})
+            {k: climbs[id(run)] for k, run in enumerate(candidates) if id(run) in climbs})
             if code == ipm.CONVERGED]
         for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
             if self.done >= self.limit:
                 break
-            run, code = self._refine(run, n)
+            if id(run) in finals:           # its refinement to N, run already
+                (run, code), runs = finals.pop(id(run))
+                for done in runs:
+                    self._record(done)
+                    self.run = done
+            else:
+                run, code = self._refine(run, n)
             if code == ipm.CONVERGED:
                 self.best = run
                 return
