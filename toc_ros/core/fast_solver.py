@@ -116,7 +116,7 @@ class Stop(Exception):
 
 
 class _Cancelled(Exception):
-    """Raised in a prefetched climb that is no longer wanted (FastSolve._class_attempts)."""
+    """Raised in a prefetched task that is no longer wanted (_Prefetch)."""
 
 
 def _in_band(run, shortest):
@@ -353,7 +353,11 @@ class _Prefetch:
         try:
             workers.share(self._work)
         finally:
-            for run in (run for log in self.logs for run in log):
+            logs = self.logs
+            if self.failure is not None:    # stopped: keep the wanted runs for best-so-far
+                logs = logs + [c[0] for c in self.climbs.values() if c[2]] + \
+                    [f[0] for f in self.finals.values() if f[2]]
+            for run in (run for log in logs for run in log):
                 solver._record(run)
                 solver.run = run
         if self.failure is not None:
@@ -805,15 +809,16 @@ class FastSolve:
 
     def _class_attempts(self, paths, explore, budget, n, allowance):
         """
-        Solve the class starts on explore intervals; return (converged runs, prefetched climbs).
+        Solve the class starts on explore intervals; return (converged runs, prefetched).
 
         The attempts (CLASS_ATTEMPT, budget each) run two at a time.  With two workers and an
         Euler ladder, a converged attempt that is a candidate among those converged so far
-        (_candidates) starts its climb at once, ahead of the attempts still waiting: the chain
-        to the N grid then overlaps the other attempts instead of following them.  The climb
-        is _finish's, with the same allowance, so its result is the one _finish would get (a
-        prefetch); one that a later attempt puts out of the candidates is cancelled.  Only the
-        attempts' runs are recorded here (in task order), the climbs by _finish.
+        (_candidates) starts its climb at once, ahead of the attempts still waiting, and the
+        best climbed one its refinement to N (_Prefetch): the chain to the N grid then overlaps
+        the other attempts instead of following them.  These are _finish's climb and _refine's
+        solve, with the same allowance and budget, so their results are the ones _finish would
+        get (a prefetch); one that later results put out is cancelled.  Only the attempts' runs
+        are recorded here (in task order), the climbs and the refinement by _finish.
         """
         rho, mu = CLASS_ATTEMPT
         problem = self.problem
