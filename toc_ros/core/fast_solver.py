@@ -823,12 +823,15 @@ class FastSolve:
         rho, mu = CLASS_ATTEMPT
         problem = self.problem
 
-        def attempt(solve, path):
+        def attempt(solve, path, point=None):
             # The start is built on the worker: its numpy overlaps the other's kernel.
-            point = homotopy.path_start(problem, path, explore)
+            point = point or homotopy.path_start(problem, path, explore)
             return solve(explore, *point, mu, None, budget, rho)
 
-        tasks = [lambda solve, path=path: attempt(solve, path) for path in paths]
+        # The first one here, before a helper thread starts building its own (the GIL).
+        first = homotopy.path_start(problem, paths[0], explore)
+        tasks = [lambda solve, path=path, point=point: attempt(solve, path, point)
+                 for path, point in zip(paths, [first] + [None] * (len(paths) - 1))]
         rank = self._rank_grid(explore, n, MAX_REFINE)
         if workers.WORKERS < 2 or problem.integrator != 'euler' or rank == n:
             return [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED], {}
