@@ -371,15 +371,17 @@ def test_prefetch_cancels_the_climbs_and_refinements_of_displaced_candidates():
     # Attempt 1 ends at attempt 2's optimum and stands for it: attempt 2's climb is cancelled.
     assert prefetch.climbs[2][2] is False
     assert prefetch._candidates() == [fast, other]
-    # The refinement to N goes to the best climbed candidate (not the best coarse one) once
-    # both climbs have ended, and is cancelled when a later attempt puts it out.
+    # The refinement to N goes to the shortest climbed candidate so far (not the shortest
+    # coarse one), and is cancelled when a shorter climb or a later attempt puts it out.
     prefetch.climbs[1] = [[], None, True]
     prefetch.climbs[3] = [[], None, True]
-    prefetch._finished(('climb', 1), (SimpleNamespace(t_f=0.65), ipm.CONVERGED))
-    assert prefetch._best_climbed() is None          # attempt 3's climb still runs
+    first = SimpleNamespace(t_f=0.65)
+    prefetch._finished(('climb', 1), (first, ipm.CONVERGED))
+    assert prefetch._best_climbed() is first         # attempt 3's climb still runs
+    prefetch.finals[id(first)] = [[], None, True]
     best = SimpleNamespace(t_f=0.64)
     prefetch._finished(('climb', 3), (best, ipm.CONVERGED))
-    assert prefetch._best_climbed() is best
+    assert prefetch._best_climbed() is best and prefetch.finals[id(first)][2] is False
     prefetch.finals[id(best)] = [[], None, True]
     prefetch._finished(('attempt', 4), (_coarse(0.60), ipm.CONVERGED))
     assert prefetch._best_climbed() is None and prefetch.finals[id(best)][2] is False

@@ -320,9 +320,9 @@ class _Prefetch:
 
     The calling thread and the workers.share helpers each take the next task when theirs ends
     (no hand-over through a waiting thread: a wake-up cost milliseconds on a loaded machine):
-    first the climb of an attempt that is a candidate among the converged ones so far, then,
-    once all of their climbs have ended, the refinement to N of the best climbed one (refine),
-    else the next attempt.  A task that later results put out is cancelled.
+    first the climb of an attempt that is a candidate among the converged ones so far, then
+    the refinement to N (refine) of the shortest climbed one so far, else the next attempt.  A
+    task that later results put out (a shorter attempt, a shorter climb) is cancelled.
     """
 
     def __init__(self, solver, tasks, climb, refine):
@@ -436,11 +436,10 @@ class _Prefetch:
         return None
 
     def _best_climbed(self):
-        """Return the shortest converged climb once every candidate's has ended, else None."""
+        """Return the shortest converged climb of a candidate so far (None if none)."""
         climbs = [self.climbs.get(self._index(run)) for run in self._candidates()]
-        if not climbs or any(c is None or c[1] is None for c in climbs):
-            return None
-        ranked = [c[1][0] for c in climbs if c[1][1] == ipm.CONVERGED]
+        ranked = [c[1][0] for c in climbs
+                  if c is not None and c[1] is not None and c[1][1] == ipm.CONVERGED]
         return min(ranked, key=lambda r: r.t_f) if ranked else None
 
     def _index(self, run):
