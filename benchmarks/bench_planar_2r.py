@@ -43,6 +43,11 @@ given for comparison (target of issue 13: planar_2r within 2x of it).
 
     PYTHONPATH=. python benchmarks/bench_planar_2r.py [--repeat 1] [--fatrop]
         [--markdown FILE] [--json FILE]
+
+--fast-only [--rounds R] times fast mode alone against the cylindrical robot on a noisy
+machine: each of R rounds solves, for every scenario, the cylindrical robot and the scenario
+--repeat times each, alternately, and takes the ratio of their medians; the table gives the
+median and range over the rounds (no IPOPT, a few seconds per round).
 """
 
 import argparse
@@ -50,6 +55,7 @@ from dataclasses import replace
 import math
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -59,7 +65,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench_solvers import (  # noqa: E402, I100
     load_average, time_fast, time_reference, write_outputs)
 import reference_solvers as rs  # noqa: E402
-from toc_ros.core import Problem, SolverOptions, warm_up  # noqa: E402
+from toc_ros.core import Problem, solve, SolverOptions, warm_up  # noqa: E402
 from toc_ros.core.models import load_model  # noqa: E402
 
 N = 1000
@@ -136,6 +142,55 @@ def run(repeat=1, fatrop=False):
             'load_end': load_average()}
 
 
+def run_fast_only(repeat=5, rounds=3):
+    """Fast mode only, interleaved with the cylindrical robot; returns the report dict."""
+    warm_up([load_model('planar_2r'), load_model('planar_2r', g=9.81)])
+    load_start = load_average()
+    options = SolverOptions(mode='fast', timeout=300.0)
+    cyl = replace(Problem(), n_intervals=N)
+    cases = scenarios()
+    for _, problem in [('cylindrical', cyl)] + cases:
+        solve(problem, options)             # untimed
+    rows = {name: {'ratios': [], 'medians': [], 'cylindrical': []} for name, _ in cases}
+    for _ in range(rounds):
+        for name, problem in cases:
+            times = {'cyl': [], 'fast': []}
+            for _ in range(repeat):
+                for key, case in (('cyl', cyl), ('fast', problem)):
+                    started = time.perf_counter()
+                    result = solve(case, options)
+                    times[key].append(time.perf_counter() - started)
+            row = rows[name]
+            row['medians'].append(float(np.median(times['fast'])))
+            row['cylindrical'].append(float(np.median(times['cyl'])))
+            row['ratios'].append(row['medians'][-1] / row['cylindrical'][-1])
+            row.update(status=result.status.value, t_f=float(result.final_time),
+                       iterations=int(result.iterations))
+    return {'rows': rows, 'repeat': repeat, 'rounds': rounds, 'load_start': load_start,
+            'load_end': load_average()}
+
+
+def markdown_fast_only(report):
+    """Return the --fast-only table as Markdown."""
+    ls, le = report['load_start'], report['load_end']
+    cyl = [t for row in report['rows'].values() for t in row['cylindrical']]
+    out = [f'planar_2r, Euler, N = {N}, fast mode only: {report["rounds"]} rounds of '
+           f'{report["repeat"]} solves of each scenario alternating with the cylindrical robot '
+           f'(paper scenario, same N; median of its round medians {1e3 * np.median(cyl):.1f} '
+           f'ms); median (range) over the rounds.  Load average at start {ls[0]:.2f} / '
+           f'{ls[1]:.2f} / {ls[2]:.2f}, at end {le[0]:.2f} / {le[1]:.2f} / {le[2]:.2f}.', '',
+           '| scenario | status | t_f [s] | iterations | fast [ms] | fast / cylindrical |',
+           '|---|---|---:|---:|---:|---:|']
+    for name, row in report['rows'].items():
+        ms, q = 1e3 * np.asarray(row['medians']), np.asarray(row['ratios'])
+        out.append(f'| {name} | {row["status"]} | {row["t_f"]:.6f} | {row["iterations"]} | '
+                   f'{np.median(ms):.1f} ({ms.min():.1f}-{ms.max():.1f}) | '
+                   f'{np.median(q):.2f} ({q.min():.2f}-{q.max():.2f}) |')
+    worst = max(np.median(row['ratios']) for row in report['rows'].values())
+    out += ['', f'- largest median ratio to the cylindrical robot: {worst:.2f}']
+    return '\n'.join(out) + '\n'
+
+
 def markdown(report):
     """Return the table as Markdown."""
     ls, le = report['load_start'], report['load_end']
@@ -184,7 +239,14 @@ def main(argv=None):
     parser.add_argument('--fatrop', action='store_true', help='also solve with FATROP')
     parser.add_argument('--markdown', metavar='FILE', help='also write the table here')
     parser.add_argument('--json', metavar='FILE', help='also write the rows as JSON')
+    parser.add_argument('--fast-only', action='store_true',
+                        help='fast mode only, interleaved with the cylindrical robot')
+    parser.add_argument('--rounds', type=int, default=3, help='rounds of --fast-only')
     args = parser.parse_args(argv)
+    if args.fast_only:
+        report = run_fast_only(max(1, args.repeat), max(1, args.rounds))
+        write_outputs(markdown_fast_only(report), report, args.markdown, args.json)
+        return 0 if all(r['status'] == 'SOLVED' for r in report['rows'].values()) else 1
     report = run(max(1, args.repeat), args.fatrop)
     write_outputs(markdown(report), report, args.markdown, args.json)
     return 0 if all(r['ok'] for r in report['rows']) else 1

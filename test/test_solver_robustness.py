@@ -32,17 +32,23 @@ Fast mode on cases it used to fail: former STALLED random scenarios and planar_2
   parallel attempts against the same attempts one after the other, bit for bit.
 """
 
+from dataclasses import replace
 import importlib.util
 import math
 from pathlib import Path
 import sys
+import threading
+import time
+from types import SimpleNamespace
 
 import numpy as np
 import numpy_model as nm
 import pytest
 
-from toc_ros.core import homotopy, Problem, solve, SolverOptions, Status, warm_up, workers
+from toc_ros.core import fast_solver, homotopy, ipm, Problem, solve, SolverOptions, Status, \
+    warm_up, workers
 from toc_ros.core.models import load_model
+from toc_ros.core.obstacles import segment_clearance
 
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 GAP = 1e-3              # 0.1 %
@@ -257,12 +263,26 @@ def test_class_starts_are_collision_free_and_pairwise_not_homotopic():
             assert any(_winding(loop, np.array(p)) != 0 for p in inside), (i, j)
 
 
-def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch):
-    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+@pytest.mark.parametrize('g', [0.0, 9.81])
+def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch, g):
+    # g = 9.81: two class starts end at the same coarse optimum (the first one's climb counts).
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), g, False)
+    prefetched = []
+    run = fast_solver._Prefetch.run
+
+    def counted(self):
+        found, done = run(self)
+        prefetched.append((len(done['climbs']), len(done['finals'])))
+        return found, done
+
+    monkeypatch.setattr(fast_solver._Prefetch, 'run', counted)
     results = []
     for count in (2, 1):
         monkeypatch.setattr(workers, 'WORKERS', count)
         results.append(solve(problem, SolverOptions(mode='fast')))
+    # Two workers: the candidates' climbs and the best one's refinement to N ran in the
+    # pipeline of the attempts; one worker: after them.
+    assert len(prefetched) == 1 and prefetched[0][0] >= 1 and prefetched[0][1] == 1, prefetched
     first, second = results
     assert first.status is second.status is Status.SOLVED
     assert first.final_time == second.final_time and first.iterations == second.iterations
@@ -278,3 +298,112 @@ def test_further_cold_attempts_are_deterministic():
     assert first.final_time == second.final_time and first.iterations == second.iterations
     assert np.array_equal(first.controls, second.controls)
     assert np.array_equal(first.history, second.history, equal_nan=True)
+
+
+def test_compiled_clearance_has_the_bits_of_segment_clearance():
+    rng = np.random.default_rng(3)
+    seg = rng.normal(size=(500, 2, 4))
+    seg[::7, 1, 2:] = seg[::7, 1, :2]                 # zero-length segments
+    seg[1::7, 0, :] = [0.0, 0.0, 1.0, 0.0]            # projections at an end and beyond
+    circles = np.array([[0.0, 1.0, 0.3], [1.5, 0.0, 0.2], [-0.5, 0.0, 0.1]])
+    circles = np.concatenate([circles, np.column_stack([rng.normal(size=(3, 2)),
+                                                        rng.uniform(0.05, 0.5, 3)])])
+    for squared in (False, True):
+        assert np.array_equal(homotopy.clearance(seg, circles, squared),
+                              segment_clearance(seg, circles, squared=squared))
+
+
+def test_class_search_stops_with_the_goal_states_of_the_full_search(monkeypatch):
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    calls = []
+    search = homotopy.class_search
+    monkeypatch.setattr(homotopy, 'class_search', lambda *a: calls.append(a) or search(*a))
+    assert len(homotopy.class_paths(problem)) == 4
+    args = calls[0]
+    early_dist, early_parent = search(*args)
+    full_dist, full_parent = search(*args[:-2], 1 << 30, np.inf)
+    free, goal = args[0], args[2]
+    s_count = 1 << len(args[3])
+    base = (goal[0] * free.shape[1] + goal[1]) * s_count
+    kept = [state for state in range(base, base + s_count) if np.isfinite(early_dist[state])]
+    assert len(kept) == 4
+    for state in kept:
+        assert early_dist[state] == full_dist[state]
+        while state >= 0:           # the same path back to the start
+            assert early_parent[state] == full_parent[state]
+            state = early_parent[state]
+    # It did stop early: states the full search reached are left out.
+    assert np.count_nonzero(np.isfinite(early_dist)) < np.count_nonzero(np.isfinite(full_dist))
+
+
+def _coarse(t_f):
+    return SimpleNamespace(t_f=t_f, n=fast_solver.EXPLORE_INTERVALS)
+
+
+def _candidates(found):
+    solver = SimpleNamespace(done=0, limit=2000)
+    return fast_solver.FastSolve._candidates(solver, found)
+
+
+def test_candidates_are_the_distinct_optima_in_the_band_and_the_first_attempt_of_equal_ones():
+    band = fast_solver.REFINE_BAND * fast_solver.COARSE_INTERVALS / fast_solver.EXPLORE_INTERVALS
+    a, b, c = _coarse(0.70), _coarse(0.70 * (1.0 + 0.5 * band)), _coarse(0.70 * (1.0 + 2 * band))
+    same = _coarse(0.70 * (1.0 - 1e-7))      # the same optimum as a, slightly shorter
+    assert _candidates([c, b, a]) == [a, b]
+    assert _candidates([a, same, b]) == [a, b]      # a's attempt came first
+    assert _candidates([same, a, b]) == [same, b]
+    many = [_coarse(0.70 * (1.0 + 0.01 * band * k)) for k in range(5)]
+    assert _candidates(many[::-1]) == many[:fast_solver.MAX_REFINE]
+
+
+def test_prefetch_cancels_the_climbs_and_refinements_of_displaced_candidates():
+    solver = SimpleNamespace(done=0, limit=2000, _poller=lambda logs: None)
+    solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
+    prefetch = fast_solver._Prefetch(solver, [None] * 5, None, None)
+    slow, fast, again, other = _coarse(0.80), _coarse(0.70), _coarse(0.70), _coarse(0.71)
+    prefetch._finished(('attempt', 2), (again, ipm.CONVERGED))
+    prefetch._finished(('attempt', 0), (slow, ipm.CONVERGED))
+    prefetch.climbs = {0: [[], None, True], 2: [[], None, True]}
+    prefetch._finished(('attempt', 3), (other, ipm.CONVERGED))
+    # 0.80 is out of the band of 0.70 (attempt 2): its climb is cancelled, attempt 2's is not.
+    assert prefetch.climbs[0][2] is False and prefetch.climbs[2][2] is True
+    prefetch._finished(('attempt', 1), (fast, ipm.CONVERGED))
+    # Attempt 1 ends at attempt 2's optimum and stands for it: attempt 2's climb is cancelled.
+    assert prefetch.climbs[2][2] is False
+    assert prefetch._candidates() == [fast, other]
+    # The refinement to N goes to the shortest climbed candidate so far (not the shortest
+    # coarse one), and is cancelled when a shorter climb or a later attempt puts it out.
+    prefetch.climbs[1] = [[], None, True]
+    prefetch.climbs[3] = [[], None, True]
+    first = SimpleNamespace(t_f=0.65)
+    prefetch._finished(('climb', 1), (first, ipm.CONVERGED))
+    assert prefetch._best_climbed() is first         # attempt 3's climb still runs
+    prefetch.finals[id(first)] = [[], None, True]
+    best = SimpleNamespace(t_f=0.64)
+    prefetch._finished(('climb', 3), (best, ipm.CONVERGED))
+    assert prefetch._best_climbed() is best and prefetch.finals[id(first)][2] is False
+    prefetch.finals[id(best)] = [[], None, True]
+    prefetch._finished(('attempt', 4), (_coarse(0.60), ipm.CONVERGED))
+    assert prefetch._best_climbed() is None and prefetch.finals[id(best)][2] is False
+
+
+@pytest.mark.parametrize('delay', [0.02, 0.08])
+def test_a_cancel_during_the_class_attempts_and_climbs_is_honoured(delay):
+    # N = 20000: the attempts take ~10 ms, the climbs to 6034 intervals a few hundred ms.
+    problem = replace(_bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False), n_intervals=20000)
+    cancel, stamp = threading.Event(), {}
+
+    def fire():
+        stamp['set'] = time.monotonic()
+        cancel.set()
+
+    timer = threading.Timer(delay, fire)
+    timer.start()
+    try:
+        result = solve(problem, SolverOptions(mode='fast'), cancel=cancel)
+        returned = time.monotonic()
+    finally:
+        timer.cancel()
+    assert 'set' in stamp, 'the solve ended before the cancel'
+    assert result.status is Status.CANCELED, result.message
+    assert returned - stamp['set'] <= 0.1

@@ -28,7 +28,8 @@ A cold solve first runs on a coarse grid (COARSE_INTERVALS), whose solution (pri
 is carried to the requested grid through intermediate grids (ladder), where a few Newton-type
 iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
 per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
-threads (workers.py).  A warm start
+threads (workers.py); a candidate's climb up the ladder starts as soon as its attempt converges
+(_Prefetch), with the same result as after all attempts.  A warm start
 (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
 being executed) skips the coarse grid.
 """
@@ -42,7 +43,6 @@ import time
 import numpy as np
 
 from . import homotopy, ipm, workers
-from .obstacles import segment_clearance
 from .result import SolveResult, Status
 
 # Grids: a cold solve on N > 2 COARSE_INTERVALS starts on COARSE_INTERVALS intervals.
@@ -114,6 +114,17 @@ CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITE
 
 class Stop(Exception):
     """Raised between iteration chunks to stop a solve (argument: the Status)."""
+
+
+class _Cancelled(Exception):
+    """Raised in a prefetched task that is no longer wanted (_Prefetch)."""
+
+
+def _in_band(run, shortest):
+    """Return whether a converged coarse run is within REFINE_BAND of the shortest t_f."""
+    # The band scales with the discretisation error, ~ 1 / intervals.
+    band = REFINE_BAND * COARSE_INTERVALS / min(run.n, COARSE_INTERVALS)
+    return run.t_f <= (1.0 + band) * shortest
 
 
 class InteriorPointRun:
@@ -199,7 +210,7 @@ class InteriorPointRun:
         if self.circles.shape[0] == 0:
             return np.zeros((states.shape[0] - 1, 0))
         seg = self.model.link_segments(self.model.positions(states[1:]))
-        return segment_clearance(seg, self.circles, squared=True)
+        return homotopy.clearance(seg, self.circles, squared=True)
 
     def duals(self):
         """Copy of the multipliers (for a warm start of another run)."""
@@ -305,6 +316,158 @@ class _StopWatcher:
 _WATCHER = _StopWatcher()
 
 
+class _Prefetch:
+    """
+    The class attempts of one FastSolve, with the climbs of their candidates started early.
+
+    The calling thread and the workers.share helpers each take the next task when theirs ends
+    (no hand-over through a waiting thread: a wake-up cost milliseconds on a loaded machine):
+    first the climb of an attempt that is a candidate among the converged ones so far, then
+    the refinement to N (refine) of the shortest climbed one so far, else the next attempt.  A
+    task that later results put out (a shorter attempt, a shorter climb) is cancelled.
+    """
+
+    def __init__(self, solver, tasks, climb, refine):
+        self.solver = solver
+        self.tasks = tasks
+        self.climb = climb
+        self.refine = refine
+        self.finals = {}                         # id(climbed run) -> [runs, value, wanted]
+        self.logs = [[] for _ in tasks]          # runs of the attempts, in task order
+        self.all_logs = list(self.logs)          # and of the climbs (progress reports)
+        self.results = {}                        # attempt index -> (run, code)
+        self.climbs = {}                         # attempt index -> [runs, value or None, wanted]
+        self.waiting = list(range(len(tasks)))   # attempts not started
+        self.busy = 0                            # tasks running
+        self.failure = None
+        self.cond = threading.Condition()
+        self.poll = solver._poller(self.all_logs)
+        self.caller = threading.current_thread()       # reports progress
+
+    def run(self):
+        """
+        Return (converged attempt runs in task order, prefetched).
+
+        prefetched: {'climbs': {id(attempt run): (climb value, runs)}, 'finals': {id(climbed
+        run): (refinement value, runs)}} for the final candidates and the best climbed one.
+        """
+        solver = self.solver
+        try:
+            workers.share(self._work)
+        finally:
+            logs = self.logs
+            if self.failure is not None:    # stopped: keep the wanted runs for best-so-far
+                logs = logs + [c[0] for c in self.climbs.values() if c[2]] + \
+                    [f[0] for f in self.finals.values() if f[2]]
+            for run in (run for log in logs for run in log):
+                solver._record(run)
+                solver.run = run
+        if self.failure is not None:
+            raise self.failure
+        found = [self.results[k][0] for k in sorted(self.results)
+                 if self.results[k][1] == ipm.CONVERGED]
+        wanted = {id(run) for run in self._candidates()}
+        climbs = {id(self.results[k][0]): (c[1], c[0]) for k, c in self.climbs.items()
+                  if c[1] is not None and id(self.results[k][0]) in wanted}
+        best = self._best_climbed()
+        finals = {key: (f[1], f[0]) for key, f in self.finals.items()
+                  if f[1] is not None and best is not None and key == id(best)}
+        return found, {'climbs': climbs, 'finals': finals}
+
+    def _work(self):
+        """Run tasks until none is left and none can come (a thread's loop)."""
+        caller = threading.current_thread() is self.caller
+        while True:
+            with self.cond:
+                job = self._next()
+                while job is None and self.busy and self.failure is None:
+                    self.cond.wait(workers.POLL)
+                    if caller:
+                        self.poll()
+                    job = self._next()
+                if job is None:
+                    return
+                self.busy += 1
+            key, task = job
+            value, error = None, None
+            try:
+                value = task()
+            except _Cancelled:
+                key = None
+            except BaseException as exc:        # Stop, or a bug: raised by run()
+                error = exc
+            with self.cond:
+                self.busy -= 1
+                if error is not None:
+                    self.failure = self.failure or error
+                elif key is not None:
+                    self._finished(key, value)
+                self.cond.notify_all()
+
+    def _candidates(self):
+        """_finish's candidates among the attempts converged so far."""
+        return self.solver._candidates([self.results[k][0] for k in sorted(self.results)
+                                        if self.results[k][1] == ipm.CONVERGED])
+
+    def _next(self):
+        """Return the next (key, task): a candidate's climb before an attempt; None if none."""
+        if self.failure is not None:
+            return None
+        index = {id(self.results[k][0]): k for k in self.results}
+        for run in self._candidates():
+            k = index[id(run)]
+            if k not in self.climbs:
+                log = []
+                self.all_logs.append(log)
+                self.climbs[k] = [log, None, True]
+                return ('climb', k), self.solver._bind(
+                    lambda solve, run=run: self.climb(solve, run), log, self.poll,
+                    cancelled=lambda c=self.climbs[k]: not c[2], caller=self.caller)
+        best = self._best_climbed()
+        if best is not None and id(best) not in self.finals:
+            log = []
+            self.all_logs.append(log)
+            self.finals[id(best)] = [log, None, True]
+            return ('final', id(best)), self.solver._bind(
+                lambda solve: self.refine(solve, best), log, self.poll,
+                cancelled=lambda f=self.finals[id(best)]: not f[2], caller=self.caller)
+        if self.waiting:
+            k = self.waiting.pop(0)
+            return ('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], self.poll,
+                                                     caller=self.caller)
+        return None
+
+    def _best_climbed(self):
+        """Return the shortest converged climb of a candidate so far (None if none)."""
+        climbs = [self.climbs.get(self._index(run)) for run in self._candidates()]
+        ranked = [c[1][0] for c in climbs
+                  if c is not None and c[1] is not None and c[1][1] == ipm.CONVERGED]
+        return min(ranked, key=lambda r: r.t_f) if ranked else None
+
+    def _index(self, run):
+        return next(k for k in self.results if self.results[k][0] is run)
+
+    def _finished(self, key, value):
+        kind, k = key
+        if kind == 'final':
+            self.finals[k][1] = value
+            return
+        if kind == 'climb':
+            self.climbs[k][1] = value
+        else:
+            self.results[k] = value
+        # A later, shorter attempt may put earlier candidates out, a later climb the best one:
+        # cancel their climbs and refinements.
+        wanted = {id(run) for run in self._candidates()}
+        for j, climb in self.climbs.items():
+            if id(self.results[j][0]) not in wanted:
+                climb[2] = False
+        best = self._best_climbed()
+        for key, final in self.finals.items():
+            if best is None or key != id(best):
+                final[2] = False
+
+
 def interpolation_start(problem, n):
     """
     Return the cold starting point for n intervals over t_f0.
@@ -314,6 +477,12 @@ def interpolation_start(problem, n):
     (least squares through df/du; exact for models affine in u).  The same point is handed to
     the reference solvers in benchmarks/ so that all start alike.
     """
+    t_f = float(problem.t_f0)
+    return start_along(problem, interpolation_states(problem, n), t_f) + (t_f,)
+
+
+def interpolation_states(problem, n):
+    """Return the joint states (n + 1, 2 n) of interpolation_start (its controls cost more)."""
     model = problem.robot_model
     t_f = float(problem.t_f0)
     x0 = np.asarray(problem.x0, dtype=float)
@@ -332,7 +501,7 @@ def interpolation_start(problem, n):
     states = np.empty((n + 1, 2 * n_q))
     states[:, 0::2] = q
     states[:, 1::2] = dq
-    return start_along(problem, states, t_f) + (t_f,)
+    return states
 
 
 def start_along(problem, joint_states, t_f):
@@ -549,8 +718,11 @@ class FastSolve:
         return run, code
 
     def _record(self, run):
-        for t_f, theta in run.history():
-            self.history.append((len(self.history), t_f, t_f, theta))
+        rows = run.history()
+        if rows.shape[0]:
+            first = sum(block.shape[0] for block in self.history)
+            self.history.append(np.column_stack([np.arange(first, first + rows.shape[0]),
+                                                 rows[:, 0], rows[:, 0], rows[:, 1]]))
         self.done += run.iterations
 
     def solve(self):
@@ -616,30 +788,35 @@ class FastSolve:
         problem = self.problem
         grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
         found = []
-        start = interpolation_start(problem, grid)
+        states = interpolation_states(problem, grid)
         # Class starts on a coarser grid still (their candidates are carried up by _finish like
         # the others); not when the coarse grid is the N grid (short horizons, a few ms).
         explore = min(grid, EXPLORE_INTERVALS)
-        starts = self._class_starts(start, explore) if grid < n else []
+        paths = self._class_paths(states) if grid < n else []
         # Each limit // 8, all within the iteration limit.
-        budget = min(self.limit // 8, (self.limit - self.done) // max(len(starts), 1))
-        if starts and budget >= 1 and self._may_explore():
-            rho, mu = CLASS_ATTEMPT
-            tasks = [lambda solve, point=point: solve(explore, *point, mu, None, budget, rho)
-                     for point in starts]
-            found += [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED]
+        budget = min(self.limit // 8, (self.limit - self.done) // max(len(paths), 1))
+        allowance, prefetched = None, None
+        if paths and budget >= 1 and self._may_explore():
+            # The candidates' climbs get a share fixed now, and limit // 4 is left for the N
+            # grid (_refine), so that both can start before the last attempt ends
+            # (_class_attempts).
+            allowance = max(1, (self.limit - self.done - len(paths) * budget
+                                - self.limit // 4) // MAX_REFINE)
+            found, prefetched = self._class_attempts(paths, explore, budget, n, allowance)
         first = None
         if not found:
+            allowance, prefetched = None, None      # today's shares for these attempts
+            t_f0 = float(problem.t_f0)
+            start = start_along(problem, states, t_f0) + (t_f0,)
             first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
             if self._explore(first):
                 for pair in COLD_ATTEMPTS[1:]:
                     if self._may_explore():
                         self._attempt(grid, n, start, pair, found)
-        found.sort(key=lambda r: r.t_f)      # stable: ties keep the attempts' order
         if grid == n and found:
-            return found[0], ipm.CONVERGED
+            return min(found, key=lambda r: r.t_f), ipm.CONVERGED   # ties: the first attempt
         if found:
-            self._finish(found, n)
+            self._finish(found, n, allowance, prefetched)
         if self.best is not None:
             return self.best, ipm.CONVERGED
         for mu in MU_COLD_RETRIES:
@@ -688,22 +865,59 @@ class FastSolve:
                 return run, code
         return self._cold(n)
 
-    def _class_starts(self, start, m):
+    def _class_paths(self, states):
         """
-        Return the class starts of homotopy.py on m intervals, or [] when there are none.
+        Return the class paths of homotopy.py, or [] when there are none.
 
-        Only when the interpolation start (on the coarse grid) crosses an obstacle: then the
-        side of each obstacle it ends on is arbitrary, while a start already on one side of
+        Only when the interpolation start's states (on the coarse grid) cross an obstacle: then
+        the side of each obstacle it ends on is arbitrary, while a start already on one side of
         each keeps its iterates out of the obstacles (fewer, convex iterations).
         """
         model = self.problem.robot_model
         if not len(self.problem.obstacles) or model.n_joints != 2:
             return []
-        seg = model.link_segments(model.positions(start[0]))
-        if np.min(segment_clearance(seg, self.problem.circles())) >= 0.0:
+        seg = model.link_segments(model.positions(states))
+        if np.min(homotopy.clearance(seg, self.problem.circles())) >= 0.0:
             return []
-        return [homotopy.path_start(self.problem, path, m)
-                for path in homotopy.class_paths(self.problem)]
+        return homotopy.class_paths(self.problem)
+
+    def _class_attempts(self, paths, explore, budget, n, allowance):
+        """
+        Solve the class starts on explore intervals; return (converged runs, prefetched).
+
+        The attempts (CLASS_ATTEMPT, budget each) run two at a time.  With two workers and an
+        Euler ladder, a converged attempt that is a candidate among those converged so far
+        (_candidates) starts its climb at once, ahead of the attempts still waiting, and the
+        best climbed one its refinement to N (_Prefetch): the chain to the N grid then overlaps
+        the other attempts instead of following them.  These are _finish's climb and _refine's
+        solve, with the same allowance and budget, so their results are the ones _finish would
+        get (a prefetch); one that later results put out is cancelled.  Only the attempts' runs
+        are recorded here (in task order), the climbs and the refinement by _finish.
+        """
+        rho, mu = CLASS_ATTEMPT
+        problem = self.problem
+
+        def attempt(solve, path, point=None):
+            # The start is built on the worker: its numpy overlaps the other's kernel.
+            point = point or homotopy.path_start(problem, path, explore)
+            return solve(explore, *point, mu, None, budget, rho)
+
+        # The first one here, before a helper thread starts building its own (the GIL).
+        first = homotopy.path_start(problem, paths[0], explore)
+        tasks = [lambda solve, path=path, point=point: attempt(solve, path, point)
+                 for path, point in zip(paths, [first] + [None] * (len(paths) - 1))]
+        rank = self._rank_grid(explore, n, MAX_REFINE)
+        if workers.WORKERS < 2 or problem.integrator != 'euler' or rank == n:
+            return [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED], {}
+
+        def refine(solve, run):
+            # _refine's solve on a worker (the budget is limit // 4 there too: see _cold).
+            states, controls = resample(run.ws.x, run.controls(), n)
+            duals = resample_duals(run.duals(), run.n, n)
+            return solve(n, states, controls, run.t_f, MU_WARM / n, duals,
+                         max(1, self.limit // 4), duals['rho'])
+
+        return _Prefetch(self, tasks, self._climber(rank, allowance), refine).run()
 
     def _attempt(self, grid, n, start, pair, found):
         """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
@@ -715,7 +929,7 @@ class FastSolve:
             found.append(run)
         return run, code
 
-    def _finish(self, found, n):
+    def _finish(self, found, n, allowance=None, prefetched=None):
         """
         Refine the distinct coarse optima close to the best one; set self.best.
 
@@ -725,26 +939,14 @@ class FastSolve:
         iterations, fewer in all than one jump to N): every candidate to the last intermediate
         grid, then the shortest converged there to N (the next one if it fails).  Without
         intermediate grids each candidate goes to N and the shortest converged one is kept.
-        The candidates climb the ladder side by side (_parallel), each within an equal share of
-        the iterations left.
+        The candidates climb the ladder side by side (_parallel), each within allowance
+        iterations (default: an equal share of the iterations left); prefetched: climbs and a
+        refinement to N already run (_Prefetch.run), with the same allowance and budget.
         """
-        candidates = []
-        for coarse in found:
-            if self.done >= self.limit or len(candidates) >= MAX_REFINE:
-                break
-            # The band scales with the discretisation error, ~ 1 / intervals.
-            band = REFINE_BAND * COARSE_INTERVALS / min(coarse.n, COARSE_INTERVALS)
-            if coarse.t_f <= (1.0 + band) * found[0].t_f and \
-                    not any(abs(coarse.t_f - c.t_f) <= 1e-6 * c.t_f for c in candidates):
-                candidates.append(coarse)
-        # Rank on the last grid of the ladder from the coarse grid (N when there is none).  An
-        # RK4 coarse solution is already close to the N grid's (error O(tau^4), not O(tau)):
-        # there the intermediate grid saves no N-grid iterations (paper scenario: 17 there
-        # after 25 on 316, 19 straight), so a single candidate goes straight to N.
-        grids = ladder(COARSE_INTERVALS, n)
-        if self.problem.integrator != 'euler' and len(candidates) == 1:
-            grids = []
-        rank = (grids or [n])[-1]
+        candidates = self._candidates(found)
+        if not candidates:
+            return
+        rank = self._rank_grid(min(run.n for run in candidates), n, len(candidates))
         if rank == n:
             for coarse in candidates:
                 if self.done >= self.limit:
@@ -758,8 +960,68 @@ class FastSolve:
         if left < 1:
             return
         candidates = candidates[:left]
-        allowance = left // len(candidates)
+        climb = self._climber(rank, allowance or left // len(candidates))
+        climbs = (prefetched or {}).get('climbs', {})
+        finals = (prefetched or {}).get('finals', {})
+        ranked = [run for run, code in self._parallel(
+            [lambda solve, run=run: climb(solve, run) for run in candidates],
+            {k: climbs[id(run)] for k, run in enumerate(candidates) if id(run) in climbs})
+            if code == ipm.CONVERGED]
+        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
+            if self.done >= self.limit:
+                break
+            if id(run) in finals:           # its refinement to N, run already
+                (run, code), runs = finals.pop(id(run))
+                for done in runs:
+                    self._record(done)
+                    self.run = done
+            else:
+                run, code = self._refine(run, n)
+            if code == ipm.CONVERGED:
+                self.best = run
+                return
 
+    def _candidates(self, found):
+        """
+        Return the distinct runs of found (in attempt order) within the band of the shortest.
+
+        Shortest first, at most MAX_REFINE.  Of runs that end at the same t_f (within 1e-6: the
+        same optimum reached from two starts) the first attempt's stands for them: it usually
+        converges first, so its climb may have started already (_class_attempts).
+        """
+        order = sorted(range(len(found)), key=lambda k: found[k].t_f)   # stable
+        chosen = []
+        for k in order:
+            if self.done >= self.limit or len(chosen) >= MAX_REFINE:
+                break
+            if not _in_band(found[k], found[order[0]].t_f):
+                continue
+            same = [i for i, c in enumerate(chosen)
+                    if abs(found[k].t_f - found[c].t_f) <= 1e-6 * found[c].t_f]
+            if not same:
+                chosen.append(k)
+            elif k < chosen[same[0]]:
+                chosen[same[0]] = k
+        return [found[k] for k in chosen]
+
+    def _rank_grid(self, coarse, n, count):
+        """
+        Return the grid count candidates from coarse intervals are ranked on.
+
+        The last grid of the ladder from coarse to N (N if none): from the class attempts' 50
+        intervals 136, 368 (the last step to N 2.7, 15-20 iterations there on planar_2r; via
+        126 and 316 it was 17-25).  Never coarser than from COARSE_INTERVALS: nearby optima
+        swap places on coarse grids (planar_2r: on 126 intervals, not on 316).  An RK4 coarse
+        solution is already close to the N grid's (error O(tau^4), not O(tau)): there the
+        intermediate grid saves no N-grid iterations (paper scenario: 17 there after 25 on
+        316, 19 straight), so a single candidate goes straight to N.
+        """
+        if self.problem.integrator != 'euler' and count == 1:
+            return n
+        return max((ladder(coarse, n) or [n])[-1], (ladder(COARSE_INTERVALS, n) or [n])[-1])
+
+    def _climber(self, rank, allowance):
+        """Return climb(solve, run): run's solution up the ladder to rank, within allowance."""
         def climb(solve, run):
             used, code = 0, ipm.CONVERGED
             for m in ladder(run.n, rank) + [rank]:
@@ -773,50 +1035,69 @@ class FastSolve:
                 if code != ipm.CONVERGED:
                     break
             return run, code
+        return climb
 
-        ranked = [run for run, code in self._parallel(
-            [lambda solve, run=run: climb(solve, run) for run in candidates])
-            if code == ipm.CONVERGED]
-        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
-            if self.done >= self.limit:
-                break
-            run, code = self._refine(run, n)
-            if code == ipm.CONVERGED:
-                self.best = run
-                return
-
-    def _parallel(self, tasks):
+    def _parallel(self, tasks, done=None):
         """
         Run tasks (callables solve -> value) on the worker threads; return their values.
 
         solve(n, states, controls, t_f, mu, duals, budget, elastic) is a worker's _solve_on:
         it neither records its run nor reports progress (this thread does, meanwhile and, in
         task order, afterwards), and only the fixed budget caps it, so a task's result does not
-        depend on the others' timing (workers.py).
+        depend on the others' timing (workers.py).  done: {index: (value, runs)} of tasks
+        already run (_class_attempts); their runs are recorded in their place.
         """
-        logs = [[] for _ in tasks]
-        stop_requested = lambda: self.clock.stop_reason() is not None  # noqa: E731
+        done = done or {}
+        logs = [list(done[k][1]) if k in done else [] for k in range(len(tasks))]
+        todo = [k for k in range(len(tasks)) if k not in done]
+        poll = self._poller(logs)
+        values = {k: value for k, (value, _) in done.items()}
+        try:
+            out = workers.run_tasks([self._bind(tasks[k], logs[k], poll) for k in todo], poll)
+            values.update(zip(todo, out))
+            return [values[k] for k in range(len(tasks))]
+        finally:
+            for run in (run for log in logs for run in log):
+                self._record(run)
+                self.run = run
 
-        caller = threading.current_thread()
+    def _bind(self, task, log, poll, cancelled=None, caller=None):
+        """
+        Return a worker's callable: task(solve), its runs appended to log.
+
+        poll() runs between iteration chunks when this is the caller's thread (default: the
+        current one).  cancelled(): a prefetch no longer wanted; its kernel stops within one
+        phase and _Cancelled is raised.
+        """
+        caller = caller or threading.current_thread()
+
+        def stop_requested():
+            return self.clock.stop_reason() is not None or (cancelled is not None and
+                                                            cancelled())
 
         def check(run):
+            if cancelled is not None and cancelled():
+                raise _Cancelled()
             reason = self.clock.stop_reason()
             if reason is not None:
                 raise Stop(reason)
             if threading.current_thread() is caller:
-                poll()          # the tasks run one after the other (workers.run_tasks)
+                poll()
 
-        def bind(task, log):
-            def solve(n, states, controls, t_f, mu, duals, budget, elastic):
-                run = InteriorPointRun(self.problem, n, budget, elastic)
-                run.start(states, controls, t_f, mu, duals)
-                log.append(run)
-                code = run.run(check, stop_requested)
-                if code == ipm.STOPPED:
-                    raise Stop(self.clock.stop_reason() or Status.CANCELED)
-                return run, code
-            return lambda: task(solve)
+        def solve(n, states, controls, t_f, mu, duals, budget, elastic):
+            run = InteriorPointRun(self.problem, n, budget, elastic)
+            run.start(states, controls, t_f, mu, duals)
+            log.append(run)
+            code = run.run(check, stop_requested)
+            if code == ipm.STOPPED:
+                if cancelled is not None and cancelled():
+                    raise _Cancelled()
+                raise Stop(self.clock.stop_reason() or Status.CANCELED)
+            return run, code
+        return lambda: task(solve)
 
+    def _poller(self, logs):
+        """Return poll(): a progress report on the newest run of logs (lists of runs)."""
         def poll():
             runs = [run for log in logs for run in log]
             if runs:
@@ -825,13 +1106,7 @@ class FastSolve:
                 self.clock.report(lambda: Progress(
                     its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
                     f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
-
-        try:
-            return workers.run_tasks([bind(t, log) for t, log in zip(tasks, logs)], poll)
-        finally:
-            for run in (run for log in logs for run in log):
-                self._record(run)
-                self.run = run
+        return poll
 
     def _refine(self, run, n):
         """Carry a converged run's primal-dual solution to n intervals and solve there."""
@@ -865,7 +1140,7 @@ class FastSolve:
         return code != ipm.CONVERGED or shifted > EXPLORE_NONCONVEX
 
     def _history(self):
-        return np.array(self.history, dtype=float).reshape(-1, 4)
+        return np.concatenate(self.history) if self.history else np.zeros((0, 4))
 
     def _result(self, run, status, message):
         from .problem import measure_violations

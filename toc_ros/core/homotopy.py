@@ -27,7 +27,7 @@ search-based robot path planning", Autonomous Robots 33, 2012).  A Dijkstra sear
 CELLS x CELLS grid in 2-4 ms; each path, timed over t_f0 like the interpolation start, is a
 start already on one side of every obstacle.
 
-Plain numpy for the geometry (the model's link_segments and obstacles.segment_clearance), a
+Numpy and compiled clearance (the model's link_segments, obstacles.segment_clearance_rows), a
 numba search; nothing here knows the model beyond the interface.  Models with another number
 of joints, or problems whose obstacles leave no hole inside the grid, get no class starts.
 """
@@ -37,7 +37,7 @@ import math
 from numba import njit
 import numpy as np
 
-from .obstacles import segment_clearance
+from .obstacles import segment_clearance_rows
 
 # Grid cells per joint.
 CELLS = 64
@@ -120,7 +120,7 @@ def _pop(keys, vals, size):
 
 
 @njit(cache=True)
-def class_search(free, start, goal, ray_col, ray_row, w0, w1):
+def class_search(free, start, goal, ray_col, ray_row, w0, w1, max_ends, factor):
     """
     Dijkstra over (cell, crossing parities) from start; return (dist, parent) per state.
 
@@ -130,6 +130,11 @@ def class_search(free, start, goal, ray_col, ray_row, w0, w1):
     a move between those columns with both rows above it flips bit r.  Without corner cutting
     no move passes the ray's foot, so each loop around hole r flips bit r once.  The heap keeps
     stale entries (lazy deletion); ties pop in a fixed order, so the result is deterministic.
+
+    The search stops once the states it pops are longer than factor times the shortest path
+    to the goal, or than the max_ends-th goal state popped: the goal states it returns (the
+    others get dist inf) are then exactly the ones class_paths keeps, with the same dist and
+    parent chains as after a full search (their ancestors were popped before them).
     """
     n0, n1 = free.shape
     k = ray_col.shape[0]
@@ -143,13 +148,27 @@ def class_search(free, start, goal, ray_col, ray_row, w0, w1):
     source = (start[0] * n1 + start[1]) * s_count
     dist[source] = 0.0
     size = _push(keys, vals, 0, 0.0, source)
+    goal_cell = goal[0] * n1 + goal[1]
+    ends, limit = 0, np.inf
+    cost = np.empty((3, 3))
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            cost[di + 1, dj + 1] = math.sqrt((di * w0) ** 2 + (dj * w1) ** 2)
     while size > 0:
         d, state, size = _pop(keys, vals, size)
         if done[state]:
             continue
+        if d > limit:
+            break
         done[state] = True
         sig = state % s_count
         i, j = (state // s_count) // n1, (state // s_count) % n1
+        if state // s_count == goal_cell:
+            ends += 1
+            if ends == 1:
+                limit = factor * d
+            if ends >= max_ends:
+                limit = min(limit, d)
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 a, b = i + di, j + dj
@@ -164,12 +183,24 @@ def class_search(free, start, goal, ray_col, ray_row, w0, w1):
                         if min(i, a) == ray_col[r] and min(j, b) > ray_row[r]:
                             new_sig ^= 1 << r
                 nxt = (a * n1 + b) * s_count + new_sig
-                nd = d + math.sqrt((di * w0) ** 2 + (dj * w1) ** 2)
+                nd = d + cost[di + 1, dj + 1]
                 if nd < dist[nxt]:
                     dist[nxt] = nd
                     parent[nxt] = state
                     size = _push(keys, vals, size, nd, nxt)
+    for state in range(total):
+        if not done[state]:
+            dist[state] = np.inf
     return dist, parent
+
+
+def clearance(segments, circles, squared=False):
+    """Return segment_clearance of segments (M, L, 4) as (M, L K): the same bits, compiled."""
+    seg = np.ascontiguousarray(segments, dtype=float)
+    circles = np.ascontiguousarray(np.reshape(circles, (-1, 3)), dtype=float)
+    out = np.empty((seg.shape[0], seg.shape[1] * circles.shape[0]))
+    segment_clearance_rows(seg, circles, squared, out)
+    return out
 
 
 def _box(model, q0, qg):
@@ -215,7 +246,7 @@ def class_paths(problem, cells=CELLS):
     axes = [np.linspace(lo[j], hi[j], cells) for j in range(2)]
     g0, g1 = np.meshgrid(axes[0], axes[1], indexing='ij')
     q = np.stack([g0.ravel(), g1.ravel()], axis=1)
-    clear = segment_clearance(model.link_segments(q), circles).min(axis=1)
+    clear = clearance(model.link_segments(q), circles).min(axis=1)
     occupied = (clear < 0.0).reshape(cells, cells)
     step = (hi - lo) / (cells - 1)
     start = np.rint((q0 - lo) / step).astype(np.int64)
@@ -235,7 +266,8 @@ def class_paths(problem, cells=CELLS):
     ray_row = np.array([h[3] for h in holes], dtype=np.int64)
     w = step * _metric(problem)
     w = w / w.min()
-    dist, parent = class_search(~occupied, start, goal, ray_col, ray_row, w[0], w[1])
+    dist, parent = class_search(~occupied, start, goal, ray_col, ray_row, w[0], w[1],
+                                MAX_CLASSES, CLASS_FACTOR)
     s_count = 1 << len(holes)
     base = (goal[0] * cells + goal[1]) * s_count
     ends = sorted((dist[base + s], base + s) for s in range(s_count)
@@ -299,9 +331,10 @@ def path_start(problem, path, n):
 
 
 def warm_up():
-    """Compile (or load from the cache) the two kernels on a tiny grid."""
+    """Compile (or load from the cache) the kernels on a tiny grid."""
+    clearance(np.zeros((1, 1, 4)), np.array([[1.0, 0.0, 0.5]]))
     occupied = np.zeros((3, 3), dtype=np.bool_)
     occupied[1, 1] = True
     label_holes(occupied)
     class_search(~occupied, np.array([0, 0]), np.array([2, 2]), np.array([1]), np.array([1]),
-                 1.0, 1.0)
+                 1.0, 1.0, MAX_CLASSES, CLASS_FACTOR)

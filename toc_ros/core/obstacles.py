@@ -150,6 +150,35 @@ def segment_clearance(segments, circles, squared=False):
     return out.reshape(out.shape[:-2] + (-1,))
 
 
+@njit(cache=True)
+def segment_clearance_rows(seg, circles, squared, out):
+    """
+    segment_clearance for segments (M, L, 4) into out (M, L K), compiled.
+
+    The same operations in the same order as the numpy version, so the same bits (tested):
+    for the fast mode's starts and the class search, where the numpy version's temporaries
+    cost ~0.4 ms per call at N = 1000.
+    """
+    n_circles = circles.shape[0]
+    for m in range(seg.shape[0]):
+        for link in range(seg.shape[1]):
+            ax, ay = seg[m, link, 0], seg[m, link, 1]
+            vx, vy = seg[m, link, 2] - ax, seg[m, link, 3] - ay
+            length_sq = vx * vx + vy * vy
+            for k in range(n_circles):
+                cx, cy, radius = circles[k, 0], circles[k, 1], circles[k, 2]
+                t = 0.0
+                if length_sq > 0.0:
+                    t = min(max(((cx - ax) * vx + (cy - ay) * vy) / length_sq, 0.0), 1.0)
+                dx, dy = ax + t * vx - cx, ay + t * vy - cy
+                d_sq = dx * dx + dy * dy
+                if squared:
+                    value = (d_sq - radius * radius) / (2.0 * radius)
+                else:
+                    value = math.sqrt(d_sq) - radius
+                out[m, link * n_circles + k] = value
+
+
 def model_clearance(model, states, circles):
     """Clearance d - R [m] of every link of model to every circle at each state: (M, L K)."""
     states = np.atleast_2d(np.asarray(states, dtype=float))

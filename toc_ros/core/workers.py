@@ -15,7 +15,9 @@
 """
 Run independent tasks WORKERS at a time on worker threads.
 
-Fast mode's cold attempts from the class starts and the refinements of their candidates.
+Fast mode's cold attempts from the class starts and the refinements of their candidates
+(run_tasks: a list of tasks; share: threads that take their next task from the caller's queue
+themselves).
 
 The interior-point kernels release the GIL, so two solves run on two cores at once.  A task
 owns its workspaces and shares no state with the others, and its iteration budget is fixed
@@ -83,3 +85,21 @@ def run_tasks(tasks, poll):
     if failure is not None:
         raise failure
     return out
+
+
+def share(work):
+    """
+    Run work() on the calling thread and on WORKERS - 1 worker threads; return when all have.
+
+    work() takes tasks from a queue of its own (fast mode's prefetching class attempts) until
+    none is left: a thread that ends a task takes the next one itself, without waking another
+    thread (which cost milliseconds on a loaded machine), and the caller works too.  work()
+    handles its tasks' exceptions; one it raises is re-raised here once all have returned.
+    """
+    helpers = [_executor().submit(work) for _ in range(WORKERS - 1)]
+    try:
+        work()
+    finally:
+        wait(helpers)
+    for future in helpers:
+        future.result()
