@@ -361,7 +361,7 @@ def test_late_cycles_seed_the_next_and_published_ones_are_on_time(loop):
         since, first = start(loop, 20.0, **{'replan.lead': 0.001, 'solver.N': 1000})
         settle(loop, first)
     finally:
-        set_params(loop, 'solver_node', {'replan.lead': 0.03, 'solver.N': PARAMS['solver.N']})
+        set_params(loop, 'solver_node', {'replan.lead': 0.025, 'solver.N': PARAMS['solver.N']})
     reports = cycle_reports(loop, since)
     late = [r for r in reports if r.event == schema.EVENT_REPLAN_KEPT
             and 'seeds the next cycle' in r.message]

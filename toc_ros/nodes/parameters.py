@@ -71,10 +71,10 @@ class SolverNodeSettings:
         'most this many intervals (fewer intervals, faster cycles)', low=20, high=100000,
         ros_name='replan.max_nodes')
     replan_lead: float = setting(
-        0.03, 'a replanned trajectory starts (header.stamp) at least this long after the '
+        0.025, 'a replanned trajectory starts (header.stamp) at least this long after the '
         'joint_states it starts from was received (longer when recent cycles took longer, up '
         'to 0.2 s), from the state predicted along the executing plan; a cycle not published '
-        'by then keeps the executing plan', unit='s', low=0.001,
+        'by then keeps the executing plan (and seeds the next)', unit='s', low=0.001,
         high=1.0, ros_name='replan.lead')
     start_lead: float = setting(
         0.03, "a goal's plan from rest starts (header.stamp) this long after it is published, "

@@ -309,6 +309,7 @@ class _Cycle:
     deviation: float        # max |q - q_ref| of the measured state [rad or m]
     reason: str             # 'rate', 'deviation' or 'data change'
     revision: int = -1      # the data revision when it started
+    deadline: float = math.inf      # publish by then: received + lead [s, time.monotonic()]
 
 
 @dataclasses.dataclass
@@ -897,7 +898,7 @@ class SolverNode(Node):
         start = predict(plan['model'], state, times, plan['controls'], measured_at, start_at)
         request = _Request(plan['goal'], CYCLE_SOURCE)
         request.cycle = _Cycle(plan, start, stamp, received, state_time, deviation, reason,
-                               revision)
+                               revision, received + lead)
         if not self._worker.offer(request, behind_cycle=reason == 'data change'):
             return False
         self._next_cycle = received + 1.0 / rate
@@ -943,11 +944,13 @@ class SolverNode(Node):
             nodes = max(min(guess.controls.shape[0], int(params['replan.max_nodes'])),
                         math.ceil(1.02 * guess.final_time / problem.robot_model.max_step))
             problem = dataclasses.replace(problem, n_intervals=nodes)
-            # A cycle's plan is published only before its stamp; a solve that runs late goes
-            # on for up to SEED_EXTRA_S, and its plan seeds the next cycle's warm start.
+            # A cycle's plan is published only by its deadline (its lead after its joint_states
+            # arrived; the stamp, on the next plan node, may be later): the lead bounds the
+            # latency.  A solve that runs late goes on for up to SEED_EXTRA_S, and its plan
+            # seeds the next cycle's warm start.
             options = options_from_parameters(params)
             options = dataclasses.replace(options, timeout=max(min(
-                cycle.stamp_s - self._now() + SEED_EXTRA_S, options.timeout or math.inf),
+                cycle.deadline - time.monotonic() + SEED_EXTRA_S, options.timeout or math.inf),
                 MIN_CYCLE_TIMEOUT_S))
             if guess.controls.shape[0] < MIN_CYCLE_GUESS_NODES:
                 why = f'only {guess.controls.shape[0]} plan nodes left'
@@ -963,15 +966,14 @@ class SolverNode(Node):
             if result.status is not Status.SOLVED or not result.has_trajectory:
                 why = f'{result.status.value}: {request.stop_reason or result.message}'
             else:
-                # Published only when its message is ready before its stamp (else late).
-                request.late = self._now() > cycle.stamp_s
+                # Published only when its message is ready by the deadline (else late).
+                request.late = time.monotonic() > cycle.deadline
                 published = not request.late and self._publish_plan(
                     request, result, problem, params, revision, stamp_s=cycle.stamp_s)
                 if request.late:
-                    why = (f'late: ready {1e3 * (self._now() - cycle.stamp_s):.1f} ms after '
-                           'the new plan was to start (lead '
-                           f'{1e3 * (cycle.stamp_s - cycle.state_stamp):.0f} ms); it seeds '
-                           'the next cycle')
+                    why = (f'late: ready {1e3 * (time.monotonic() - cycle.deadline):.1f} ms after '
+                           f'its deadline ({1e3 * (cycle.deadline - cycle.received):.0f} ms '
+                           'after its joint_states); it seeds the next cycle')
                     self._seed_next(plan, revision, result, problem)
                 elif not published:
                     why = 'the planning data changed during the cycle and the plan ' \
@@ -1294,8 +1296,8 @@ class SolverNode(Node):
         trajectory = conversions.trajectory_msg(result, params['joint_names'], model,
                                                 conversions.time_msg(0.0))
         now = self._now()
-        if request.cycle is not None and now > stamp_s:
-            request.late = True         # the plant would start it partway: keep the old one
+        if request.cycle is not None and time.monotonic() > request.cycle.deadline:
+            request.late = True         # over the cycle's budget (the lead): keep the old plan
             return False
         start = now + lead if stamp_s is None else float(stamp_s)
         stamp = trajectory.header.stamp = conversions.time_msg(start)
