@@ -980,10 +980,11 @@ class SolverNode(Node):
                           'violates the new data'
         # joint_states received -> trajectory published (the path and markers come after).
         latency = (request.published_at if published else time.monotonic()) - cycle.received
-        if result is not None and result.status in (Status.SOLVED, Status.TIMEOUT):
-            # Solved cycles, published or late, and timed-out ones (they needed at least as
-            # long): the median follows cycles that are slow most of the time, not the rare
-            # one that seeds the next.
+        if result is not None and result.status is Status.SOLVED:
+            # Solved cycles, published or late: the median follows cycles that are slow most
+            # of the time, not the rare one that seeds the next.  Not timed-out ones: those
+            # are the final braking's overshoot problems, hundreds of iterations whatever the
+            # lead (they would stretch every later cycle's lead to the cap).
             with self._lock:
                 self._latencies.append(min(latency, MAX_LEAD_S / LEAD_PER_MEDIAN))
         values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
