@@ -37,13 +37,12 @@ import importlib.util
 import math
 from pathlib import Path
 import sys
-import threading
-import time
 from types import SimpleNamespace
 
 import numpy as np
 import numpy_model as nm
 import pytest
+from test_solver_fast import _solve_with_cancel
 
 from toc_ros.core import fast_solver, homotopy, ipm, Problem, solve, SolverOptions, Status, \
     warm_up, workers
@@ -391,19 +390,6 @@ def test_prefetch_cancels_the_climbs_and_refinements_of_displaced_candidates():
 def test_a_cancel_during_the_class_attempts_and_climbs_is_honoured(delay):
     # N = 20000: the attempts take ~10 ms, the climbs to 6034 intervals a few hundred ms.
     problem = replace(_bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False), n_intervals=20000)
-    cancel, stamp = threading.Event(), {}
-
-    def fire():
-        stamp['set'] = time.monotonic()
-        cancel.set()
-
-    timer = threading.Timer(delay, fire)
-    timer.start()
-    try:
-        result = solve(problem, SolverOptions(mode='fast'), cancel=cancel)
-        returned = time.monotonic()
-    finally:
-        timer.cancel()
-    assert 'set' in stamp, 'the solve ended before the cancel'
+    result, seconds = _solve_with_cancel(problem, SolverOptions(mode='fast'), delay)
     assert result.status is Status.CANCELED, result.message
-    assert returned - stamp['set'] <= 0.1
+    assert seconds <= 0.1
