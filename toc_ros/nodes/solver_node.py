@@ -204,21 +204,6 @@ def planning_data(params):
             if k.startswith(PLANNING_PREFIXES) and k != 'obstacles.max_count'}
 
 
-def model_state(params, joints, effort=None):
-    """
-    Return the state of the parameters' model from a measured joint state and its efforts.
-
-    A model with actuator states (robot.actuator_lag) takes the efforts as the applied ones
-    (without them: the torques that hold the joints' velocities); others the joint state.
-    """
-    if not params['robot.actuator_lag'] > 0.0:
-        return np.array(joints, dtype=float)
-    try:
-        return model_from_parameters(params).full_state(joints, effort)
-    except (ProblemError, ValueError):      # a bad model is refused where it is used
-        return np.array(joints, dtype=float)
-
-
 def obstacle_count(msg):
     """Rows of an obstacles message, counted without reading the data (the limit check)."""
     dims = list(msg.layout.dim)
@@ -752,7 +737,7 @@ class SolverNode(Node):
         """Return (parameters, the measured state of their model or None)."""
         with self._lock:
             params, joints, effort = dict(self._params), self._measured, self._measured_effort
-        return params, (None if joints is None else model_state(params, joints, effort))
+        return params, (None if joints is None else self._model_state(joints, effort))
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -779,7 +764,21 @@ class SolverNode(Node):
         state_time = stamp if stamp > 0.0 else self._now()
         if params['replan.estimate']:
             self._estimate_from(msg, params, state, state_time)
-        self._maybe_replan(params, model_state(params, state, effort), state_time, received)
+        self._maybe_replan(params, self._model_state(state, effort), state_time, received)
+
+    def _model_state(self, joints, effort=None):
+        """
+        Return the current model's state from a measured joint state and its efforts.
+
+        A model with actuator states (robot.actuator_lag) takes the efforts as the applied ones
+        (without them: the torques that hold the joints' velocities); others the joint state.
+        self._model follows the robot parameters (_load_kernels_of): no model is built here,
+        on the joint_states path.
+        """
+        try:
+            return self._model.full_state(joints, effort)
+        except ValueError:          # e.g. efforts for another joint count: the joint state
+            return np.array(joints, dtype=float)
 
     def _estimate_from(self, msg, params, state, state_time):
         """Feed the online estimator (replan.estimate) with one joint_states sample."""
