@@ -114,7 +114,7 @@ LATENCY_WINDOW = 20
 MAX_LEAD_S = 0.2
 # The lead is at least this many times the median of recent cycle latencies (_cycle_latency).
 LEAD_PER_MEDIAN = 2.0
-# [s] a cycle's solve may run this long past its plan's stamp: not published, its plan warm-starts
+# [s] a cycle's solve may run this long past its deadline: not published, its plan warm-starts
 # the next cycle (a new switching structure takes one slow solve, then the next is fast).  Not
 # longer: the solves that need more (an overshoot in the final braking: 700-2000 iterations)
 # would take a core from the plant for 0.1-0.2 s and delay the next cycles.
@@ -259,7 +259,7 @@ class _Request:
         self.result = None               # SolveResult once solved (None when dropped)
         self.cycle = None                # a replan cycle's data (_Cycle), None for goals
         self.published_at = None         # time.monotonic() when its trajectory was published
-        self.late = False                # a cycle's plan was ready only after its stamp
+        self.late = False                # a cycle's plan was ready only after its deadline
         self.path = None                 # nav_msgs/Path when a trajectory was published
         self.done = threading.Event()
         self._lock = threading.Lock()
@@ -792,8 +792,9 @@ class SolverNode(Node):
             self.get_logger().warning(f'replan.estimate: {why}; nothing estimated',
                                       throttle_duration_sec=5.0)
             return
-        # The joints' model: the efforts are the applied ones (after any actuator lag).
-        key = (model_from_parameters(params).joint_model, tuple(params['replan.estimate']),
+        # The joints' model (self._model follows the robot parameters: none is built on the
+        # joint_states path); the efforts are the applied ones, after any actuator lag.
+        key = (self._model.joint_model, tuple(params['replan.estimate']),
                float(params['replan.estimate_window']))
         with self._estimation_lock:
             if key != self._estimator_key:      # new robot data or estimation settings
@@ -814,8 +815,7 @@ class SolverNode(Node):
             return None, ''
         with self._estimation_lock:
             estimator = self._estimator
-            if estimator is None or \
-                    estimator.model_ != model_from_parameters(params).joint_model:
+            if estimator is None or estimator.model_ != self._model.joint_model:
                 return None, 'no samples yet'
             values = estimator.estimate()
             if values is None:
@@ -973,7 +973,7 @@ class SolverNode(Node):
                     why = (f'late: ready {1e3 * (time.monotonic() - cycle.deadline):.1f} ms after '
                            f'its deadline ({1e3 * (cycle.deadline - cycle.received):.0f} ms '
                            'after its joint_states); it seeds the next cycle')
-                    self._seed_next(plan, revision, result, problem)
+                    self._seed_next(plan, result, problem)
                 elif not published:
                     why = 'the planning data changed during the cycle and the plan ' \
                           'violates the new data'
@@ -1010,8 +1010,8 @@ class SolverNode(Node):
             report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
         self._stop_if_violating(plan, self._snapshot()[0], cycle, request.late)
 
-    def _seed_next(self, plan, revision, result, problem):
-        """Keep a late cycle's plan: the next cycle for the same plan and data starts from it."""
+    def _seed_next(self, plan, result, problem):
+        """Keep a late cycle's plan: the next cycle for the same executing plan starts there."""
         with self._plan_lock:
             if self._executing is plan:
                 self._seed = {'plan': plan, 'result': result,
