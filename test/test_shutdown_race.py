@@ -90,7 +90,10 @@ def test_plant_sigint_after_a_sigstop_pause_exits_0(tmp_path, monkeypatch, pause
 
 
 RUN_NODE_SCRIPT = """
+import os
+import signal
 import sys
+import time
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -107,6 +110,16 @@ class Racer(Node):
     def tick(self):
         if sys.argv[1] == 'shutdown':
             rclpy.shutdown(context=self.context)  # as rclpy's SIGINT handler does
+        elif sys.argv[1] in ('interrupt', 'error'):
+            # What rclpy's take_message does when the KeyboardInterrupt of a SIGINT lands
+            # while it converts a message: pybind11 reports a RuntimeError.
+            try:
+                if sys.argv[1] == 'interrupt':
+                    os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.5)
+            except KeyboardInterrupt:
+                pass
+            raise RuntimeError('Unable to convert call argument 0 to Python object')
         else:
             self.pub.destroy()                    # a real bug: the context is still valid
         self.pub.publish(String(data='late'))
@@ -116,7 +129,8 @@ sys.exit(run_node('racer', Racer, SingleThreadedExecutor))
 """
 
 
-@pytest.mark.parametrize('case, expected', [('shutdown', 0), ('bug', 1)])
+@pytest.mark.parametrize('case, expected', [('shutdown', 0), ('bug', 1), ('interrupt', 0),
+                                            ('error', 1)])
 def test_run_node_ends_cleanly_on_a_publish_racing_shutdown_only(tmp_path, monkeypatch,
                                                                  case, expected):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 100)))

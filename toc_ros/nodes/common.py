@@ -18,6 +18,7 @@ import functools
 import re
 import signal
 import sys
+import threading
 from typing import List
 
 import rclpy
@@ -72,6 +73,16 @@ def topic_list(parameter: Parameter) -> List[str]:
     return [n.strip() for n in names if n and n.strip()]
 
 
+# Set by the first SIGINT a node process receives (see _note_interrupt).
+INTERRUPTED = threading.Event()
+
+
+def _note_interrupt(signum, frame):
+    """Python's SIGINT handler, noting the request before raising KeyboardInterrupt."""
+    INTERRUPTED.set()
+    signal.default_int_handler(signum, frame)
+
+
 def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), error_code=2,
              error_prefix=''):
     """
@@ -80,6 +91,11 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
     spin(node, executor) replaces executor.spin() and returns the exit code; an exception in
     errors is printed as '<name>: error: <error_prefix><error>' and gives error_code.
     """
+    # Installed before rclpy.init, whose SIGINT handler chains to Python's.  The
+    # KeyboardInterrupt can land inside C++ code run by the executor (rclpy's take_message
+    # converting a message), which pybind11 reports as a RuntimeError; after a SIGINT any
+    # such error is the end that was asked for, not a failure.
+    signal.signal(signal.SIGINT, _note_interrupt)
     rclpy.init(args=args)
     node = None
     exit_code = 0
@@ -98,6 +114,9 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
         pass
     except SHUTDOWN_RACE_ERRORS as error:
         if not is_shutdown_race(node, error):  # a callback racing shutdown is no failure
+            raise
+    except Exception:
+        if not INTERRUPTED.is_set():
             raise
     finally:
         # A second Ctrl-C while shutting down must not abort the cleanup.  signal.signal()
