@@ -334,7 +334,7 @@ def effort_step(ctx, lag, delay, effort=(100.0, 50.0), duration=0.6):
     assert all(r.successful for r in results), results
     try:
         reset(ctx)
-        step = now_ns(ctx) + 500 * MS     # ahead of any transport delay on a loaded machine
+        step = now_ns(ctx) + 1000 * MS    # ahead of any transport delay on a loaded machine
         u = np.array(effort)
         trajectory = Expected([0.0, duration], [START_Q, START_Q], [[0.0, 0.0]] * 2, [u, u])
         ctx.trajectory.publish(message(trajectory, step))

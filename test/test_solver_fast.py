@@ -201,3 +201,43 @@ def test_progress_is_reported_at_least_every_100_ms(mode):
     assert its == sorted(its) and its[-1] == result.iterations
     assert calls[-1][1].phase == 'done'
     assert all(math.isfinite(p.t_f) and p.t_f > 0.0 for _, p in calls[:-1])
+
+
+# Near the goal, overshooting (a replan cycle's start): the first cold attempt converges on
+# the N grid (32 <= 2 x COARSE_INTERVALS), then its inertia-corrected iterations make fast
+# mode try the other COLD_ATTEMPTS, which crawl for hundreds of iterations.
+OVERSHOOT = replace(PAPER, x0=(1.3058269, 0.0755279, 0.99260788, 0.24495655), n_intervals=32,
+                    integrator='rk4')
+
+
+@pytest.mark.parametrize('reason', [Status.TIMEOUT, Status.CANCELED])
+def test_a_timeout_during_further_attempts_returns_the_converged_one(monkeypatch, reason):
+    from toc_ros.core import fast_solver
+    reference = solve(OVERSHOOT, SolverOptions())
+    assert reference.status is Status.SOLVED, reference.message
+    attempts = []
+    original = fast_solver.FastSolve._attempt
+
+    def attempt(self, *args):
+        if attempts:                  # the stop lands during the second attempt
+            raise fast_solver.Stop(reason)
+        attempts.append(original(self, *args))
+        return attempts[-1]
+
+    monkeypatch.setattr(fast_solver.FastSolve, '_attempt', attempt)
+    result = solve(OVERSHOOT, SolverOptions())
+    first_run, first_code = attempts[0]
+    assert first_code == fast_solver.ipm.CONVERGED
+    if reason is Status.CANCELED:     # a cancel is not a deadline: nothing is published
+        assert result.status is Status.CANCELED
+        return
+    assert result.status is Status.SOLVED, result.message
+    assert 'timeout' in result.message
+    assert result.final_time == first_run.t_f
+    # The first attempt's optimum, feasible by an independent re-integration, and no more
+    # than the tolerance away from the full search's.
+    measured = nm.violations(OVERSHOOT.x0, OVERSHOOT.x_goal, result.controls,
+                             result.final_time, OVERSHOOT.circles(), integrator='rk4')
+    assert measured['terminal_error'] <= 1e-6 and measured['max_control_excess'] <= 1e-9
+    assert measured['min_clearance'] >= -1e-9      # circles() are the inflated ones
+    assert result.final_time == pytest.approx(reference.final_time, rel=1e-3)

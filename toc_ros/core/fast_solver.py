@@ -755,6 +755,13 @@ class FastSolve:
                 run, code = self._cold(n)
         except Stop as stop:
             reason = stop.args[0]
+            if reason is Status.TIMEOUT and self.best is not None:
+                # A converged optimum on the N grid is in hand; only the search for a shorter
+                # one (further attempts, candidates) was cut short: a real-time caller wants it.
+                result = self._result(self.best, Status.SOLVED, '')
+                if result.status is Status.SOLVED:
+                    result.message += ' (the timeout stopped the search for a shorter optimum)'
+                return result
             run = self.best or self.run
             if run is None or run.n != n:
                 return SolveResult(status=reason, iterations=self.done,
@@ -927,6 +934,8 @@ class FastSolve:
                                    budget=max(1, self.limit // (8 if grid < n else 4)))
         if code == ipm.CONVERGED:
             found.append(run)
+            if grid == n and (self.best is None or run.t_f < self.best.t_f):
+                self.best = run     # what a timeout during the further attempts returns
         return run, code
 
     def _finish(self, found, n, allowance=None, prefetched=None):
