@@ -95,7 +95,8 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
     # KeyboardInterrupt can land inside C++ code run by the executor (rclpy's take_message
     # converting a message), which pybind11 reports as a RuntimeError; after a SIGINT any
     # such error is the end that was asked for, not a failure.
-    signal.signal(signal.SIGINT, _note_interrupt)
+    if threading.current_thread() is threading.main_thread():   # signal.signal's rule
+        signal.signal(signal.SIGINT, _note_interrupt)
     rclpy.init(args=args)
     node = None
     exit_code = 0
