@@ -393,3 +393,102 @@ def test_a_cancel_during_the_class_attempts_and_climbs_is_honoured(delay):
     result, seconds = _solve_with_cancel(problem, SolverOptions(mode='fast'), delay)
     assert result.status is Status.CANCELED, result.message
     assert seconds <= 0.1
+
+
+def _attempt_runs(monkeypatch):
+    """Record (run.kept, run.n) of every interior-point run of the solves that follow."""
+    runs = []
+    start = fast_solver.InteriorPointRun.start
+
+    def recorded(self, *args, **kwargs):
+        runs.append(self)
+        return start(self, *args, **kwargs)
+
+    monkeypatch.setattr(fast_solver.InteriorPointRun, 'start', recorded)
+    return runs
+
+
+def test_lazy_circles_solve_the_classes_of_the_circle_in_the_way_only(monkeypatch):
+    # '2 circles, g = 9.81': the optimum without circles hits circle A only, and the optima of
+    # A's two classes are clear of B: no class search with both circles, 3 attempts not 4.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    runs = _attempt_runs(monkeypatch)
+    searched = []
+    paths = homotopy.class_paths
+    monkeypatch.setattr(homotopy, 'class_paths', lambda *a: searched.append(a) or paths(*a))
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    coarse = [run.kept for run in runs if run.n == fast_solver.EXPLORE_INTERVALS]
+    assert coarse == [(), (0,), (0,)], coarse
+    assert not searched
+    # The climbs and the N grid have both circles.
+    assert all(run.kept is None and run.circles.shape[0] == 2 for run in runs
+               if run.n > fast_solver.EXPLORE_INTERVALS)
+
+
+def test_a_relaxed_candidate_that_hits_a_dropped_circle_leads_to_the_bounded_classes(
+        monkeypatch):
+    # '2 circles, g = 0, moving start': A's best optimum passes through B; of the four classes
+    # of both circles, the two inside A's other class (bounded by its optimum, 0.95 s, out of
+    # the band of 0.61 s) are not solved.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, True)
+    runs = _attempt_runs(monkeypatch)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 0, moving start'][3]) <= 1e-6
+    coarse = [run.kept for run in runs if run.n == fast_solver.EXPLORE_INTERVALS]
+    assert coarse == [(), (0,), (0,), None, None], coarse
+    assert len(homotopy.class_paths(problem)) == 4
+
+
+def test_bounded_classes_are_bit_identical_with_one_or_two_workers(monkeypatch):
+    # Three prefetching pipelines (A's classes, then two parts of the classes of both).
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, True)
+    results = []
+    for count in (2, 1, 2):
+        monkeypatch.setattr(workers, 'WORKERS', count)
+        results.append(solve(problem, SolverOptions(mode='fast')))
+    for other in results[1:]:
+        assert other.status is results[0].status is Status.SOLVED
+        assert other.final_time == results[0].final_time
+        assert other.iterations == results[0].iterations
+        assert np.array_equal(other.controls, results[0].controls)
+        assert np.array_equal(other.history, results[0].history, equal_nan=True)
+
+
+def test_widened_duals_put_each_kept_circle_in_its_column_and_zero_elsewhere():
+    # Columns link * K + k (ipm.py): 2 links, circles 1 and 3 of 4 kept.
+    z = np.arange(12.0).reshape(3, 4) + 1.0            # (nodes, 2 links x 2 kept)
+    duals = {'z': z, 'lam': np.ones((4, 4)), 'rho': 10.0}
+    wide = fast_solver.widen_duals(duals, (1, 3), 4, 2)
+    assert wide['z'].shape == (3, 8)
+    assert np.array_equal(wide['z'][:, [1, 3, 5, 7]], z)
+    assert not np.any(wide['z'][:, [0, 2, 4, 6]])
+    assert wide['lam'] is duals['lam'] and wide['rho'] == 10.0
+
+
+def test_same_class_tells_the_sides_of_a_hole_apart():
+    feet = np.array([[0.0, 0.0]])
+    below = np.array([[-1.0, 0.0], [-0.5, -1.0], [0.5, -1.0], [1.0, 0.0]])
+    below_too = np.array([[-1.0, 0.0], [0.0, -2.0], [1.0, 0.0]])
+    above = np.array([[-1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+    assert homotopy.same_class(below, below_too, feet)
+    assert not homotopy.same_class(below, above, feet)
+    assert homotopy.same_class(below, above, np.array([[0.0, 5.0]]))   # no hole between
+
+
+def test_prefetch_climbs_no_candidate_while_one_hits_a_dropped_circle():
+    solver = SimpleNamespace(done=0, limit=2000, _poller=lambda logs: None,
+                             _bind=lambda task, *a, **k: task)
+    solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
+    blocked = _coarse(0.71)
+    prefetch = fast_solver._Prefetch(solver, ['attempt 0', 'attempt 1', 'attempt 2'], None,
+                                     None, lambda run: run is not blocked)
+    prefetch.waiting = [2]
+    prefetch._finished(('attempt', 0), (_coarse(0.70), ipm.CONVERGED))
+    prefetch._finished(('attempt', 1), (blocked, ipm.CONVERGED))
+    assert prefetch._next()[0] == ('attempt', 2)      # not the climb of attempt 0
+    assert not prefetch.climbs

@@ -130,9 +130,12 @@ def _in_band(run, shortest):
 class InteriorPointRun:
     """One interior-point solve on one grid (the Workspace plus the driver state)."""
 
-    def __init__(self, problem, n, max_iter, elastic=None):
+    def __init__(self, problem, n, max_iter, elastic=None, kept=None):
         model = problem.robot_model
         self.problem = problem
+        # Indices of the solve's circles this run has (a relaxation, _lazy_classes); None: all.
+        self.kept = kept
+        self.path = None         # the class path it started from (_class_attempts)
         self.model = model
         self.kernels = model.kernels
         self.n = n
@@ -327,11 +330,15 @@ class _Prefetch:
     task that later results put out (a shorter attempt, a shorter climb) is cancelled.
     """
 
-    def __init__(self, solver, tasks, climb, refine):
+    def __init__(self, solver, tasks, climb, refine, usable=None):
         self.solver = solver
         self.tasks = tasks
         self.climb = climb
         self.refine = refine
+        # usable(run): whether a candidate can stand (a relaxation's: clear of the other
+        # circles); while one cannot, _finish will not run (_lazy_classes): no climbs.
+        self.usable = usable or (lambda run: True)
+        self.verdicts = {}                       # id(attempt run) -> usable(run)
         self.finals = {}                         # id(climbed run) -> [runs, value, wanted]
         self.logs = [[] for _ in tasks]          # runs of the attempts, in task order
         self.all_logs = list(self.logs)          # and of the climbs (progress reports)
@@ -414,7 +421,9 @@ class _Prefetch:
         if self.failure is not None:
             return None
         index = {id(self.results[k][0]): k for k in self.results}
-        for run in self._candidates():
+        candidates = self._candidates()
+        usable = all(self._usable(run) for run in candidates)
+        for run in candidates if usable else []:
             k = index[id(run)]
             if k not in self.climbs:
                 log = []
@@ -423,7 +432,7 @@ class _Prefetch:
                 return ('climb', k), self.solver._bind(
                     lambda solve, run=run: self.climb(solve, run), log, self.poll,
                     cancelled=lambda c=self.climbs[k]: not c[2], caller=self.caller)
-        best = self._best_climbed()
+        best = self._best_climbed() if usable else None
         if best is not None and id(best) not in self.finals:
             log = []
             self.all_logs.append(log)
@@ -436,6 +445,11 @@ class _Prefetch:
             return ('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], self.poll,
                                                      caller=self.caller)
         return None
+
+    def _usable(self, run):
+        if id(run) not in self.verdicts:
+            self.verdicts[id(run)] = self.usable(run)
+        return self.verdicts[id(run)]
 
     def _best_climbed(self):
         """Return the shortest converged climb of a candidate so far (None if none)."""
@@ -610,6 +624,21 @@ def resample_duals(duals, m, n):
     return out
 
 
+def widen_duals(duals, kept, n_circles, n_links):
+    """
+    Multipliers of a run on the circles kept (indices) for all n_circles of the problem.
+
+    The obstacle duals z of the circles it did not have are 0: InteriorPointRun.start makes
+    them mu / slack, an inactive constraint's start.
+    """
+    z = duals['z']
+    wide = np.zeros((z.shape[0], n_links * n_circles))
+    for link in range(n_links):
+        for r, k in enumerate(kept):
+            wide[:, link * n_circles + k] = z[:, link * len(kept) + r]
+    return dict(duals, z=wide)
+
+
 def warm_start_point(problem, guess, n):
     """
     Return (states, controls, t_f, duals or None, drift) from an initial guess for n intervals.
@@ -703,10 +732,11 @@ class FastSolve:
             f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
 
     def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
-                  push=BOUND_PUSH, elastic=None):
+                  push=BOUND_PUSH, elastic=None, relaxed=None):
         left = max(1, self.limit - self.done)
-        run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left),
-                               elastic)
+        problem, kept = relaxed or (self.problem, None)
+        run = InteriorPointRun(problem, n, left if budget is None else min(budget, left),
+                               elastic, kept)
         run.start(states, controls, t_f, mu, duals, push)
         self.run = run
         try:
@@ -792,17 +822,14 @@ class FastSolve:
         # Class starts on a coarser grid still (their candidates are carried up by _finish like
         # the others); not when the coarse grid is the N grid (short horizons, a few ms).
         explore = min(grid, EXPLORE_INTERVALS)
-        paths = self._class_paths(states) if grid < n else []
-        # Each limit // 8, all within the iteration limit.
-        budget = min(self.limit // 8, (self.limit - self.done) // max(len(paths), 1))
+        crosses = grid < n and self._crosses(states)
         allowance, prefetched = None, None
-        if paths and budget >= 1 and self._may_explore():
-            # The candidates' climbs get a share fixed now, and limit // 4 is left for the N
-            # grid (_refine), so that both can start before the last attempt ends
-            # (_class_attempts).
-            allowance = max(1, (self.limit - self.done - len(paths) * budget
-                                - self.limit // 4) // MAX_REFINE)
-            found, prefetched = self._class_attempts(paths, explore, budget, n, allowance)
+        bounds = None
+        if crosses and len(problem.obstacles) > 1 and self._may_explore():
+            found, prefetched, allowance, bounds = self._lazy_classes(explore, n)
+        paths = homotopy.class_paths(problem) if crosses and not found else []
+        if paths and self._may_explore():
+            found, prefetched, allowance = self._bounded_classes(paths, explore, n, bounds)
         first = None
         if not found:
             allowance, prefetched = None, None      # today's shares for these attempts
@@ -865,23 +892,147 @@ class FastSolve:
                 return run, code
         return self._cold(n)
 
-    def _class_paths(self, states):
+    def _crosses(self, states):
         """
-        Return the class paths of homotopy.py, or [] when there are none.
+        Return whether the interpolation start's states (coarse grid) cross an obstacle.
 
-        Only when the interpolation start's states (on the coarse grid) cross an obstacle: then
-        the side of each obstacle it ends on is arbitrary, while a start already on one side of
+        Only then are the class starts of homotopy.py solved (a two-joint model): the side of
+        each obstacle that start ends on is arbitrary, while a start already on one side of
         each keeps its iterates out of the obstacles (fewer, convex iterations).
         """
         model = self.problem.robot_model
         if not len(self.problem.obstacles) or model.n_joints != 2:
-            return []
+            return False
         seg = model.link_segments(model.positions(states))
-        if np.min(homotopy.clearance(seg, self.problem.circles())) >= 0.0:
-            return []
-        return homotopy.class_paths(self.problem)
+        return bool(np.min(homotopy.clearance(seg, self.problem.circles())) < 0.0)
 
-    def _class_attempts(self, paths, explore, budget, n, allowance):
+    def _explore_classes(self, paths, explore, n, relaxed=None, budget=None, allowance=None):
+        """
+        Run the class attempts of paths (of relaxed, default the problem) on explore intervals.
+
+        Returns (converged runs, prefetched, allowance) as _class_attempts, with the climbs'
+        allowance; ([], None, None) when the iteration budget has no room for them.  budget
+        and allowance: given when the classes are solved in parts (_bounded_classes).
+        """
+        if budget is None:
+            budget, allowance = self._class_budget(len(paths))
+        if budget < 1:
+            return [], None, None
+        found, prefetched = self._class_attempts(paths, explore, budget, n, allowance, relaxed)
+        return found, prefetched, allowance
+
+    def _class_budget(self, count):
+        """Return (budget of each of count class attempts, the climbs' allowance)."""
+        # Each limit // 8, all within the iteration limit.
+        budget = min(self.limit // 8, (self.limit - self.done) // max(count, 1))
+        # The candidates' climbs get a share fixed now, and limit // 4 is left for the N grid
+        # (_refine), so that both can start before the last attempt ends (_class_attempts).
+        return budget, max(1, (self.limit - self.done - count * budget
+                               - self.limit // 4) // MAX_REFINE)
+
+    def _bounded_classes(self, paths, explore, n, bounds):
+        """
+        Run the class attempts of paths, skipping those a relaxation bounds out of the band.
+
+        bounds (from _lazy_classes, or None): (feet of the relaxation's holes, its converged
+        attempts).  An attempt that ended in its start's class (homotopy.same_class around the
+        relaxation's holes) is, under the class starts' premise, the best of that class; the
+        problem's classes inside it (more circles) end no shorter.  So the paths with the
+        smallest such lower bounds (within the band; no bound: 0) are solved first, and the
+        others only if their bound is within the band of the shortest found.  Returns
+        (found, prefetched, allowance) as _explore_classes; the same budget and allowance for
+        both parts (the prefetched climbs must be _finish's).
+        """
+        if bounds is None:
+            return self._explore_classes(paths, explore, n)
+        feet, relaxed_runs = bounds
+        model = self.problem.robot_model
+        solutions = [(model.positions(run.ws.x), run.t_f) for run in relaxed_runs
+                     if homotopy.same_class(run.path, model.positions(run.ws.x), feet)]
+        low = [min([t for q, t in solutions if homotopy.same_class(path, q, feet)],
+                   default=0.0) for path in paths]
+        band = 1.0 + REFINE_BAND * COARSE_INTERVALS / min(explore, COARSE_INTERVALS)
+        first = [k for k in range(len(paths)) if low[k] <= band * min(low)]
+        budget, allowance = self._class_budget(len(paths))
+        found, prefetched, allowance = self._explore_classes(
+            [paths[k] for k in first], explore, n, None, budget, allowance)
+        if budget < 1:
+            return found, prefetched, allowance
+        shortest = min([run.t_f for run in found], default=math.inf)
+        rest = [k for k in range(len(paths)) if k not in first and low[k] <= band * shortest]
+        if not rest or not self._may_explore():
+            return found, prefetched, allowance
+        more, later, _ = self._explore_classes([paths[k] for k in rest], explore, n, None,
+                                               budget, allowance)
+        merged = {key: {**(prefetched or {}).get(key, {}), **(later or {}).get(key, {})}
+                  for key in ('climbs', 'finals')}
+        return found + more, merged, allowance
+
+    def _lazy_classes(self, explore, n):
+        """
+        Class attempts on the circles that matter only: (found, prefetched, allowance, bounds).
+
+        Lazy constraints over the circles: a local optimum of a relaxation (some circles
+        dropped) that is clear of the dropped ones is one of the problem.  And under the
+        premise of the class starts (the attempt from each class start reaches its class's
+        best optimum), the relaxation's best is no longer than the problem's best of the same
+        classes, so when the relaxation's candidates (_candidates) are all clear of the dropped
+        circles they are the problem's candidates: fewer classes solved (two-circle planar_2r:
+        2 attempts instead of 4, where circle B is not in the way).  First without circles
+        (one attempt from the interpolation start), then with the circles its candidates hit,
+        and so on; the candidates then climb on the problem with all circles (_duals).
+        found is [] (the caller solves the classes of all circles) when they hit every circle,
+        an attempt does not converge, a relaxation has no class starts or the budget is spent;
+        bounds: (feet of the last relaxation's holes, its converged attempts) for
+        _bounded_classes, or None.
+        """
+        problem = self.problem
+        kept = ()
+        relaxed = (dataclasses.replace(problem, obstacles=()), kept)
+        budget = max(1, min(self.limit // 8, self.limit - self.done))
+        run, code = self._solve_on(explore, *interpolation_start(relaxed[0], explore),
+                                   CLASS_ATTEMPT[1], budget=budget, elastic=CLASS_ATTEMPT[0],
+                                   relaxed=relaxed)
+        found = [run] if code == ipm.CONVERGED else []
+        prefetched = allowance = bounds = None
+        while found:
+            hit = set()
+            for run in self._candidates(found):
+                hit.update(self._violated(run))
+            if not hit:
+                return found, prefetched, allowance, None
+            kept = tuple(sorted(set(kept) | hit))
+            if len(kept) == len(problem.obstacles) or not self._may_explore():
+                break
+            relaxed = (dataclasses.replace(
+                problem, obstacles=tuple(problem.obstacles[k] for k in kept)), kept)
+            paths, feet = homotopy.classes(relaxed[0])
+            if not paths:
+                return [], None, None, None
+            found, prefetched, allowance = self._explore_classes(paths, explore, n, relaxed)
+            bounds = (feet, found)
+        return [], None, None, bounds
+
+    def _violated(self, run):
+        """Return the indices of the circles run did not have that its nodes hit (a set)."""
+        if run.kept is None:
+            return set()
+        dropped = [k for k in range(len(self.problem.obstacles)) if k not in run.kept]
+        model = self.problem.robot_model
+        seg = model.link_segments(model.positions(run.ws.x[1:]))
+        clear = homotopy.clearance(seg, self.problem.circles()[dropped])
+        hit = np.min(clear.reshape(-1, model.n_links, len(dropped)), axis=(0, 1)) < 0.0
+        return {dropped[r] for r in np.flatnonzero(hit)}
+
+    def _duals(self, run):
+        """run's multipliers for a run on the problem (a relaxed run's widened: widen_duals)."""
+        duals = run.duals()
+        if run.kept is None:
+            return duals
+        return widen_duals(duals, run.kept, len(self.problem.obstacles),
+                           self.problem.robot_model.n_links)
+
+    def _class_attempts(self, paths, explore, budget, n, allowance, relaxed=None):
         """
         Solve the class starts on explore intervals; return (converged runs, prefetched).
 
@@ -893,6 +1044,8 @@ class FastSolve:
         solve, with the same allowance and budget, so their results are the ones _finish would
         get (a prefetch); one that later results put out is cancelled.  Only the attempts' runs
         are recorded here (in task order), the climbs and the refinement by _finish.
+        relaxed: (problem, kept) of a relaxation (_lazy_classes) the attempts are solved on;
+        its candidates climb on the problem, and only while all are clear of the other circles.
         """
         rho, mu = CLASS_ATTEMPT
         problem = self.problem
@@ -900,7 +1053,9 @@ class FastSolve:
         def attempt(solve, path, point=None):
             # The start is built on the worker: its numpy overlaps the other's kernel.
             point = point or homotopy.path_start(problem, path, explore)
-            return solve(explore, *point, mu, None, budget, rho)
+            run, code = solve(explore, *point, mu, None, budget, rho, relaxed)
+            run.path = path                 # its class (_bounded_classes)
+            return run, code
 
         # The first one here, before a helper thread starts building its own (the GIL).
         first = homotopy.path_start(problem, paths[0], explore)
@@ -913,11 +1068,12 @@ class FastSolve:
         def refine(solve, run):
             # _refine's solve on a worker (the budget is limit // 4 there too: see _cold).
             states, controls = resample(run.ws.x, run.controls(), n)
-            duals = resample_duals(run.duals(), run.n, n)
+            duals = resample_duals(self._duals(run), run.n, n)
             return solve(n, states, controls, run.t_f, MU_WARM / n, duals,
                          max(1, self.limit // 4), duals['rho'])
 
-        return _Prefetch(self, tasks, self._climber(rank, allowance), refine).run()
+        return _Prefetch(self, tasks, self._climber(rank, allowance), refine,
+                         lambda run: not self._violated(run)).run()
 
     def _attempt(self, grid, n, start, pair, found):
         """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
@@ -1028,7 +1184,7 @@ class FastSolve:
                 if used >= allowance:
                     return run, ipm.ITERATION_LIMIT
                 states, controls = resample(run.ws.x, run.controls(), m)
-                duals = resample_duals(run.duals(), run.n, m)
+                duals = resample_duals(self._duals(run), run.n, m)
                 run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
                                   min(self.limit // 4, allowance - used), duals['rho'])
                 used += run.iterations
@@ -1041,7 +1197,8 @@ class FastSolve:
         """
         Run tasks (callables solve -> value) on the worker threads; return their values.
 
-        solve(n, states, controls, t_f, mu, duals, budget, elastic) is a worker's _solve_on:
+        solve(n, states, controls, t_f, mu, duals, budget, elastic[, relaxed]) is a worker's
+        _solve_on:
         it neither records its run nor reports progress (this thread does, meanwhile and, in
         task order, afterwards), and only the fixed budget caps it, so a task's result does not
         depend on the others' timing (workers.py).  done: {index: (value, runs)} of tasks
@@ -1084,8 +1241,9 @@ class FastSolve:
             if threading.current_thread() is caller:
                 poll()
 
-        def solve(n, states, controls, t_f, mu, duals, budget, elastic):
-            run = InteriorPointRun(self.problem, n, budget, elastic)
+        def solve(n, states, controls, t_f, mu, duals, budget, elastic, relaxed=None):
+            problem, kept = relaxed or (self.problem, None)
+            run = InteriorPointRun(problem, n, budget, elastic, kept)
             run.start(states, controls, t_f, mu, duals)
             log.append(run)
             code = run.run(check, stop_requested)
@@ -1111,7 +1269,7 @@ class FastSolve:
     def _refine(self, run, n):
         """Carry a converged run's primal-dual solution to n intervals and solve there."""
         states, controls = resample(run.ws.x, run.controls(), n)
-        duals = resample_duals(run.duals(), run.n, n)
+        duals = resample_duals(self._duals(run), run.n, n)
         return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
                               budget=max(1, self.limit // 4), elastic=duals['rho'])
 
