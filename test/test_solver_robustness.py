@@ -423,9 +423,68 @@ def test_lazy_circles_solve_the_classes_of_the_circle_in_the_way_only(monkeypatc
     coarse = [run.kept for run in runs if run.n == fast_solver.EXPLORE_INTERVALS]
     assert coarse == [(), (0,), (0,)], coarse
     assert not searched
-    # The climbs and the N grid have both circles.
-    assert all(run.kept is None and run.circles.shape[0] == 2 for run in runs
-               if run.n > fast_solver.EXPLORE_INTERVALS)
+    # The climbs and the N grid keep circle A only: the N grid's solution is clear of B.
+    assert [run.kept for run in runs if run.n > fast_solver.EXPLORE_INTERVALS] == [(0,)] * 3
+    assert result.solver_state['duals']['z'].shape == (problem.n_intervals, 4)
+
+
+def test_a_relaxed_climb_that_hits_a_dropped_circle_but_ranks_behind_a_clear_one_is_dropped(
+        monkeypatch):
+    # '2 circles, g = 0': A's two candidates climb without B; the 0.6363 s one touches B on
+    # 368 intervals (0.6427 s there) but the clear one is shorter (0.6404 s): no climb again.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    runs = _attempt_runs(monkeypatch)
+    hits = []
+    violated = fast_solver.FastSolve._violated
+    monkeypatch.setattr(fast_solver.FastSolve, '_violated', lambda self, run: hits.append(
+        (run.n, round(run.t_f, 4), bool(violated(self, run)))) or violated(self, run))
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 0'][3]) <= 1e-6
+    assert (368, 0.6427, True) in hits and (368, 0.6404, False) in hits, hits
+    assert all(run.kept == (0,) for run in runs if run.n > fast_solver.EXPLORE_INTERVALS)
+
+
+def _hit_on(monkeypatch, grid):
+    """Make FastSolve._violated report circle B for the relaxed runs on grid intervals."""
+    violated = fast_solver.FastSolve._violated
+    monkeypatch.setattr(fast_solver.FastSolve, '_violated', lambda self, run: {1}
+                        if run.n == grid and run.kept == (0,) else violated(self, run))
+
+
+@pytest.mark.parametrize('workers_count', [1, 2])
+def test_a_relaxed_climb_that_hits_a_dropped_circle_is_done_again_with_all_circles(
+        monkeypatch, workers_count):
+    # '2 circles, g = 9.81' (A's optima are clear of B at every grid) with B reported hit on
+    # the rank grid: the candidate climbs again from its coarse run with both circles.
+    monkeypatch.setattr(workers, 'WORKERS', workers_count)
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    runs = _attempt_runs(monkeypatch)
+    _hit_on(monkeypatch, 368)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    climbs = [(run.n, run.kept) for run in runs if run.n > fast_solver.EXPLORE_INTERVALS]
+    recorded = [(n, kept) for n, kept in climbs if n < problem.n_intervals]
+    assert recorded[:2] == [(136, (0,)), (368, (0,))] and recorded[-2:] == \
+        [(136, None), (368, None)], climbs
+    assert climbs[-1] == (problem.n_intervals, None), climbs
+
+
+def test_a_relaxed_solution_that_hits_a_dropped_circle_on_the_n_grid_is_refined_again(
+        monkeypatch):
+    # The same with B reported hit on the N grid: refined again from the climb, both circles.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    runs = _attempt_runs(monkeypatch)
+    _hit_on(monkeypatch, problem.n_intervals)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    finals = [run.kept for run in runs if run.n == problem.n_intervals]
+    assert finals == [(0,), None], finals
 
 
 def test_a_relaxed_candidate_that_hits_a_dropped_circle_leads_to_the_bounded_classes(

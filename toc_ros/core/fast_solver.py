@@ -693,6 +693,11 @@ def warm_start_point(problem, guess, n):
     return states, controls, t_f, duals, drift
 
 
+def _relaxation(run):
+    """Return (problem, kept) of a relaxation's run (_lazy_classes), None for the problem's."""
+    return None if run.kept is None else (run.problem, run.kept)
+
+
 def _has_actuators(model):
     return model.joint_model is not model
 
@@ -980,7 +985,8 @@ class FastSolve:
         circles they are the problem's candidates: fewer classes solved (two-circle planar_2r:
         2 attempts instead of 4, where circle B is not in the way).  First without circles
         (one attempt from the interpolation start), then with the circles its candidates hit,
-        and so on; the candidates then climb on the problem with all circles (_duals).
+        and so on.  The candidates climb on the relaxation too (fewer constraints per node);
+        _finish keeps its solutions only where they are clear of the dropped circles.
         found is [] (the caller solves the classes of all circles) when they hit every circle,
         an attempt does not converge, a relaxation has no class starts or the budget is spent;
         bounds: (feet of the last relaxation's holes, its converged attempts) for
@@ -1025,7 +1031,7 @@ class FastSolve:
         return {dropped[r] for r in np.flatnonzero(hit)}
 
     def _duals(self, run):
-        """run's multipliers for a run on the problem (a relaxed run's widened: widen_duals)."""
+        """Return the multipliers of run for a run on the problem (a relaxed run: widen_duals)."""
         duals = run.duals()
         if run.kept is None:
             return duals
@@ -1068,9 +1074,9 @@ class FastSolve:
         def refine(solve, run):
             # _refine's solve on a worker (the budget is limit // 4 there too: see _cold).
             states, controls = resample(run.ws.x, run.controls(), n)
-            duals = resample_duals(self._duals(run), run.n, n)
+            duals = resample_duals(run.duals(), run.n, n)
             return solve(n, states, controls, run.t_f, MU_WARM / n, duals,
-                         max(1, self.limit // 4), duals['rho'])
+                         max(1, self.limit // 4), duals['rho'], _relaxation(run))
 
         return _Prefetch(self, tasks, self._climber(rank, allowance), refine,
                          lambda run: not self._violated(run)).run()
@@ -1107,7 +1113,7 @@ class FastSolve:
             for coarse in candidates:
                 if self.done >= self.limit:
                     break
-                run, code = self._refine(coarse, n)
+                run, code = self._complete(self._refine(coarse, n), coarse, n)
                 if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
                     self.best = run
             return
@@ -1119,23 +1125,47 @@ class FastSolve:
         climb = self._climber(rank, allowance or left // len(candidates))
         climbs = (prefetched or {}).get('climbs', {})
         finals = (prefetched or {}).get('finals', {})
-        ranked = [run for run, code in self._parallel(
+        climbed = self._parallel(
             [lambda solve, run=run: climb(solve, run) for run in candidates],
             {k: climbs[id(run)] for k, run in enumerate(candidates) if id(run) in climbs})
-            if code == ipm.CONVERGED]
-        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
+        ranked = self._clear_climbs(climbed, candidates, climb)
+        for source in sorted(ranked, key=lambda r: r.t_f) + candidates:
             if self.done >= self.limit:
                 break
-            if id(run) in finals:           # its refinement to N, run already
-                (run, code), runs = finals.pop(id(run))
+            if id(source) in finals:           # its refinement to N, run already
+                (run, code), runs = finals.pop(id(source))
                 for done in runs:
                     self._record(done)
                     self.run = done
             else:
-                run, code = self._refine(run, n)
+                run, code = self._refine(source, n)
+            run, code = self._complete((run, code), source, n)
             if code == ipm.CONVERGED:
                 self.best = run
                 return
+
+    def _clear_climbs(self, climbed, candidates, climb):
+        """
+        Return the converged climbs of candidates whose solutions are the problem's.
+
+        climbed: (run, code) per candidate.  A relaxation's climb (_lazy_classes) clear of the
+        dropped circles is a local optimum of the problem; one that hits them bounds its
+        candidate's climb with all circles from below (under the class starts' premise), so
+        that climb is done (from the clear coarse candidate) only when the bound is shorter
+        than the shortest clear climb.
+        """
+        hit = {k for k, (run, code) in enumerate(climbed)
+               if code == ipm.CONVERGED and self._violated(run)}
+        shortest = min([run.t_f for k, (run, code) in enumerate(climbed)
+                        if code == ipm.CONVERGED and k not in hit], default=math.inf)
+        redo = [k for k in sorted(hit) if climbed[k][0].t_f < shortest]
+        again = self._parallel([lambda solve, run=candidates[k]: climb(solve, run, True)
+                                for k in redo])
+        climbed = list(climbed)
+        for k, value in zip(redo, again):
+            climbed[k] = value
+        return [run for k, (run, code) in enumerate(climbed)
+                if code == ipm.CONVERGED and (k not in hit or k in redo)]
 
     def _candidates(self, found):
         """
@@ -1177,16 +1207,23 @@ class FastSolve:
         return max((ladder(coarse, n) or [n])[-1], (ladder(COARSE_INTERVALS, n) or [n])[-1])
 
     def _climber(self, rank, allowance):
-        """Return climb(solve, run): run's solution up the ladder to rank, within allowance."""
-        def climb(solve, run):
+        """
+        Return climb(solve, run, full=False): run's solution up the ladder to rank.
+
+        Within allowance iterations; a relaxation's run (_lazy_classes) climbs on its
+        relaxation, or with full on the problem.
+        """
+        def climb(solve, run, full=False):
             used, code = 0, ipm.CONVERGED
             for m in ladder(run.n, rank) + [rank]:
                 if used >= allowance:
                     return run, ipm.ITERATION_LIMIT
+                relaxed = None if full else _relaxation(run)
                 states, controls = resample(run.ws.x, run.controls(), m)
-                duals = resample_duals(self._duals(run), run.n, m)
+                duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, m)
                 run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
-                                  min(self.limit // 4, allowance - used), duals['rho'])
+                                  min(self.limit // 4, allowance - used), duals['rho'],
+                                  relaxed)
                 used += run.iterations
                 if code != ipm.CONVERGED:
                     break
@@ -1266,12 +1303,32 @@ class FastSolve:
                     f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
         return poll
 
-    def _refine(self, run, n):
-        """Carry a converged run's primal-dual solution to n intervals and solve there."""
+    def _refine(self, run, n, full=False):
+        """
+        Carry a converged run's primal-dual solution to n intervals and solve there.
+
+        A relaxation's run (_lazy_classes) on its relaxation, or with full on the problem.
+        """
+        relaxed = None if full else _relaxation(run)
         states, controls = resample(run.ws.x, run.controls(), n)
-        duals = resample_duals(self._duals(run), run.n, n)
+        duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, n)
         return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
-                              budget=max(1, self.limit // 4), elastic=duals['rho'])
+                              budget=max(1, self.limit // 4), elastic=duals['rho'],
+                              relaxed=relaxed)
+
+    def _complete(self, refined, source, n):
+        """
+        Return refined (run, code) on the N grid, solved on the problem if need be.
+
+        A relaxation's run (_lazy_classes) clear of the circles it does not have at every
+        node is a local optimum of the problem too (those constraints inactive, multipliers
+        0); one that hits them is refined again from source (clear of them, _finish) with
+        all circles.
+        """
+        run, code = refined
+        if code != ipm.CONVERGED or not self._violated(run):
+            return run, code
+        return self._refine(source, n, full=True)
 
     def _may_explore(self):
         """Return whether a further cold attempt may start (obstacles, budget and time)."""
@@ -1307,7 +1364,7 @@ class FastSolve:
         result = SolveResult(status=status, message=message, final_time=run.t_f,
                              states=states, controls=controls, iterations=self.done,
                              history=self._history(), violations=violations, cost=run.t_f,
-                             solver_state={'duals': run.duals()})
+                             solver_state={'duals': self._duals(run)})
         if status is Status.SOLVED:
             if violations.feasible():
                 result.message = f't_min = {run.t_f:.6f} s'
