@@ -551,3 +551,17 @@ def test_prefetch_climbs_no_candidate_while_one_hits_a_dropped_circle():
     prefetch._finished(('attempt', 1), (blocked, ipm.CONVERGED))
     assert prefetch._next()[0] == ('attempt', 2)      # not the climb of attempt 0
     assert not prefetch.climbs
+
+
+def test_an_actuated_model_starts_from_the_lazy_joint_solution_with_all_circles():
+    # The joint solve of _cold_actuated takes the lazy path (circle A's classes); its duals
+    # reach the actuated N grid widened to both circles.
+    from toc_ros.core.models import with_actuator_lag
+    joint = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    model = with_actuator_lag(joint.robot_model, 0.01)
+    problem = joint.with_model(model)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    assert result.violations.feasible()
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 0.02 * 0.758211
+    assert result.solver_state['duals']['z'].shape == (problem.n_intervals, 4)

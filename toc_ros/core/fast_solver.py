@@ -888,7 +888,7 @@ class FastSolve:
         if code == ipm.CONVERGED and inner_run.n == n and self.done < self.limit:
             controls = inner_run.controls()
             states = np.hstack([inner_run.ws.x, actuator_states(problem, controls)])
-            duals = inner_run.duals()
+            duals = inner._duals(inner_run)      # all circles (a relaxed run: widened)
             duals['lam'] = np.hstack([duals['lam'], np.zeros((n + 1, joint.nu))])
             duals['nu'] = np.concatenate([duals['nu'], np.zeros(joint.nu)])
             run, code = self._solve_on(n, states, controls, inner_run.t_f, MU_WARM / n, duals,
