@@ -565,3 +565,15 @@ def test_an_actuated_model_starts_from_the_lazy_joint_solution_with_all_circles(
     assert result.violations.feasible()
     assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 0.02 * 0.758211
     assert result.solver_state['duals']['z'].shape == (problem.n_intervals, 4)
+
+
+def test_no_relaxation_is_solved_where_the_circles_make_no_hole(monkeypatch):
+    # The cylindrical robot: its circles reach the joint grid's border (no classes), so two
+    # circles take the attempts from the straight start as before, without a relaxed one.
+    problem = replace(Problem(), obstacles=((1.0, 1.0, 0.2), (0.5, -1.2, 0.3)))
+    assert not homotopy.has_holes(problem) and homotopy.class_paths(problem) == []
+    assert homotopy.has_holes(_bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False))
+    runs = _attempt_runs(monkeypatch)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    assert runs and all(run.kept is None for run in runs)

@@ -830,7 +830,8 @@ class FastSolve:
         crosses = grid < n and self._crosses(states)
         allowance, prefetched = None, None
         bounds = None
-        if crosses and len(problem.obstacles) > 1 and self._may_explore():
+        if crosses and len(problem.obstacles) > 1 and self._may_explore() and \
+                homotopy.has_holes(problem):
             found, prefetched, allowance, bounds = self._lazy_classes(explore, n)
         paths = homotopy.class_paths(problem) if crosses and not found else []
         if paths and self._may_explore():

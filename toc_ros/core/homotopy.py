@@ -44,6 +44,8 @@ CELLS = 64
 # At most this many holes (the largest ones) get a crossing parity; at most MAX_CLASSES
 # classes, the shortest paths first, each at most CLASS_FACTOR times the shortest one's length.
 MAX_HOLES = 4
+# Cells per joint of has_holes' coarse check.
+CHECK_CELLS = 32
 MAX_CLASSES = 4
 CLASS_FACTOR = 2.0
 # Fraction of t_f over which a start or goal velocity is blended in (path_start).
@@ -258,18 +260,22 @@ def same_class(path, other, feet):
     return all(winding(loop, foot) == 0 for foot in feet)
 
 
-def classes(problem, cells=CELLS):
+def has_holes(problem, cells=CHECK_CELLS):
     """
-    Return (class_paths, feet): feet (H, 2) the joint coordinates of a cell in each hole.
+    Return whether an obstacle of the problem is a hole of its joint plane on a cells grid.
 
-    The feet are the rays' feet (the top cell of each hole whose crossing parity tells the
-    classes apart); empty when there are no paths.
+    A cheap coarse check (fast_solver._cold: the circles' classes are searched lazily only
+    where there are holes; none for the cylindrical robot, whose obstacles reach the border).
     """
+    return bool(_holes(problem, cells)[-1])
+
+
+def _holes(problem, cells):
+    """Return (q0, qg, lo, step, occupied, start, goal, holes) of the joint grid (holes: [])."""
     model = problem.robot_model
     circles = problem.circles()
-    none = [], np.zeros((0, 2))
     if model.n_joints != 2 or circles.shape[0] == 0:
-        return none
+        return (None,) * 7 + ([],)
     q0 = model.positions(np.asarray(problem.x0, dtype=float))
     qg = model.positions(np.asarray(problem.x_goal, dtype=float))
     lo, hi = _box(model, q0, qg)
@@ -289,6 +295,18 @@ def classes(problem, cells=CELLS):
         if ii.min() > 0 and jj.min() > 0 and ii.max() < cells - 1 and jj.max() < cells - 1:
             top = int(np.argmax(jj))         # first cell of the top row (row-major order)
             holes.append((-ii.size, c, ii[top], jj[top]))
+    return q0, qg, lo, step, occupied, start, goal, holes
+
+
+def classes(problem, cells=CELLS):
+    """
+    Return (class_paths, feet): feet (H, 2) the joint coordinates of a cell in each hole.
+
+    The feet are the rays' feet (the top cell of each hole whose crossing parity tells the
+    classes apart); empty when there are no paths.
+    """
+    none = [], np.zeros((0, 2))
+    q0, qg, lo, step, occupied, start, goal, holes = _holes(problem, cells)
     if not holes:
         return none
     holes = sorted(holes)[:MAX_HOLES]        # the largest, ties by label: deterministic
