@@ -424,7 +424,8 @@ def test_lazy_circles_solve_the_classes_of_the_circle_in_the_way_only(monkeypatc
     assert coarse == [(), (0,), (0,)], coarse
     assert not searched
     # The climbs and the N grid keep circle A only: the N grid's solution is clear of B.
-    assert [run.kept for run in runs if run.n > fast_solver.EXPLORE_INTERVALS] == [(0,)] * 3
+    # (Runs started, with prefetches that a later attempt cancelled: a set.)
+    assert {run.kept for run in runs if run.n > fast_solver.EXPLORE_INTERVALS} == {(0,)}
     assert result.solver_state['duals']['z'].shape == (problem.n_intervals, 4)
 
 
@@ -466,11 +467,11 @@ def test_a_relaxed_climb_that_hits_a_dropped_circle_is_done_again_with_all_circl
     assert result.status is Status.SOLVED, result.message
     _assert_planar_feasible(problem, result)
     assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    # Runs started (with cancelled prefetches): the relaxed climb, then both circles.
     climbs = [(run.n, run.kept) for run in runs if run.n > fast_solver.EXPLORE_INTERVALS]
-    recorded = [(n, kept) for n, kept in climbs if n < problem.n_intervals]
-    assert recorded[:2] == [(136, (0,)), (368, (0,))] and recorded[-2:] == \
-        [(136, None), (368, None)], climbs
-    assert climbs[-1] == (problem.n_intervals, None), climbs
+    relaxed = [(n, kept) for n, kept in climbs if n < problem.n_intervals and kept]
+    assert (136, (0,)) in relaxed and (368, (0,)) in relaxed, climbs
+    assert climbs[-3:] == [(136, None), (368, None), (problem.n_intervals, None)], climbs
 
 
 def test_a_relaxed_solution_that_hits_a_dropped_circle_on_the_n_grid_is_refined_again(
@@ -484,7 +485,7 @@ def test_a_relaxed_solution_that_hits_a_dropped_circle_on_the_n_grid_is_refined_
     _assert_planar_feasible(problem, result)
     assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
     finals = [run.kept for run in runs if run.n == problem.n_intervals]
-    assert finals == [(0,), None], finals
+    assert finals[-1] is None and (0,) in finals[:-1], finals
 
 
 def test_a_relaxed_candidate_that_hits_a_dropped_circle_leads_to_the_bounded_classes(
