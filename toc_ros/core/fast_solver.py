@@ -29,7 +29,8 @@ is carried to the requested grid through intermediate grids (ladder), where a fe
 iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
 per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
 threads (workers.py); a candidate's climb up the ladder starts as soon as its attempt converges
-(_Prefetch), with the same result as after all attempts.  A warm start
+(_Prefetch), with the same result as after all attempts.  With several circles they are added
+lazily (_lazy_classes): first none, then the classes of the circles that solution hits.  A warm start
 (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
 being executed) skips the coarse grid.
 """
@@ -812,7 +813,8 @@ class FastSolve:
         Attempts (start, elastic weight, barrier parameter) run on the coarse grid (on the N
         grid itself when N <= 2 COARSE_INTERVALS).  When N > 2 COARSE_INTERVALS and the
         interpolation start crosses an obstacle of a two-joint model: the class starts of
-        homotopy.py with CLASS_ATTEMPT, on EXPLORE_INTERVALS, side by side.  When there are
+        homotopy.py with CLASS_ATTEMPT, on EXPLORE_INTERVALS, side by side (with several
+        circles those of a relaxation first: _lazy_classes, _bounded_classes).  When there are
         none (another number of joints, no hole inside the grid) or none of them converges: the
         interpolation start with the first pair of COLD_ATTEMPTS and, when _explore says so,
         with the other pairs.  The distinct converged ones within REFINE_BAND of the shortest
