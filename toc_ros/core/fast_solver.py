@@ -29,10 +29,10 @@ is carried to the requested grid through intermediate grids (ladder), where a fe
 iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
 per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
 threads (workers.py); a candidate's climb up the ladder starts as soon as its attempt converges
-(_Prefetch), with the same result as after all attempts.  With several circles they are added
-lazily (_lazy_classes): first none, then the classes of the circles that solution hits.  A warm start
-(initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
-being executed) skips the coarse grid.
+(_Prefetch), with the same result as after all attempts.  With several circles they are
+added lazily (_lazy_classes): first none, then the classes of the circles that solution hits.
+A warm start (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of
+the plan being executed) skips the coarse grid.
 """
 
 import dataclasses
