@@ -393,3 +393,188 @@ def test_a_cancel_during_the_class_attempts_and_climbs_is_honoured(delay):
     result, seconds = _solve_with_cancel(problem, SolverOptions(mode='fast'), delay)
     assert result.status is Status.CANCELED, result.message
     assert seconds <= 0.1
+
+
+def _attempt_runs(monkeypatch):
+    """Record (run.kept, run.n) of every interior-point run of the solves that follow."""
+    runs = []
+    start = fast_solver.InteriorPointRun.start
+
+    def recorded(self, *args, **kwargs):
+        runs.append(self)
+        return start(self, *args, **kwargs)
+
+    monkeypatch.setattr(fast_solver.InteriorPointRun, 'start', recorded)
+    return runs
+
+
+def test_lazy_circles_solve_the_classes_of_the_circle_in_the_way_only(monkeypatch):
+    # '2 circles, g = 9.81': the optimum without circles hits circle A only, and the optima of
+    # A's two classes are clear of B: no class search with both circles, 3 attempts not 4.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    runs = _attempt_runs(monkeypatch)
+    searched = []
+    paths = homotopy.class_paths
+    monkeypatch.setattr(homotopy, 'class_paths', lambda *a: searched.append(a) or paths(*a))
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    coarse = [run.kept for run in runs if run.n == fast_solver.EXPLORE_INTERVALS]
+    assert coarse == [(), (0,), (0,)], coarse
+    assert not searched
+    # The climbs and the N grid keep circle A only: the N grid's solution is clear of B.
+    # (Runs started, with prefetches that a later attempt cancelled: a set.)
+    assert {run.kept for run in runs if run.n > fast_solver.EXPLORE_INTERVALS} == {(0,)}
+    assert result.solver_state['duals']['z'].shape == (problem.n_intervals, 4)
+
+
+def test_a_relaxed_climb_that_hits_a_dropped_circle_but_ranks_behind_a_clear_one_is_dropped(
+        monkeypatch):
+    # '2 circles, g = 0': A's two candidates climb without B; the 0.6363 s one touches B on
+    # 368 intervals (0.6427 s there) but the clear one is shorter (0.6404 s): no climb again.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False)
+    runs = _attempt_runs(monkeypatch)
+    hits = []
+    violated = fast_solver.FastSolve._violated
+    monkeypatch.setattr(fast_solver.FastSolve, '_violated', lambda self, run: hits.append(
+        (run.n, round(run.t_f, 4), bool(violated(self, run)))) or violated(self, run))
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 0'][3]) <= 1e-6
+    assert (368, 0.6427, True) in hits and (368, 0.6404, False) in hits, hits
+    assert all(run.kept == (0,) for run in runs if run.n > fast_solver.EXPLORE_INTERVALS)
+
+
+def _hit_on(monkeypatch, grid):
+    """Make FastSolve._violated report circle B for the relaxed runs on grid intervals."""
+    violated = fast_solver.FastSolve._violated
+    monkeypatch.setattr(fast_solver.FastSolve, '_violated', lambda self, run: {1}
+                        if run.n == grid and run.kept == (0,) else violated(self, run))
+
+
+@pytest.mark.parametrize('workers_count', [1, 2])
+def test_a_relaxed_climb_that_hits_a_dropped_circle_is_done_again_with_all_circles(
+        monkeypatch, workers_count):
+    # '2 circles, g = 9.81' (A's optima are clear of B at every grid) with B reported hit on
+    # the rank grid: the candidate climbs again from its coarse run with both circles.
+    monkeypatch.setattr(workers, 'WORKERS', workers_count)
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    runs = _attempt_runs(monkeypatch)
+    _hit_on(monkeypatch, 368)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    # Runs started (with cancelled prefetches): the relaxed climb, then both circles.
+    climbs = [(run.n, run.kept) for run in runs if run.n > fast_solver.EXPLORE_INTERVALS]
+    relaxed = [(n, kept) for n, kept in climbs if n < problem.n_intervals and kept]
+    assert (136, (0,)) in relaxed and (368, (0,)) in relaxed, climbs
+    assert climbs[-3:] == [(136, None), (368, None), (problem.n_intervals, None)], climbs
+
+
+def test_a_relaxed_solution_that_hits_a_dropped_circle_on_the_n_grid_is_refined_again(
+        monkeypatch):
+    # The same with B reported hit on the N grid: refined again from the climb, both circles.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    runs = _attempt_runs(monkeypatch)
+    _hit_on(monkeypatch, problem.n_intervals)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
+    finals = [run.kept for run in runs if run.n == problem.n_intervals]
+    assert finals[-1] is None and (0,) in finals[:-1], finals
+
+
+def test_a_relaxed_candidate_that_hits_a_dropped_circle_leads_to_the_bounded_classes(
+        monkeypatch):
+    # '2 circles, g = 0, moving start': A's best optimum passes through B; of the four classes
+    # of both circles, the two inside A's other class (bounded by its optimum, 0.95 s, out of
+    # the band of 0.61 s) are not solved.
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, True)
+    runs = _attempt_runs(monkeypatch)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    _assert_planar_feasible(problem, result)
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 0, moving start'][3]) <= 1e-6
+    coarse = [run.kept for run in runs if run.n == fast_solver.EXPLORE_INTERVALS]
+    assert coarse == [(), (0,), (0,), None, None], coarse
+    assert len(homotopy.class_paths(problem)) == 4
+
+
+def test_bounded_classes_are_bit_identical_with_one_or_two_workers(monkeypatch):
+    # Three prefetching pipelines (A's classes, then two parts of the classes of both).
+    problem = _bench_problem((CIRCLE_A, CIRCLE_B), 0.0, True)
+    results = []
+    for count in (2, 1, 2):
+        monkeypatch.setattr(workers, 'WORKERS', count)
+        results.append(solve(problem, SolverOptions(mode='fast')))
+    for other in results[1:]:
+        assert other.status is results[0].status is Status.SOLVED
+        assert other.final_time == results[0].final_time
+        assert other.iterations == results[0].iterations
+        assert np.array_equal(other.controls, results[0].controls)
+        assert np.array_equal(other.history, results[0].history, equal_nan=True)
+
+
+def test_widened_duals_put_each_kept_circle_in_its_column_and_zero_elsewhere():
+    # Columns link * K + k (ipm.py): 2 links, circles 1 and 3 of 4 kept.
+    z = np.arange(12.0).reshape(3, 4) + 1.0            # (nodes, 2 links x 2 kept)
+    duals = {'z': z, 'lam': np.ones((4, 4)), 'rho': 10.0}
+    wide = fast_solver.widen_duals(duals, (1, 3), 4, 2)
+    assert wide['z'].shape == (3, 8)
+    assert np.array_equal(wide['z'][:, [1, 3, 5, 7]], z)
+    assert not np.any(wide['z'][:, [0, 2, 4, 6]])
+    assert wide['lam'] is duals['lam'] and wide['rho'] == 10.0
+
+
+def test_same_class_tells_the_sides_of_a_hole_apart():
+    feet = np.array([[0.0, 0.0]])
+    below = np.array([[-1.0, 0.0], [-0.5, -1.0], [0.5, -1.0], [1.0, 0.0]])
+    below_too = np.array([[-1.0, 0.0], [0.0, -2.0], [1.0, 0.0]])
+    above = np.array([[-1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+    assert homotopy.same_class(below, below_too, feet)
+    assert not homotopy.same_class(below, above, feet)
+    assert homotopy.same_class(below, above, np.array([[0.0, 5.0]]))   # no hole between
+
+
+def test_prefetch_climbs_no_candidate_while_one_hits_a_dropped_circle():
+    solver = SimpleNamespace(done=0, limit=2000, _poller=lambda logs: None,
+                             _bind=lambda task, *a, **k: task)
+    solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
+    blocked = _coarse(0.71)
+    prefetch = fast_solver._Prefetch(solver, ['attempt 0', 'attempt 1', 'attempt 2'], None,
+                                     None, lambda run: run is not blocked)
+    prefetch.waiting = [2]
+    prefetch._finished(('attempt', 0), (_coarse(0.70), ipm.CONVERGED))
+    prefetch._finished(('attempt', 1), (blocked, ipm.CONVERGED))
+    assert prefetch._next()[0] == ('attempt', 2)      # not the climb of attempt 0
+    assert not prefetch.climbs
+
+
+def test_an_actuated_model_starts_from_the_lazy_joint_solution_with_all_circles():
+    # The joint solve of _cold_actuated takes the lazy path (circle A's classes); its duals
+    # reach the actuated N grid widened to both circles.
+    from toc_ros.core.models import with_actuator_lag
+    joint = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
+    model = with_actuator_lag(joint.robot_model, 0.01)
+    problem = joint.with_model(model)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    assert result.violations.feasible()
+    assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 0.02 * 0.758211
+    assert result.solver_state['duals']['z'].shape == (problem.n_intervals, 4)
+
+
+def test_no_relaxation_is_solved_where_the_circles_make_no_hole(monkeypatch):
+    # The cylindrical robot: its circles reach the joint grid's border (no classes), so two
+    # circles take the attempts from the straight start as before, without a relaxed one.
+    problem = replace(Problem(), obstacles=((1.0, 1.0, 0.2), (0.5, -1.2, 0.3)))
+    assert not homotopy.has_holes(problem) and homotopy.class_paths(problem) == []
+    assert homotopy.has_holes(_bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False))
+    runs = _attempt_runs(monkeypatch)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    assert runs and all(run.kept is None for run in runs)

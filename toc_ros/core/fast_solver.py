@@ -29,9 +29,10 @@ is carried to the requested grid through intermediate grids (ladder), where a fe
 iterations finish.  When the straight start crosses an obstacle of a two-joint model, one start
 per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side by side on two
 threads (workers.py); a candidate's climb up the ladder starts as soon as its attempt converges
-(_Prefetch), with the same result as after all attempts.  A warm start
-(initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of the plan
-being executed) skips the coarse grid.
+(_Prefetch), with the same result as after all attempts.  With several circles they are
+added lazily (_lazy_classes): first none, then the classes of the circles that solution hits.
+A warm start (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of
+the plan being executed) skips the coarse grid.
 """
 
 import dataclasses
@@ -135,9 +136,12 @@ def _in_band(run, shortest):
 class InteriorPointRun:
     """One interior-point solve on one grid (the Workspace plus the driver state)."""
 
-    def __init__(self, problem, n, max_iter, elastic=None):
+    def __init__(self, problem, n, max_iter, elastic=None, kept=None):
         model = problem.robot_model
         self.problem = problem
+        # Indices of the solve's circles this run has (a relaxation, _lazy_classes); None: all.
+        self.kept = kept
+        self.path = None         # the class path it started from (_class_attempts)
         self.model = model
         self.kernels = model.kernels
         self.n = n
@@ -332,11 +336,15 @@ class _Prefetch:
     task that later results put out (a shorter attempt, a shorter climb) is cancelled.
     """
 
-    def __init__(self, solver, tasks, climb, refine):
+    def __init__(self, solver, tasks, climb, refine, usable=None):
         self.solver = solver
         self.tasks = tasks
         self.climb = climb
         self.refine = refine
+        # usable(run): whether a candidate can stand (a relaxation's: clear of the other
+        # circles); while one cannot, _finish will not run (_lazy_classes): no climbs.
+        self.usable = usable or (lambda run: True)
+        self.verdicts = {}                       # id(attempt run) -> usable(run)
         self.finals = {}                         # id(climbed run) -> [runs, value, wanted]
         self.logs = [[] for _ in tasks]          # runs of the attempts, in task order
         self.all_logs = list(self.logs)          # and of the climbs (progress reports)
@@ -419,7 +427,9 @@ class _Prefetch:
         if self.failure is not None:
             return None
         index = {id(self.results[k][0]): k for k in self.results}
-        for run in self._candidates():
+        candidates = self._candidates()
+        usable = all(self._usable(run) for run in candidates)
+        for run in candidates if usable else []:
             k = index[id(run)]
             if k not in self.climbs:
                 log = []
@@ -428,7 +438,7 @@ class _Prefetch:
                 return ('climb', k), self.solver._bind(
                     lambda solve, run=run: self.climb(solve, run), log, self.poll,
                     cancelled=lambda c=self.climbs[k]: not c[2], caller=self.caller)
-        best = self._best_climbed()
+        best = self._best_climbed() if usable else None
         if best is not None and id(best) not in self.finals:
             log = []
             self.all_logs.append(log)
@@ -441,6 +451,11 @@ class _Prefetch:
             return ('attempt', k), self.solver._bind(self.tasks[k], self.logs[k], self.poll,
                                                      caller=self.caller)
         return None
+
+    def _usable(self, run):
+        if id(run) not in self.verdicts:
+            self.verdicts[id(run)] = self.usable(run)
+        return self.verdicts[id(run)]
 
     def _best_climbed(self):
         """Return the shortest converged climb of a candidate so far (None if none)."""
@@ -615,6 +630,21 @@ def resample_duals(duals, m, n):
     return out
 
 
+def widen_duals(duals, kept, n_circles, n_links):
+    """
+    Multipliers of a run on the circles kept (indices) for all n_circles of the problem.
+
+    The obstacle duals z of the circles it did not have are 0: InteriorPointRun.start makes
+    them mu / slack, an inactive constraint's start.
+    """
+    z = duals['z']
+    wide = np.zeros((z.shape[0], n_links * n_circles))
+    for link in range(n_links):
+        for r, k in enumerate(kept):
+            wide[:, link * n_circles + k] = z[:, link * len(kept) + r]
+    return dict(duals, z=wide)
+
+
 def warm_start_point(problem, guess, n):
     """
     Return (states, controls, t_f, duals or None, drift) from an initial guess for n intervals.
@@ -669,6 +699,11 @@ def warm_start_point(problem, guess, n):
     return states, controls, t_f, duals, drift
 
 
+def _relaxation(run):
+    """Return (problem, kept) of a relaxation's run (_lazy_classes), None for the problem's."""
+    return None if run.kept is None else (run.problem, run.kept)
+
+
 def _has_actuators(model):
     return model.joint_model is not model
 
@@ -708,10 +743,11 @@ class FastSolve:
             f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
 
     def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
-                  push=BOUND_PUSH, elastic=None):
+                  push=BOUND_PUSH, elastic=None, relaxed=None):
         left = max(1, self.limit - self.done)
-        run = InteriorPointRun(self.problem, n, left if budget is None else min(budget, left),
-                               elastic)
+        problem, kept = relaxed or (self.problem, None)
+        run = InteriorPointRun(problem, n, left if budget is None else min(budget, left),
+                               elastic, kept)
         run.start(states, controls, t_f, mu, duals, push)
         self.run = run
         try:
@@ -789,7 +825,8 @@ class FastSolve:
         Attempts (start, elastic weight, barrier parameter) run on the coarse grid (on the N
         grid itself when N <= 2 COARSE_INTERVALS).  When N > 2 COARSE_INTERVALS and the
         interpolation start crosses an obstacle of a two-joint model: the class starts of
-        homotopy.py with CLASS_ATTEMPT, on EXPLORE_INTERVALS, side by side.  When there are
+        homotopy.py with CLASS_ATTEMPT, on EXPLORE_INTERVALS, side by side (with several
+        circles those of a relaxation first: _lazy_classes, _bounded_classes).  When there are
         none (another number of joints, no hole inside the grid) or none of them converges: the
         interpolation start with the first pair of COLD_ATTEMPTS and, when _explore says so,
         with the other pairs.  The distinct converged ones within REFINE_BAND of the shortest
@@ -804,17 +841,15 @@ class FastSolve:
         # Class starts on a coarser grid still (their candidates are carried up by _finish like
         # the others); not when the coarse grid is the N grid (short horizons, a few ms).
         explore = min(grid, EXPLORE_INTERVALS)
-        paths = self._class_paths(states) if grid < n else []
-        # Each limit // 8, all within the iteration limit.
-        budget = min(self.limit // 8, (self.limit - self.done) // max(len(paths), 1))
+        crosses = grid < n and self._crosses(states)
         allowance, prefetched = None, None
-        if paths and budget >= 1 and self._may_explore():
-            # The candidates' climbs get a share fixed now, and limit // 4 is left for the N
-            # grid (_refine), so that both can start before the last attempt ends
-            # (_class_attempts).
-            allowance = max(1, (self.limit - self.done - len(paths) * budget
-                                - self.limit // 4) // MAX_REFINE)
-            found, prefetched = self._class_attempts(paths, explore, budget, n, allowance)
+        bounds = None
+        if crosses and len(problem.obstacles) > 1 and self._may_explore() and \
+                homotopy.has_holes(problem):
+            found, prefetched, allowance, bounds = self._lazy_classes(explore, n)
+        paths = homotopy.class_paths(problem) if crosses and not found else []
+        if paths and self._may_explore():
+            found, prefetched, allowance = self._bounded_classes(paths, explore, n, bounds)
         first = None
         if not found:
             allowance, prefetched = None, None      # today's shares for these attempts
@@ -868,7 +903,7 @@ class FastSolve:
         if code == ipm.CONVERGED and inner_run.n == n and self.done < self.limit:
             controls = inner_run.controls()
             states = np.hstack([inner_run.ws.x, actuator_states(problem, controls)])
-            duals = inner_run.duals()
+            duals = inner._duals(inner_run)      # all circles (a relaxed run: widened)
             duals['lam'] = np.hstack([duals['lam'], np.zeros((n + 1, joint.nu))])
             duals['nu'] = np.concatenate([duals['nu'], np.zeros(joint.nu)])
             run, code = self._solve_on(n, states, controls, inner_run.t_f, MU_WARM / n, duals,
@@ -877,23 +912,148 @@ class FastSolve:
                 return run, code
         return self._cold(n)
 
-    def _class_paths(self, states):
+    def _crosses(self, states):
         """
-        Return the class paths of homotopy.py, or [] when there are none.
+        Return whether the interpolation start's states (coarse grid) cross an obstacle.
 
-        Only when the interpolation start's states (on the coarse grid) cross an obstacle: then
-        the side of each obstacle it ends on is arbitrary, while a start already on one side of
+        Only then are the class starts of homotopy.py solved (a two-joint model): the side of
+        each obstacle that start ends on is arbitrary, while a start already on one side of
         each keeps its iterates out of the obstacles (fewer, convex iterations).
         """
         model = self.problem.robot_model
         if not len(self.problem.obstacles) or model.n_joints != 2:
-            return []
+            return False
         seg = model.link_segments(model.positions(states))
-        if np.min(homotopy.clearance(seg, self.problem.circles())) >= 0.0:
-            return []
-        return homotopy.class_paths(self.problem)
+        return bool(np.min(homotopy.clearance(seg, self.problem.circles())) < 0.0)
 
-    def _class_attempts(self, paths, explore, budget, n, allowance):
+    def _explore_classes(self, paths, explore, n, relaxed=None, budget=None, allowance=None):
+        """
+        Run the class attempts of paths (of relaxed, default the problem) on explore intervals.
+
+        Returns (converged runs, prefetched, allowance) as _class_attempts, with the climbs'
+        allowance; ([], None, None) when the iteration budget has no room for them.  budget
+        and allowance: given when the classes are solved in parts (_bounded_classes).
+        """
+        if budget is None:
+            budget, allowance = self._class_budget(len(paths))
+        if budget < 1:
+            return [], None, None
+        found, prefetched = self._class_attempts(paths, explore, budget, n, allowance, relaxed)
+        return found, prefetched, allowance
+
+    def _class_budget(self, count):
+        """Return (budget of each of count class attempts, the climbs' allowance)."""
+        # Each limit // 8, all within the iteration limit.
+        budget = min(self.limit // 8, (self.limit - self.done) // max(count, 1))
+        # The candidates' climbs get a share fixed now, and limit // 4 is left for the N grid
+        # (_refine), so that both can start before the last attempt ends (_class_attempts).
+        return budget, max(1, (self.limit - self.done - count * budget
+                               - self.limit // 4) // MAX_REFINE)
+
+    def _bounded_classes(self, paths, explore, n, bounds):
+        """
+        Run the class attempts of paths, skipping those a relaxation bounds out of the band.
+
+        bounds (from _lazy_classes, or None): (feet of the relaxation's holes, its converged
+        attempts).  An attempt that ended in its start's class (homotopy.same_class around the
+        relaxation's holes) is, under the class starts' premise, the best of that class; the
+        problem's classes inside it (more circles) end no shorter.  So the paths with the
+        smallest such lower bounds (within the band; no bound: 0) are solved first, and the
+        others only if their bound is within the band of the shortest found.  Returns
+        (found, prefetched, allowance) as _explore_classes; the same budget and allowance for
+        both parts (the prefetched climbs must be _finish's).
+        """
+        if bounds is None:
+            return self._explore_classes(paths, explore, n)
+        feet, relaxed_runs = bounds
+        model = self.problem.robot_model
+        solutions = [(model.positions(run.ws.x), run.t_f) for run in relaxed_runs
+                     if homotopy.same_class(run.path, model.positions(run.ws.x), feet)]
+        low = [min([t for q, t in solutions if homotopy.same_class(path, q, feet)],
+                   default=0.0) for path in paths]
+        band = 1.0 + REFINE_BAND * COARSE_INTERVALS / min(explore, COARSE_INTERVALS)
+        first = [k for k in range(len(paths)) if low[k] <= band * min(low)]
+        budget, allowance = self._class_budget(len(paths))
+        found, prefetched, allowance = self._explore_classes(
+            [paths[k] for k in first], explore, n, None, budget, allowance)
+        if budget < 1:
+            return found, prefetched, allowance
+        shortest = min([run.t_f for run in found], default=math.inf)
+        rest = [k for k in range(len(paths)) if k not in first and low[k] <= band * shortest]
+        if not rest or not self._may_explore():
+            return found, prefetched, allowance
+        more, later, _ = self._explore_classes([paths[k] for k in rest], explore, n, None,
+                                               budget, allowance)
+        merged = {key: {**(prefetched or {}).get(key, {}), **(later or {}).get(key, {})}
+                  for key in ('climbs', 'finals')}
+        return found + more, merged, allowance
+
+    def _lazy_classes(self, explore, n):
+        """
+        Class attempts on the circles that matter only: (found, prefetched, allowance, bounds).
+
+        Lazy constraints over the circles: a local optimum of a relaxation (some circles
+        dropped) that is clear of the dropped ones is one of the problem.  And under the
+        premise of the class starts (the attempt from each class start reaches its class's
+        best optimum), the relaxation's best is no longer than the problem's best of the same
+        classes, so when the relaxation's candidates (_candidates) are all clear of the dropped
+        circles they are the problem's candidates: fewer classes solved (two-circle planar_2r:
+        2 attempts instead of 4, where circle B is not in the way).  First without circles
+        (one attempt from the interpolation start), then with the circles its candidates hit,
+        and so on.  The candidates climb on the relaxation too (fewer constraints per node);
+        _finish keeps its solutions only where they are clear of the dropped circles.
+        found is [] (the caller solves the classes of all circles) when they hit every circle,
+        an attempt does not converge, a relaxation has no class starts or the budget is spent;
+        bounds: (feet of the last relaxation's holes, its converged attempts) for
+        _bounded_classes, or None.
+        """
+        problem = self.problem
+        kept = ()
+        relaxed = (dataclasses.replace(problem, obstacles=()), kept)
+        budget = max(1, min(self.limit // 8, self.limit - self.done))
+        run, code = self._solve_on(explore, *interpolation_start(relaxed[0], explore),
+                                   CLASS_ATTEMPT[1], budget=budget, elastic=CLASS_ATTEMPT[0],
+                                   relaxed=relaxed)
+        found = [run] if code == ipm.CONVERGED else []
+        prefetched = allowance = bounds = None
+        while found:
+            hit = set()
+            for run in self._candidates(found):
+                hit.update(self._violated(run))
+            if not hit:
+                return found, prefetched, allowance, None
+            kept = tuple(sorted(set(kept) | hit))
+            if len(kept) == len(problem.obstacles) or not self._may_explore():
+                break
+            relaxed = (dataclasses.replace(
+                problem, obstacles=tuple(problem.obstacles[k] for k in kept)), kept)
+            paths, feet = homotopy.classes(relaxed[0])
+            if not paths:
+                return [], None, None, None
+            found, prefetched, allowance = self._explore_classes(paths, explore, n, relaxed)
+            bounds = (feet, found)
+        return [], None, None, bounds
+
+    def _violated(self, run):
+        """Return the indices of the circles run did not have that its nodes hit (a set)."""
+        if run.kept is None:
+            return set()
+        dropped = [k for k in range(len(self.problem.obstacles)) if k not in run.kept]
+        model = self.problem.robot_model
+        seg = model.link_segments(model.positions(run.ws.x[1:]))
+        clear = homotopy.clearance(seg, self.problem.circles()[dropped])
+        hit = np.min(clear.reshape(-1, model.n_links, len(dropped)), axis=(0, 1)) < 0.0
+        return {dropped[r] for r in np.flatnonzero(hit)}
+
+    def _duals(self, run):
+        """Return the multipliers of run for a run on the problem (a relaxed run: widen_duals)."""
+        duals = run.duals()
+        if run.kept is None:
+            return duals
+        return widen_duals(duals, run.kept, len(self.problem.obstacles),
+                           self.problem.robot_model.n_links)
+
+    def _class_attempts(self, paths, explore, budget, n, allowance, relaxed=None):
         """
         Solve the class starts on explore intervals; return (converged runs, prefetched).
 
@@ -905,6 +1065,8 @@ class FastSolve:
         solve, with the same allowance and budget, so their results are the ones _finish would
         get (a prefetch); one that later results put out is cancelled.  Only the attempts' runs
         are recorded here (in task order), the climbs and the refinement by _finish.
+        relaxed: (problem, kept) of a relaxation (_lazy_classes) the attempts are solved on;
+        its candidates climb on the problem, and only while all are clear of the other circles.
         """
         rho, mu = CLASS_ATTEMPT
         problem = self.problem
@@ -912,7 +1074,9 @@ class FastSolve:
         def attempt(solve, path, point=None):
             # The start is built on the worker: its numpy overlaps the other's kernel.
             point = point or homotopy.path_start(problem, path, explore)
-            return solve(explore, *point, mu, None, budget, rho)
+            run, code = solve(explore, *point, mu, None, budget, rho, relaxed)
+            run.path = path                 # its class (_bounded_classes)
+            return run, code
 
         # The first one here, before a helper thread starts building its own (the GIL).
         first = homotopy.path_start(problem, paths[0], explore)
@@ -927,9 +1091,10 @@ class FastSolve:
             states, controls = resample(run.ws.x, run.controls(), n)
             duals = resample_duals(run.duals(), run.n, n)
             return solve(n, states, controls, run.t_f, MU_WARM / n, duals,
-                         max(1, self.limit // 4), duals['rho'])
+                         max(1, self.limit // 4), duals['rho'], _relaxation(run))
 
-        return _Prefetch(self, tasks, self._climber(rank, allowance), refine).run()
+        return _Prefetch(self, tasks, self._climber(rank, allowance), refine,
+                         lambda run: not self._violated(run)).run()
 
     def _attempt(self, grid, n, start, pair, found):
         """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
@@ -965,7 +1130,7 @@ class FastSolve:
             for coarse in candidates:
                 if self.done >= self.limit:
                     break
-                run, code = self._refine(coarse, n)
+                run, code = self._complete(self._refine(coarse, n), coarse, n)
                 if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
                     self.best = run
             return
@@ -977,23 +1142,47 @@ class FastSolve:
         climb = self._climber(rank, allowance or left // len(candidates))
         climbs = (prefetched or {}).get('climbs', {})
         finals = (prefetched or {}).get('finals', {})
-        ranked = [run for run, code in self._parallel(
+        climbed = self._parallel(
             [lambda solve, run=run: climb(solve, run) for run in candidates],
             {k: climbs[id(run)] for k, run in enumerate(candidates) if id(run) in climbs})
-            if code == ipm.CONVERGED]
-        for run in sorted(ranked, key=lambda r: r.t_f) + candidates:
+        ranked = self._clear_climbs(climbed, candidates, climb)
+        for source in sorted(ranked, key=lambda r: r.t_f) + candidates:
             if self.done >= self.limit:
                 break
-            if id(run) in finals:           # its refinement to N, run already
-                (run, code), runs = finals.pop(id(run))
+            if id(source) in finals:           # its refinement to N, run already
+                (run, code), runs = finals.pop(id(source))
                 for done in runs:
                     self._record(done)
                     self.run = done
             else:
-                run, code = self._refine(run, n)
+                run, code = self._refine(source, n)
+            run, code = self._complete((run, code), source, n)
             if code == ipm.CONVERGED:
                 self.best = run
                 return
+
+    def _clear_climbs(self, climbed, candidates, climb):
+        """
+        Return the converged climbs of candidates whose solutions are the problem's.
+
+        climbed: (run, code) per candidate.  A relaxation's climb (_lazy_classes) clear of the
+        dropped circles is a local optimum of the problem; one that hits them bounds its
+        candidate's climb with all circles from below (under the class starts' premise), so
+        that climb is done (from the clear coarse candidate) only when the bound is shorter
+        than the shortest clear climb.
+        """
+        hit = {k for k, (run, code) in enumerate(climbed)
+               if code == ipm.CONVERGED and self._violated(run)}
+        shortest = min([run.t_f for k, (run, code) in enumerate(climbed)
+                        if code == ipm.CONVERGED and k not in hit], default=math.inf)
+        redo = [k for k in sorted(hit) if climbed[k][0].t_f < shortest]
+        again = self._parallel([lambda solve, run=candidates[k]: climb(solve, run, True)
+                                for k in redo])
+        climbed = list(climbed)
+        for k, value in zip(redo, again):
+            climbed[k] = value
+        return [run for k, (run, code) in enumerate(climbed)
+                if code == ipm.CONVERGED and (k not in hit or k in redo)]
 
     def _candidates(self, found):
         """
@@ -1035,16 +1224,23 @@ class FastSolve:
         return max((ladder(coarse, n) or [n])[-1], (ladder(COARSE_INTERVALS, n) or [n])[-1])
 
     def _climber(self, rank, allowance):
-        """Return climb(solve, run): run's solution up the ladder to rank, within allowance."""
-        def climb(solve, run):
+        """
+        Return climb(solve, run, full=False): run's solution up the ladder to rank.
+
+        Within allowance iterations; a relaxation's run (_lazy_classes) climbs on its
+        relaxation, or with full on the problem.
+        """
+        def climb(solve, run, full=False):
             used, code = 0, ipm.CONVERGED
             for m in ladder(run.n, rank) + [rank]:
                 if used >= allowance:
                     return run, ipm.ITERATION_LIMIT
+                relaxed = None if full else _relaxation(run)
                 states, controls = resample(run.ws.x, run.controls(), m)
-                duals = resample_duals(run.duals(), run.n, m)
+                duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, m)
                 run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
-                                  min(self.limit // 4, allowance - used), duals['rho'])
+                                  min(self.limit // 4, allowance - used), duals['rho'],
+                                  relaxed)
                 used += run.iterations
                 if code != ipm.CONVERGED:
                     break
@@ -1055,7 +1251,8 @@ class FastSolve:
         """
         Run tasks (callables solve -> value) on the worker threads; return their values.
 
-        solve(n, states, controls, t_f, mu, duals, budget, elastic) is a worker's _solve_on:
+        solve(n, states, controls, t_f, mu, duals, budget, elastic[, relaxed]) is a worker's
+        _solve_on:
         it neither records its run nor reports progress (this thread does, meanwhile and, in
         task order, afterwards), and only the fixed budget caps it, so a task's result does not
         depend on the others' timing (workers.py).  done: {index: (value, runs)} of tasks
@@ -1098,8 +1295,9 @@ class FastSolve:
             if threading.current_thread() is caller:
                 poll()
 
-        def solve(n, states, controls, t_f, mu, duals, budget, elastic):
-            run = InteriorPointRun(self.problem, n, budget, elastic)
+        def solve(n, states, controls, t_f, mu, duals, budget, elastic, relaxed=None):
+            problem, kept = relaxed or (self.problem, None)
+            run = InteriorPointRun(problem, n, budget, elastic, kept)
             run.start(states, controls, t_f, mu, duals)
             log.append(run)
             code = run.run(check, stop_requested)
@@ -1122,12 +1320,32 @@ class FastSolve:
                     f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
         return poll
 
-    def _refine(self, run, n):
-        """Carry a converged run's primal-dual solution to n intervals and solve there."""
+    def _refine(self, run, n, full=False):
+        """
+        Carry a converged run's primal-dual solution to n intervals and solve there.
+
+        A relaxation's run (_lazy_classes) on its relaxation, or with full on the problem.
+        """
+        relaxed = None if full else _relaxation(run)
         states, controls = resample(run.ws.x, run.controls(), n)
-        duals = resample_duals(run.duals(), run.n, n)
+        duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, n)
         return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
-                              budget=max(1, self.limit // 4), elastic=duals['rho'])
+                              budget=max(1, self.limit // 4), elastic=duals['rho'],
+                              relaxed=relaxed)
+
+    def _complete(self, refined, source, n):
+        """
+        Return refined (run, code) on the N grid, solved on the problem if need be.
+
+        A relaxation's run (_lazy_classes) clear of the circles it does not have at every
+        node is a local optimum of the problem too (those constraints inactive, multipliers
+        0); one that hits them is refined again from source (clear of them, _finish) with
+        all circles.
+        """
+        run, code = refined
+        if code != ipm.CONVERGED or not self._violated(run):
+            return run, code
+        return self._refine(source, n, full=True)
 
     def _may_explore(self):
         """Return whether a further cold attempt may start (obstacles, budget and time)."""
@@ -1163,7 +1381,7 @@ class FastSolve:
         result = SolveResult(status=status, message=message, final_time=run.t_f,
                              states=states, controls=controls, iterations=self.done,
                              history=self._history(), violations=violations, cost=run.t_f,
-                             solver_state={'duals': run.duals()})
+                             solver_state={'duals': self._duals(run)})
         if status is Status.SOLVED:
             if violations.feasible():
                 result.message = f't_min = {run.t_f:.6f} s'

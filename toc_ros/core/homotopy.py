@@ -44,6 +44,8 @@ CELLS = 64
 # At most this many holes (the largest ones) get a crossing parity; at most MAX_CLASSES
 # classes, the shortest paths first, each at most CLASS_FACTOR times the shortest one's length.
 MAX_HOLES = 4
+# Cells per joint of has_holes' coarse check.
+CHECK_CELLS = 32
 MAX_CLASSES = 4
 CLASS_FACTOR = 2.0
 # Fraction of t_f over which a start or goal velocity is blended in (path_start).
@@ -236,10 +238,44 @@ def class_paths(problem, cells=CELLS):
     Shortest (in the _metric) first; an empty list when the model has not two joints, there
     is no obstacle, no hole lies inside the grid or the goal cannot be reached on it.
     """
+    return classes(problem, cells)[0]
+
+
+def winding(loop, point):
+    """Return the winding number of the closed polygon loop (M, 2) around point (2,)."""
+    d = loop - point
+    angle = np.arctan2(d[:, 1], d[:, 0])
+    step = np.diff(np.concatenate([angle, angle[:1]]))
+    return int(round(np.sum((step + np.pi) % (2.0 * np.pi) - np.pi) / (2.0 * np.pi)))
+
+
+def same_class(path, other, feet):
+    """
+    Return whether two joint paths (M, 2) with the same ends wind alike around every hole.
+
+    feet (H, 2): a point in each hole (classes()); the loop path + other reversed must not
+    wind around any of them.
+    """
+    loop = np.concatenate([path, other[::-1][1:-1]])
+    return all(winding(loop, foot) == 0 for foot in feet)
+
+
+def has_holes(problem, cells=CHECK_CELLS):
+    """
+    Return whether an obstacle of the problem is a hole of its joint plane on a cells grid.
+
+    A cheap coarse check (fast_solver._cold: the circles' classes are searched lazily only
+    where there are holes; none for the cylindrical robot, whose obstacles reach the border).
+    """
+    return bool(_holes(problem, cells)[-1])
+
+
+def _holes(problem, cells):
+    """Return (q0, qg, lo, step, occupied, start, goal, holes) of the joint grid (holes: [])."""
     model = problem.robot_model
     circles = problem.circles()
     if model.n_joints != 2 or circles.shape[0] == 0:
-        return []
+        return (None,) * 7 + ([],)
     q0 = model.positions(np.asarray(problem.x0, dtype=float))
     qg = model.positions(np.asarray(problem.x_goal, dtype=float))
     lo, hi = _box(model, q0, qg)
@@ -259,8 +295,20 @@ def class_paths(problem, cells=CELLS):
         if ii.min() > 0 and jj.min() > 0 and ii.max() < cells - 1 and jj.max() < cells - 1:
             top = int(np.argmax(jj))         # first cell of the top row (row-major order)
             holes.append((-ii.size, c, ii[top], jj[top]))
+    return q0, qg, lo, step, occupied, start, goal, holes
+
+
+def classes(problem, cells=CELLS):
+    """
+    Return (class_paths, feet): feet (H, 2) the joint coordinates of a cell in each hole.
+
+    The feet are the rays' feet (the top cell of each hole whose crossing parity tells the
+    classes apart); empty when there are no paths.
+    """
+    none = [], np.zeros((0, 2))
+    q0, qg, lo, step, occupied, start, goal, holes = _holes(problem, cells)
     if not holes:
-        return []
+        return none
     holes = sorted(holes)[:MAX_HOLES]        # the largest, ties by label: deterministic
     ray_col = np.array([h[2] for h in holes], dtype=np.int64)
     ray_row = np.array([h[3] for h in holes], dtype=np.int64)
@@ -284,7 +332,8 @@ def class_paths(problem, cells=CELLS):
         path = lo + np.array(cells_on_path[::-1], dtype=float) * step
         path[0], path[-1] = q0, qg
         paths.append(path)
-    return paths
+    feet = lo + np.column_stack([ray_col, ray_row]) * step
+    return paths, (feet if paths else none[1])
 
 
 def path_start(problem, path, n):
