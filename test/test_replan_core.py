@@ -18,11 +18,13 @@ import math
 
 from node_harness import eq37
 import numpy as np
+import numpy_model as nm
 import pytest
 from toc_ros.analysis.closed_loop import arrival_time, execution_metrics, PlanSpan
 from toc_ros.core import Problem, solve, SolverOptions
 from toc_ros.core.models import CylindricalRobot
-from toc_ros.core.replan import brake, BRAKE_REST_SPEED, control_at, controls_at, predict
+from toc_ros.core.replan import (brake, BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED, control_at,
+                                 controls_at, predict, stop_later_is_clear)
 
 MODEL = CylindricalRobot()
 U_MAX = np.array([600.0, 500.0])
@@ -119,3 +121,38 @@ def test_vectorised_and_pointwise_control_lookup():
     np.testing.assert_array_equal(controls_at(times, controls, t), expected)
     np.testing.assert_array_equal(np.array([control_at(times, controls, v) for v in t]),
                                   expected)
+
+
+def _follow_then_brake(plan, k, wait, dt=0.002):
+    """Independently: plan controls from node k for wait [s], then the bang-bang stop."""
+    times, controls = plan.time_grid, plan.controls
+    x, t, end = np.asarray(plan.states[k], dtype=float), times[k], times[k] + wait
+    while t < end - 1e-12:                      # piecewise-constant controls, 1 ms RK4 steps
+        i = min(int(np.searchsorted(times, t, side='right')) - 1, len(controls) - 1)
+        h = min(end, times[i + 1]) - t
+        steps = max(1, math.ceil(h / 1e-3))
+        x, t = rk4(x, controls[i], h / steps, steps), t + h
+    path = [x]
+    while np.max(np.abs(x[1::2])) >= BRAKE_REST_SPEED:
+        u = -U_MAX * np.clip(x[1::2] / BRAKE_SMOOTHING_SPEED, -1.0, 1.0)
+        x = rk4(x, u, dt / 10, 10)
+        path.append(x)
+    return np.array(path)
+
+
+def test_a_stop_may_wait_only_while_it_still_ends_clear(plan):
+    k = int(np.searchsorted(plan.time_grid, 0.6))     # mid-motion, joint 1 fast
+    short, late = 0.05, 0.4
+    stop_short = _follow_then_brake(plan, k, short)
+    stop_late = _follow_then_brake(plan, k, late)
+    # A circle where the later stop ends, out of the sooner stop's reach.
+    q1, q2 = stop_late[-1, 0], stop_late[-1, 2]
+    hand = (nm.PAPER['a'] + q2) * np.array([math.cos(q1), math.sin(q1)])
+    circle = (hand[0], hand[1], 0.05)
+    assert np.min(nm.clearance(stop_short, [circle])) > 0.0
+    assert np.min(nm.clearance(stop_late, [circle])) < 0.0
+    args = (MODEL, plan.states[k], plan.time_grid, plan.controls, plan.time_grid[k])
+    assert stop_later_is_clear(*args, short, [circle], 0.002)
+    assert not stop_later_is_clear(*args, late, [circle], 0.002)
+    assert stop_later_is_clear(*args, late, [(5.0, 5.0, 0.1)], 0.002)
+    assert stop_later_is_clear(*args, late, [], 0.002)

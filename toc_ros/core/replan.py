@@ -19,7 +19,8 @@ A replan cycle starts the new plan a little in the future (the solve and transpo
 so it must start from where the robot will be then: ``predict`` integrates the measured state
 forward under the executing plan's piecewise-constant controls with the model's RK4 step.
 ``brake`` is the stop for an infeasible situation: every joint decelerates at its full
-control bound until it rests, the fastest stop a bang-bang control allows per joint.
+control bound until it rests, the fastest stop a bang-bang control allows per joint;
+``stop_later_is_clear`` tells whether that stop may still wait.
 """
 
 import math
@@ -27,6 +28,7 @@ import math
 import numpy as np
 
 from toc_ros.core.horizon import integrator_id
+from toc_ros.core.obstacles import model_clearance
 
 RK4 = integrator_id('rk4')
 # Largest RK4 step of a prediction [s]: well below the plans' tau (~2 ms at N = 1000).
@@ -99,3 +101,17 @@ def brake(model, x, dt):
     states = np.array(states)
     states[-1, 1:2 * model.n_joints:2] = 0.0
     return dt * np.arange(len(states)), states, np.array(controls)
+
+
+def stop_later_is_clear(model, x, times, controls, t0, wait, circles, dt):
+    """
+    Return whether the fastest stop started wait [s] from now keeps every link out of circles.
+
+    x: the state at plan time t0 of the executing plan (times, controls), which the robot
+    follows for wait before braking (``brake`` with step dt); circles: rows (x, y, radius)
+    of the true obstacles.  The plan itself up to t0 + wait is not checked here.
+    """
+    start = predict(model, x, times, controls, t0, t0 + wait)
+    stop = brake(model, start, dt)[1]
+    rows = np.asarray(circles, dtype=float).reshape(-1, 3)
+    return not len(rows) or bool(np.min(model_clearance(model, stop, rows)) >= 0.0)

@@ -46,9 +46,10 @@ limits change during a goal's solve, the solve restarts from the same goal and t
 state (a replan cycle's plan is published only if it satisfies the data current at its end);
 when they change while a published trajectory is still executing and its remaining part
 now cuts an (inflated) obstacle or exceeds u_max, a replan cycle plans around them at once
-(when the plan stays out of the true circles for > BRAKE_HORIZON_S); otherwise, or when that
-fails, a braking trajectory (an empty one without a measured state) is published at once and
-the goal is planned again from the measured state.
+while braking can still wait for it (the plan stays out of the true circles until the cycle's
+outcome is known, and the fastest stop started then still keeps out of them:
+_brake_can_wait); otherwise, or when that fails, a braking trajectory (an empty one without a
+measured state) is published at once and the goal is planned again from the measured state.
 
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
@@ -81,7 +82,7 @@ from toc_ros.core import ModelError, ProblemError, Progress, solve, Status, warm
 from toc_ros.core.estimation import estimate_text, ParameterEstimator
 from toc_ros.core.models import CylindricalRobot, with_actuator_lag
 from toc_ros.core.obstacles import model_clearance
-from toc_ros.core.replan import brake, predict
+from toc_ros.core.replan import brake, predict, stop_later_is_clear
 from toc_ros.core.result import CLEARANCE_TOL
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
@@ -139,9 +140,12 @@ SERVICE_QOS = QoSProfile(depth=100)
 ESTIMATE_CHANGE = 0.01
 # A published trajectory is "executing" until its duration plus this has passed.
 EXECUTION_SLACK_S = 0.5
-# New data that puts a true (uninflated) obstacle on the executing plan within this time
-# brakes at once; later conflicts are replanned around first (braking only if that fails).
-BRAKE_HORIZON_S = 0.25
+# New data that puts a true (uninflated) obstacle on the executing plan brakes at once unless
+# braking can wait for a replan: the plan stays out of the true obstacles until the replan's
+# outcome is known (its lead + SEED_EXTRA_S + BRAKE_HORIZON_S from now), and the fastest stop
+# started then still keeps every link out of them (_brake_can_wait).  So the lead, which grows
+# with the measured cycle latency on a loaded machine, moves the braking decision earlier.
+BRAKE_HORIZON_S = 0.1
 BRAKE_STEP_S = 0.002
 
 
@@ -634,8 +638,7 @@ class SolverNode(Node):
             if violation is None:
                 return
         measured = self._snapshot()[1]
-        conflict = self._true_conflict_time(plan, params, elapsed)
-        if measured is not None and (conflict is None or conflict > BRAKE_HORIZON_S) \
+        if measured is not None and self._brake_can_wait(plan, params, measured, elapsed) \
                 and self._maybe_replan(params, measured, self._now(), time.monotonic(),
                                        reason='data change'):
             self.get_logger().warning(
@@ -701,6 +704,30 @@ class SolverNode(Node):
         if not inside.any():
             return None
         return float(plan['times'][rest][int(np.argmax(inside))] - elapsed)
+
+    def _brake_can_wait(self, plan, params, measured, elapsed):
+        """
+        Return whether a plan that violates new data may run on while a replan is tried.
+
+        Yes when it never enters a true (uninflated) obstacle, or when it stays out of them
+        for the wait (the cycle lead, as _maybe_replan will set it, + SEED_EXTRA_S +
+        BRAKE_HORIZON_S) and the fastest stop (replan.brake) from the state predicted at the
+        wait's end (measured: the latest joint state, at plan time elapsed) keeps every link
+        out of them: braking later than that could no longer stop clear.
+        """
+        conflict = self._true_conflict_time(plan, params, elapsed)
+        if conflict is None:
+            return True
+        lead = max(float(params['replan.lead']), self._cycle_latency())
+        wait = lead + SEED_EXTRA_S + BRAKE_HORIZON_S
+        model = plan.get('model')
+        if conflict <= wait or model is None or np.shape(measured) != (model.nx,):
+            return False
+        try:
+            return stop_later_is_clear(model, measured, plan['times'], plan['controls'],
+                                       elapsed, wait, obstacle_rows(params), BRAKE_STEP_S)
+        except (ProblemError, ValueError, FloatingPointError):
+            return False
 
     @staticmethod
     def _violation(plan, params, elapsed):
@@ -1022,8 +1049,8 @@ class SolverNode(Node):
         """
         After a failed cycle: act on the plan it kept if that violates the current data.
 
-        A data-change cycle is tried first unless this cycle was one or the true obstacles
-        are within BRAKE_HORIZON_S of the plan; else the plan is stopped.
+        A data-change cycle is tried first unless this cycle was one (on the same data, not
+        late) or braking cannot wait for it (_brake_can_wait); else the plan is stopped.
         """
         with self._plan_lock:
             revision = self._revision
@@ -1033,13 +1060,12 @@ class SolverNode(Node):
         violation = self._violation(plan, params, elapsed)
         if violation is None:
             return
-        conflict = self._true_conflict_time(plan, params, elapsed)
         measured = self._snapshot()[1]
         # Try again unless this was a data-change cycle on the same data that failed (it would
         # fail alike); a late one seeded the next, which starts where it ended.
         again = cycle.reason != 'data change' or cycle.revision != revision or late
         if again and measured is not None \
-                and (conflict is None or conflict > BRAKE_HORIZON_S) \
+                and self._brake_can_wait(plan, params, measured, elapsed) \
                 and self._maybe_replan(params, measured, self._now(), time.monotonic(),
                                        reason='data change'):
             return
