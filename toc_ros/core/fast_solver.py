@@ -107,6 +107,10 @@ MAX_REFINE = 3
 # half the cost per iteration and fewer iterations than on COARSE_INTERVALS, the same optima
 # after refinement on planar_2r (with mu0 = 0.01 on 100 intervals two of them were missed).
 EXPLORE_INTERVALS = 50
+# A lazy solve's candidates (_lazy_classes) climb without the circles they stay this far [m]
+# from (segment clearance, at every node of the coarse run): fewer constraints per node on the
+# ladder and the N grid; a climb that comes closer is checked and redone as a relaxed one.
+NARROW_MARGIN = 0.05
 # Refinement from the coarse grid to N intervals in steps of at most LADDER_RATIO (ladder()).
 LADDER_RATIO = 4.0
 # [s] period at which the stop watcher polls cancel and the deadline during a kernel call.
@@ -731,6 +735,7 @@ class FastSolve:
         self.history = []
         self.run = None
         self.best = None         # the shortest converged run on the N grid so far
+        self.narrow = False      # climbs without the far circles (_narrowed; lazy solves)
 
     def _check(self, run):
         reason = self.clock.stop_reason()
@@ -846,10 +851,12 @@ class FastSolve:
         bounds = None
         if crosses and len(problem.obstacles) > 1 and self._may_explore() and \
                 homotopy.has_holes(problem):
+            self.narrow = True
             found, prefetched, allowance, bounds = self._lazy_classes(explore, n)
-        paths = homotopy.class_paths(problem) if crosses and not found else []
+        paths, feet = homotopy.classes(problem) if crosses and not found else ([], None)
         if paths and self._may_explore():
-            found, prefetched, allowance = self._bounded_classes(paths, explore, n, bounds)
+            found, prefetched, allowance = self._bounded_classes(paths, feet, explore, n,
+                                                                 bounds)
         first = None
         if not found:
             allowance, prefetched = None, None      # today's shares for these attempts
@@ -926,7 +933,8 @@ class FastSolve:
         seg = model.link_segments(model.positions(states))
         return bool(np.min(homotopy.clearance(seg, self.problem.circles())) < 0.0)
 
-    def _explore_classes(self, paths, explore, n, relaxed=None, budget=None, allowance=None):
+    def _explore_classes(self, paths, explore, n, relaxed=None, budget=None, allowance=None,
+                         warm=()):
         """
         Run the class attempts of paths (of relaxed, default the problem) on explore intervals.
 
@@ -938,7 +946,8 @@ class FastSolve:
             budget, allowance = self._class_budget(len(paths))
         if budget < 1:
             return [], None, None
-        found, prefetched = self._class_attempts(paths, explore, budget, n, allowance, relaxed)
+        found, prefetched = self._class_attempts(paths, explore, budget, n, allowance, relaxed,
+                                                 warm)
         return found, prefetched, allowance
 
     def _class_budget(self, count):
@@ -950,36 +959,42 @@ class FastSolve:
         return budget, max(1, (self.limit - self.done - count * budget
                                - self.limit // 4) // MAX_REFINE)
 
-    def _bounded_classes(self, paths, explore, n, bounds):
+    def _bounded_classes(self, paths, feet, explore, n, bounds):
         """
         Run the class attempts of paths, skipping those a relaxation bounds out of the band.
 
-        bounds (from _lazy_classes, or None): (feet of the relaxation's holes, its converged
-        attempts).  An attempt that ended in its start's class (homotopy.same_class around the
-        relaxation's holes) is, under the class starts' premise, the best of that class; the
-        problem's classes inside it (more circles) end no shorter.  So the paths with the
-        smallest such lower bounds (within the band; no bound: 0) are solved first, and the
-        others only if their bound is within the band of the shortest found.  Returns
-        (found, prefetched, allowance) as _explore_classes; the same budget and allowance for
-        both parts (the prefetched climbs must be _finish's).
+        feet: of the problem's holes (homotopy.classes).  bounds (from _lazy_classes, or
+        None): (feet of the relaxation's holes, its converged attempts).  An attempt that ended
+        in its start's class (homotopy.same_class around the relaxation's holes) is, under the
+        class starts' premise, the best of that class; the problem's classes inside it (more
+        circles) end no shorter.  So the paths with the smallest such lower bounds (within the
+        band; no bound: 0) are solved first, and the others only if their bound is within the
+        band of the shortest found.  A relaxation's candidate that hits the circles it did not
+        have starts the problem warm first (_warm_classes): a problem's class next to it,
+        whose attempt is then not run.  Returns (found, prefetched, allowance) as
+        _explore_classes; the same budget and allowance for both parts (the prefetched climbs
+        must be _finish's).
         """
         if bounds is None:
             return self._explore_classes(paths, explore, n)
-        feet, relaxed_runs = bounds
+        relaxed_feet, relaxed_runs = bounds
         model = self.problem.robot_model
         solutions = [(model.positions(run.ws.x), run.t_f) for run in relaxed_runs
-                     if homotopy.same_class(run.path, model.positions(run.ws.x), feet)]
-        low = [min([t for q, t in solutions if homotopy.same_class(path, q, feet)],
+                     if homotopy.same_class(run.path, model.positions(run.ws.x), relaxed_feet)]
+        low = [min([t for q, t in solutions if homotopy.same_class(path, q, relaxed_feet)],
                    default=0.0) for path in paths]
         band = 1.0 + REFINE_BAND * COARSE_INTERVALS / min(explore, COARSE_INTERVALS)
-        first = [k for k in range(len(paths)) if low[k] <= band * min(low)]
+        order = [k for k in range(len(paths)) if low[k] <= band * min(low)]
         budget, allowance = self._class_budget(len(paths))
-        found, prefetched, allowance = self._explore_classes(
-            [paths[k] for k in first], explore, n, None, budget, allowance)
         if budget < 1:
-            return found, prefetched, allowance
+            return [], None, None
+        warm, covered = self._warm_classes(relaxed_runs, paths, feet, explore, budget)
+        first = [k for k in order if k not in covered]
+        found, prefetched, allowance = self._explore_classes(
+            [paths[k] for k in first], explore, n, None, budget, allowance, warm)
         shortest = min([run.t_f for run in found], default=math.inf)
-        rest = [k for k in range(len(paths)) if k not in first and low[k] <= band * shortest]
+        rest = [k for k in range(len(paths)) if k not in order and k not in covered and
+                low[k] <= band * shortest]
         if not rest or not self._may_explore():
             return found, prefetched, allowance
         more, later, _ = self._explore_classes([paths[k] for k in rest], explore, n, None,
@@ -987,6 +1002,36 @@ class FastSolve:
         merged = {key: {**(prefetched or {}).get(key, {}), **(later or {}).get(key, {})}
                   for key in ('climbs', 'finals')}
         return found + more, merged, allowance
+
+    def _warm_classes(self, relaxed_runs, paths, feet, explore, budget):
+        """
+        Return (converged runs, indices of their classes in paths): the problem from hits.
+
+        Each candidate of the relaxation (_candidates) that hits a circle it did not have
+        starts the problem on explore intervals (its primal-dual point, the widened duals):
+        its optimum grazes that circle, so the problem's optimum on the near side of it is
+        close (planar_2r '2 circles, g = 0, moving start': 12 iterations instead of the class
+        start's 41, the same optimum).  The class (homotopy.same_class around feet) a run ends
+        in is covered by it.  Serial, before the class attempts: the same runs with one or two
+        workers.
+        """
+        model = self.problem.robot_model
+        found, covered = [], set()
+        for source in self._candidates(relaxed_runs):
+            if not self._violated(source) or not self._may_explore():
+                continue
+            duals = self._duals(source)
+            run, code = self._solve_on(explore, source.ws.x, source.controls(), source.t_f,
+                                       MU_WARM / explore, duals, budget=budget,
+                                       elastic=duals['rho'])
+            if code != ipm.CONVERGED:
+                continue
+            q = model.positions(run.ws.x)
+            same = [k for k, path in enumerate(paths) if homotopy.same_class(path, q, feet)]
+            run.path = paths[same[0]] if same else None
+            covered.update(same[:1])
+            found.append(run)
+        return found, covered
 
     def _lazy_classes(self, explore, n):
         """
@@ -1045,15 +1090,53 @@ class FastSolve:
         hit = np.min(clear.reshape(-1, model.n_links, len(dropped)), axis=(0, 1)) < 0.0
         return {dropped[r] for r in np.flatnonzero(hit)}
 
-    def _duals(self, run):
-        """Return the multipliers of run for a run on the problem (a relaxed run: widen_duals)."""
-        duals = run.duals()
-        if run.kept is None:
-            return duals
-        return widen_duals(duals, run.kept, len(self.problem.obstacles),
-                           self.problem.robot_model.n_links)
+    def _duals(self, run, relaxed=None):
+        """
+        Return the multipliers of run for a run on relaxed (problem, kept), default the problem.
 
-    def _class_attempts(self, paths, explore, budget, n, allowance, relaxed=None):
+        A relaxed run's are widened (widen_duals), then the circles of kept selected.
+        """
+        duals = run.duals()
+        if run.kept is not None:
+            if relaxed is not None and tuple(relaxed[1]) == tuple(run.kept):
+                return duals
+            duals = widen_duals(duals, run.kept, len(self.problem.obstacles),
+                                self.problem.robot_model.n_links)
+        if relaxed is None:
+            return duals
+        n_circles, kept = len(self.problem.obstacles), relaxed[1]
+        columns = [link * n_circles + k for link in range(self.problem.robot_model.n_links)
+                   for k in kept]
+        return dict(duals, z=duals['z'][:, columns])
+
+    def _narrowed(self, run):
+        """
+        Return the (problem, kept) run's candidate climbs on (None: the problem).
+
+        Its own relaxation (_relaxation), without the circles it stays NARROW_MARGIN clear of
+        at every node in a lazy solve (self.narrow): their constraints are inactive there and
+        likely on the finer grids, where a climb that hits them is redone with all circles
+        (_clear_climbs, _complete).
+        """
+        relaxed = _relaxation(run)
+        if not self.narrow:
+            return relaxed
+        obstacles = self.problem.obstacles
+        have = range(len(obstacles)) if run.kept is None else run.kept
+        model = self.problem.robot_model
+        seg = model.link_segments(model.positions(run.ws.x[1:]))
+        circles = self.problem.circles()[list(have)]
+        if not len(have):
+            return relaxed
+        clear = np.min(homotopy.clearance(seg, circles).reshape(-1, model.n_links, len(have)),
+                       axis=(0, 1))
+        kept = tuple(k for k, c in zip(have, clear) if c < NARROW_MARGIN)
+        if len(kept) == len(have):
+            return relaxed
+        return dataclasses.replace(self.problem, obstacles=tuple(obstacles[k] for k in kept)), \
+            kept
+
+    def _class_attempts(self, paths, explore, budget, n, allowance, relaxed=None, warm=()):
         """
         Solve the class starts on explore intervals; return (converged runs, prefetched).
 
@@ -1079,9 +1162,11 @@ class FastSolve:
             return run, code
 
         # The first one here, before a helper thread starts building its own (the GIL).
-        first = homotopy.path_start(problem, paths[0], explore)
-        tasks = [lambda solve, path=path, point=point: attempt(solve, path, point)
-                 for path, point in zip(paths, [first] + [None] * (len(paths) - 1))]
+        first = homotopy.path_start(problem, paths[0], explore) if paths else None
+        # warm: converged runs already (_warm_classes), first in task order.
+        tasks = [lambda solve, run=run: (run, ipm.CONVERGED) for run in warm] + \
+            [lambda solve, path=path, point=point: attempt(solve, path, point)
+             for path, point in zip(paths, [first] + [None] * (len(paths) - 1))]
         rank = self._rank_grid(explore, n, MAX_REFINE)
         if workers.WORKERS < 2 or problem.integrator != 'euler' or rank == n:
             return [run for run, code in self._parallel(tasks) if code == ipm.CONVERGED], {}
@@ -1232,12 +1317,12 @@ class FastSolve:
         """
         def climb(solve, run, full=False):
             used, code = 0, ipm.CONVERGED
+            relaxed = None if full else self._narrowed(run)
             for m in ladder(run.n, rank) + [rank]:
                 if used >= allowance:
                     return run, ipm.ITERATION_LIMIT
-                relaxed = None if full else _relaxation(run)
                 states, controls = resample(run.ws.x, run.controls(), m)
-                duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, m)
+                duals = resample_duals(self._duals(run, relaxed), run.n, m)
                 run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
                                   min(self.limit // 4, allowance - used), duals['rho'],
                                   relaxed)
