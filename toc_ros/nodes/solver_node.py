@@ -113,7 +113,7 @@ MIN_CYCLE_TIMEOUT_S = 0.002
 # x LEAD_PER_MEDIAN) up to MAX_LEAD_S.
 LATENCY_WINDOW = 20
 MAX_LEAD_S = 0.2
-# The lead is at least this many times the median of recent cycle latencies (_cycle_latency).
+# The lead is at least this many times the median of recent cycle latencies (_cycle_lead).
 LEAD_PER_MEDIAN = 2.0
 # [s] a cycle's solve may run this long past its deadline: not published, its plan warm-starts
 # the next cycle (a new switching structure takes one slow solve, then the next is fast).  Not
@@ -721,8 +721,7 @@ class SolverNode(Node):
         conflict = self._true_conflict_time(plan, params, elapsed)
         if conflict is None:
             return True
-        lead = max(float(params['replan.lead']), self._cycle_latency())
-        wait = lead + SEED_EXTRA_S + BRAKE_HORIZON_S
+        wait = self._cycle_lead(params) + SEED_EXTRA_S + BRAKE_HORIZON_S
         model = plan.get('model')
         if conflict <= wait or model is None or np.shape(measured) != (model.nx,):
             return False
@@ -913,7 +912,7 @@ class SolverNode(Node):
         # The lead covers the solve: replan.lead, or more when recent cycles took longer (a
         # loaded machine, a slower model).  New data gets the same: its first cycle usually
         # needs a new switching structure, runs late and seeds the next (_run_cycle).
-        lead = max(float(params['replan.lead']), self._cycle_latency())
+        lead = self._cycle_lead(params)
         # The new plan starts on a node of the executing one (the first at or after now +
         # lead): its warm start, that plan's remainder from the node, then starts where the
         # predicted state is, not up to half an interval away (which costs iterations).
@@ -933,17 +932,19 @@ class SolverNode(Node):
         self._next_cycle = received + 1.0 / rate
         return True
 
-    def _cycle_latency(self):
+    def _cycle_lead(self, params):
         """
-        Return LEAD_PER_MEDIAN x the median of recent cycle latencies (0 without five) [s].
+        Return a cycle's lead [s]: replan.lead, or more when recent cycles took longer.
 
+        More: LEAD_PER_MEDIAN x the median of the recent cycle latencies (with at least five).
         The median, not a high percentile: the rare cycle whose warm start needs a new
         switching structure (a new estimate, the final braking) runs late and seeds the next
         one (_run_cycle) instead of stretching every cycle's lead, and with it the prediction.
         """
         with self._lock:
             recent = list(self._latencies)
-        return LEAD_PER_MEDIAN * float(np.median(recent)) if len(recent) >= 5 else 0.0
+        latency = LEAD_PER_MEDIAN * float(np.median(recent)) if len(recent) >= 5 else 0.0
+        return max(float(params['replan.lead']), latency)
 
     def _run_cycle(self, request, cancel):
         """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
