@@ -1084,11 +1084,15 @@ class FastSolve:
         if run.kept is None:
             return set()
         dropped = [k for k in range(len(self.problem.obstacles)) if k not in run.kept]
+        hit = self._clearances(run, dropped) < 0.0
+        return {dropped[r] for r in np.flatnonzero(hit)}
+
+    def _clearances(self, run, indices):
+        """Return the least clearance of run's nodes 1..N to each circle of indices (array)."""
         model = self.problem.robot_model
         seg = model.link_segments(model.positions(run.ws.x[1:]))
-        clear = homotopy.clearance(seg, self.problem.circles()[dropped])
-        hit = np.min(clear.reshape(-1, model.n_links, len(dropped)), axis=(0, 1)) < 0.0
-        return {dropped[r] for r in np.flatnonzero(hit)}
+        clear = homotopy.clearance(seg, self.problem.circles()[list(indices)])
+        return np.min(clear.reshape(-1, model.n_links, len(indices)), axis=(0, 1))
 
     def _duals(self, run, relaxed=None):
         """
@@ -1123,14 +1127,9 @@ class FastSolve:
             return relaxed
         obstacles = self.problem.obstacles
         have = range(len(obstacles)) if run.kept is None else run.kept
-        model = self.problem.robot_model
-        seg = model.link_segments(model.positions(run.ws.x[1:]))
-        circles = self.problem.circles()[list(have)]
         if not len(have):
             return relaxed
-        clear = np.min(homotopy.clearance(seg, circles).reshape(-1, model.n_links, len(have)),
-                       axis=(0, 1))
-        kept = tuple(k for k, c in zip(have, clear) if c < NARROW_MARGIN)
+        kept = tuple(k for k, c in zip(have, self._clearances(run, have)) if c < NARROW_MARGIN)
         if len(kept) == len(have):
             return relaxed
         return dataclasses.replace(self.problem, obstacles=tuple(obstacles[k] for k in kept)), \
