@@ -19,7 +19,9 @@ setup(
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in a plain venv,
     # from the PyPI wheels named in the 'ros' extra.
     install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib',
-                      'sympy', 'dask[distributed]', 'pyarrow'],
+                      'sympy', 'dask[distributed]', 'pyarrow',
+                      # URDF arms: dynamics and derivatives, the shipped Panda/UR5, the plant.
+                      'pin', 'example-robot-data', 'mujoco'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         'test': ['pytest', 'pytest-randomly', 'psutil', 'mcap-ros2-support', 'rosbags',
