@@ -34,6 +34,8 @@ from rosbags.highlevel import AnyReader
 from toc_ros.core import Status
 from toc_ros.progress import obstacles_hash, progress_from_msg
 
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[1]
 JOINTS = ['rotation_joint', 'extension_joint']
 # The demo's own --timeout covers a cold numba compile (~1 min); this only guards a hang.

@@ -30,6 +30,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from toc_ros.core import Status
 from trajectory_msgs.msg import JointTrajectory
 
+pytestmark = pytest.mark.slow
+
 N = TEST_PARAMS['solver.N']
 
 

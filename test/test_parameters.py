@@ -113,6 +113,7 @@ def test_node_parameter_names_are_in_the_table():
         p.name for p in parameter_table(parameters.SolverNodeSettings)}
 
 
+@pytest.mark.slow
 def test_declared_parameters_agree_with_the_table(tmp_path):
     """solver_node started without a parameter file declares the table's defaults and ranges."""
     client = RosClient()

@@ -32,6 +32,8 @@ from toc_ros import conversions
 from toc_ros.core import Problem, solve, SolverOptions, Status
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+pytestmark = pytest.mark.slow
+
 N = TEST_PARAMS['solver.N']
 GOAL_TOLERANCE = 1e-3      # [rad, m] position error after settling
 SETTLE_S = 1.5             # [s] after the trajectory's end

@@ -34,6 +34,8 @@ from std_srvs.srv import Trigger
 from toc_ros import conversions
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+pytestmark = pytest.mark.slow
+
 NS = 1_000_000_000
 MS = 1_000_000
 START_Q = np.array([PAPER_X0[0], PAPER_X0[2]])

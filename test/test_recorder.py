@@ -113,6 +113,7 @@ def assert_complete_mcap(path):
     return summary
 
 
+@pytest.mark.slow
 def test_records_10000_messages_at_1khz_without_loss(ros, tmp_path):
     count = 10_000
     publisher = ros.create_publisher(String, '/rec/chatter', QoSProfile(depth=count, **RELIABLE))
@@ -158,6 +159,7 @@ def test_records_10000_messages_at_1khz_without_loss(ros, tmp_path):
     assert last.data == f'msg {count - 1:05d}'
 
 
+@pytest.mark.slow
 def test_sigterm_mid_run_leaves_a_valid_bag_with_latched_messages(ros, tmp_path):
     trajectory = JointTrajectory(joint_names=['rotation_joint', 'extension_joint'])
     trajectory.header.frame_id = 'base_link'
@@ -201,6 +203,7 @@ def test_sigterm_mid_run_leaves_a_valid_bag_with_latched_messages(ros, tmp_path)
     assert recorded.points[0].time_from_start.nanosec == 250_000_000
 
 
+@pytest.mark.slow
 def test_disk_full_while_recording_stops_with_a_message(ros, tmp_path):
     def limit_file_size():  # EFBIG past 300 kB, like a full disk
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -245,6 +248,7 @@ def test_node_in_process_closes_the_bag_when_destroyed(ros, tmp_path):
     assert data == [f'in-process {k}' for k in range(5)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('case', ['parent_is_a_file', 'not_empty', 'bad_regex'])
 def test_start_errors_exit_non_zero_with_a_clear_message(ros, tmp_path, case):
     output, extra, expected = tmp_path / 'bag', [], None
@@ -299,6 +303,7 @@ def test_qos_adapts_to_publishers_like_rosbag2():
     assert (qos.history, qos.depth) == (HistoryPolicy.KEEP_LAST, 50)
 
 
+@pytest.mark.slow
 def test_sigkill_at_1khz_loses_at_most_0_2_s_and_recover_gives_a_valid_bag(
         ros, tmp_path, record_property):
     publisher = ros.create_publisher(String, '/rec/crash', QoSProfile(depth=10_000, **RELIABLE))

@@ -37,6 +37,8 @@ from toc_ros.demo.closed_loop import MOVING, MOVING_MARGIN, MOVING_OBSTACLES
 from toc_ros.harness import LATCHED_HISTORY
 from trajectory_msgs.msg import JointTrajectory
 
+pytestmark = pytest.mark.slow
+
 MARGIN = 0.01
 PAPER_OBSTACLES = [(1.0, 1.0, 0.2)]
 PARAMS = {'solver.N': 200, 'solver.timeout': 60.0}

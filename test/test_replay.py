@@ -255,6 +255,7 @@ TOPICS = [('/chatter', String, 10), ('/joint_states', JointState, 10),
           ('/trajectory', JointTrajectory, LATCHED_QOS)]
 
 
+@pytest.mark.slow
 def test_replay_same_messages_order_and_timing(tmp_path, ros_env):
     expected = make_bag(tmp_path / 'run')
     listener = Listener(TOPICS)
@@ -275,6 +276,7 @@ def test_replay_same_messages_order_and_timing(tmp_path, ros_env):
     assert max(errors) < 0.010, f'timing error up to {max(errors) * 1e3:.1f} ms'
 
 
+@pytest.mark.slow
 def test_replay_truncated_filtered_offset_clock(tmp_path, ros_env):
     expected = make_bag(tmp_path / 'run', chunk_size=600)
     mcap = tmp_path / 'run' / 'run_0.mcap'
@@ -316,6 +318,7 @@ def test_replay_truncated_filtered_offset_clock(tmp_path, ros_env):
     assert stamps[0] >= start and stamps[-1] == wanted[len(played) - 1][2]
 
 
+@pytest.mark.slow
 def test_replay_refuses_missing_and_foreign_files(tmp_path, ros_env):
     missing = run_replay(ros_env, f'bag:={tmp_path / "nothing"}')
     assert missing.returncode == 1

@@ -37,6 +37,8 @@ from toc_ros.core.obstacles import model_clearance
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
+pytestmark = pytest.mark.slow
+
 PLANAR_CONFIG = REPO / 'config' / 'toc_ros_planar_2r.yaml'
 PLANAR_JOINTS = ['shoulder_joint', 'elbow_joint']
 

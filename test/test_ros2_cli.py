@@ -58,10 +58,10 @@ def _find_underlay():
 
 
 UNDERLAY = _find_underlay()
-pytestmark = pytest.mark.skipif(
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(
     UNDERLAY is None,
     reason='no ROS 2 environment: ros2/colcon not on PATH and no .ros2env '
-           '(build it with .ci/ros2_env.sh)')
+           '(build it with .ci/ros2_env.sh)')]
 
 
 def _child_env(log_dir):

@@ -29,6 +29,8 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.signals import SignalHandlerOptions
 from toc_ros.nodes.plant_node import PlantNode
 
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[1]
 
 

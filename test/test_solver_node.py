@@ -35,6 +35,8 @@ from toc_ros.core import Status
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+pytestmark = pytest.mark.slow
+
 N = TEST_PARAMS['solver.N']
 # A plan that runs until canceled: paper mode without iteration or time limit in practice, with
 # a learning rate small enough not to diverge at this N (the paper's eta = 1000 does at N=100).

@@ -38,6 +38,8 @@ from trajectory_msgs.msg import JointTrajectory
 
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: I100 (message packages)
 
+pytestmark = pytest.mark.slow
+
 COLLECT = [(DiagnosticStatus, 'solver_node/progress', 1000),
            (JointTrajectory, 'trajectory', LATCHED)]
 

@@ -39,6 +39,8 @@ from toc_ros.core import Status
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+pytestmark = pytest.mark.slow
+
 MARGIN = 0.01
 PAPER_OBSTACLES = [(1.0, 1.0, 0.2)]
 # The second circle: the paper's plan passes 0.1 m inside it.

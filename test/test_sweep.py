@@ -344,6 +344,7 @@ def test_summary_and_heat_map_of_random_samples(tmp_path):
 
 # -- a real LocalCluster (the default of toc-sweep) ------------------------------------------
 
+@pytest.mark.slow
 def test_local_cluster_rows_equal_serial_solves(tmp_path, warm_cache, serial):
     from toc_ros.sweep import cli
     out = tmp_path / 'local'
@@ -424,6 +425,7 @@ def cluster(warm_cache):
             _stop(proc)
 
 
+@pytest.mark.slow
 def test_external_scheduler_interrupted_sweep_resumes_missing_cases_only(
         tmp_path, cluster, serial):
     out = tmp_path / 'ext'
@@ -472,6 +474,7 @@ def test_external_scheduler_interrupted_sweep_resumes_missing_cases_only(
     _assert_each_case_once(_rows(out), 21)
 
 
+@pytest.mark.slow
 def test_external_scheduler_worker_killed_mid_sweep_loses_no_case(tmp_path, cluster, serial):
     """Last test of the module: it kills worker w0 of the shared cluster."""
     out = tmp_path / 'kill'
