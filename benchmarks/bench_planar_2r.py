@@ -59,12 +59,11 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from bench_solvers import (  # noqa: E402, I100
+from benchmarks import reference_solvers as rs  # noqa: E402, I100
+from benchmarks.bench_solvers import (  # noqa: E402
     load_average, time_fast, time_reference, write_outputs)
-import reference_solvers as rs  # noqa: E402
 from toc_ros.core import Problem, solve, SolverOptions, warm_up  # noqa: E402
 from toc_ros.core.models import load_model  # noqa: E402
 

@@ -54,7 +54,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from bench_solvers import write_outputs  # noqa: E402, I100
+from benchmarks.bench_solvers import write_outputs  # noqa: E402, I100
 from toc_ros import config, harness  # noqa: E402
 from toc_ros.demo.closed_loop import (  # noqa: E402
     ESTIMATED, MISMATCH, MOVING, MOVING_MARGIN, MOVING_OBSTACLES, NOMINAL_PLANT, PAPER_GOAL_Q,

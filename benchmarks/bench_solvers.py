@@ -51,10 +51,9 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import reference_solvers as rs  # noqa: E402
+from benchmarks import reference_solvers as rs  # noqa: E402, I100
 from toc_ros.core import (measure_violations, Problem, RobotParams, solve,  # noqa: E402
                           SolverOptions, warm_up)
 from toc_ros.core.fast_solver import warm_start_point  # noqa: E402
@@ -261,7 +260,7 @@ def run(repeat=5, ref_repeat=3, quick=False):
 def _old_reference(problem, notes):
     """IPOPT from reference_ipopt.py's own initial guesses (context: the earlier numbers)."""
     try:
-        import reference_ipopt
+        from benchmarks import reference_ipopt
     except ImportError as exc:     # pragma: no cover
         notes.append(f'reference_ipopt.py: {exc}')
         return []

@@ -44,12 +44,11 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from bench_solvers import write_outputs  # noqa: E402, I100
-from reference_ipopt import solve_reference  # noqa: E402
-from reference_solvers import Reference  # noqa: E402
+from benchmarks.bench_solvers import write_outputs  # noqa: E402, I100
+from benchmarks.reference_ipopt import solve_reference  # noqa: E402
+from benchmarks.reference_solvers import Reference  # noqa: E402
 from toc_ros.core import (measure_violations, Problem, ProblemError, solve,  # noqa: E402
                           SolverOptions, warm_up)
 

@@ -53,7 +53,6 @@ import dataclasses
 import importlib.util
 import math
 import os
-import sys
 import time
 
 import numpy as np
@@ -63,9 +62,7 @@ try:  # optional dependency: only the solvers need it
 except ImportError:  # pragma: no cover - exercised only where casadi is absent
     ca = None
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from casadi_models import casadi_model, with_actuators  # noqa: E402, I100
+from benchmarks.casadi_models import casadi_model, with_actuators  # noqa: I100
 from toc_ros.core import measure_violations  # noqa: E402
 from toc_ros.core.fast_solver import interpolation_start, T_HIGH_FACTOR, T_LOW  # noqa: E402
 from toc_ros.core.models.actuated import ActuatedModel  # noqa: E402

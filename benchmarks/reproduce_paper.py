@@ -29,7 +29,6 @@ variant is a change of the problem data the paper states, solved to its own opti
 import argparse
 from dataclasses import dataclass, replace
 import datetime
-import importlib.util
 import math
 import os
 from pathlib import Path
@@ -128,10 +127,7 @@ def paper_problem(n, integrator='euler', variant='eq37', obstacles=True, u1_max=
 
 def load_reference():
     """Import benchmarks/reference_ipopt.py: (module, '') or (None, why it is unavailable)."""
-    path = Path(__file__).with_name('reference_ipopt.py')
-    spec = importlib.util.spec_from_file_location('reference_ipopt', path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    from benchmarks import reference_ipopt as module
     if module.ca is None:
         return None, 'casadi is not importable in this environment'
     return module, ''

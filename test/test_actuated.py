@@ -23,8 +23,6 @@ cycles, and the problem's joint-state conveniences.
 
 from dataclasses import replace
 import math
-from pathlib import Path
-import sys
 
 import numpy as np
 import numpy_model as nm
@@ -158,8 +156,7 @@ def test_agrees_with_ipopt_on_the_same_discretisation():
     # generated actuated kernels of planar_2r and of a 3-link model file by finite
     # differences).
     pytest.importorskip('casadi')
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
-    import reference_solvers as rs
+    from benchmarks import reference_solvers as rs
     params = _params(0.02, n=320)
     problem, result = _solve(params)
     assert result.status.value == 'SOLVED', result.message

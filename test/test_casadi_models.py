@@ -14,9 +14,9 @@
 
 """The CasADi model expressions (benchmarks/casadi_models.py) against the numba kernels."""
 
-import importlib.util
 from pathlib import Path
 
+from benchmarks import casadi_models as cm
 import numpy as np
 import pytest
 
@@ -25,10 +25,6 @@ from toc_ros.core.models import load_model
 pytest.importorskip('casadi')
 
 ROOT = Path(__file__).resolve().parents[1]
-_SPEC = importlib.util.spec_from_file_location('casadi_models',
-                                               ROOT / 'benchmarks' / 'casadi_models.py')
-cm = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(cm)
 
 PLANAR_FILE = str(ROOT / 'config' / 'models' / 'planar_2r.yaml')
 CYLINDRICAL_FILE = str(ROOT / 'config' / 'models' / 'cylindrical_eq37.yaml')

@@ -20,19 +20,13 @@ Euler/RK4 loop over eq. (37) with the paper's constants, and clearance by dense 
 points along the arm instead of the closed-form segment distance.
 """
 
-import importlib.util
 import math
-from pathlib import Path
 
+from benchmarks import reference_ipopt as ref
 import numpy as np
 import pytest
 
 pytest.importorskip('casadi')
-
-_PATH = Path(__file__).resolve().parents[1] / 'benchmarks' / 'reference_ipopt.py'
-_SPEC = importlib.util.spec_from_file_location('reference_ipopt', _PATH)
-ref = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(ref)
 
 X0 = np.array([math.pi / 12.0, 0.0, 1.0, 0.0])
 XF = np.array([5.0 * math.pi / 12.0, 0.0, 1.0, 0.0])

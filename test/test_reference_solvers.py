@@ -22,11 +22,9 @@ inverse in both layouts.
 """
 
 from dataclasses import replace
-import importlib.util
 import math
-from pathlib import Path
-import sys
 
+from benchmarks import reference_solvers as rs
 import numpy as np
 import pytest
 
@@ -35,12 +33,6 @@ from toc_ros.core.models import load_model
 from toc_ros.core.obstacles import model_clearance
 
 ca = pytest.importorskip('casadi')
-
-_DIR = Path(__file__).resolve().parents[1] / 'benchmarks'
-sys.path.insert(0, str(_DIR))
-_SPEC = importlib.util.spec_from_file_location('reference_solvers', _DIR / 'reference_solvers.py')
-rs = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(rs)
 
 PAPER = replace(Problem(), n_intervals=40)
 PLANAR = Problem(model=load_model('planar_2r'), x0=(0.0, 0.0, 0.3, 0.0),

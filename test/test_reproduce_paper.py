@@ -27,14 +27,10 @@ import math
 from pathlib import Path
 import re
 
+from benchmarks import reproduce_paper as rp
 import numpy as np
 import numpy_model as nm
 import pytest
-
-_PATH = Path(__file__).resolve().parents[1] / 'benchmarks' / 'reproduce_paper.py'
-_SPEC = importlib.util.spec_from_file_location('reproduce_paper', _PATH)
-rp = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(rp)
 
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'

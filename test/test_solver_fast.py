@@ -24,7 +24,6 @@ the paper scenario only.
 from dataclasses import replace
 import importlib.util
 import math
-from pathlib import Path
 import threading
 import time
 
@@ -57,11 +56,8 @@ SCENARIOS = {
 
 
 def _reference():
-    path = Path(__file__).resolve().parents[1] / 'benchmarks' / 'reference_ipopt.py'
-    spec = importlib.util.spec_from_file_location('reference_ipopt', path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from benchmarks import reference_ipopt
+    return reference_ipopt
 
 
 def _reference_t_f(problem):

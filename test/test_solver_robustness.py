@@ -35,8 +35,6 @@ Fast mode on cases it used to fail: former STALLED random scenarios and planar_2
 from dataclasses import replace
 import importlib.util
 import math
-from pathlib import Path
-import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -80,11 +78,7 @@ def _compiled():
 
 
 def _reference_t_f(problem):
-    path = Path(__file__).resolve().parents[1] / 'benchmarks' / 'reference_ipopt.py'
-    sys.path.insert(0, str(path.parent))
-    spec = importlib.util.spec_from_file_location('reference_ipopt', path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    from benchmarks import reference_ipopt as module
     res = module.solve_reference(problem.x0, problem.x_goal, problem.obstacles, problem.margin,
                                  N=problem.n_intervals, integrator=problem.integrator,
                                  model_variant=problem.robot.model_variant,
