@@ -28,6 +28,8 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 CONTRACT_KEYS = {'status', 'message', 'final_time', 'integrator', 'N', 'iterations',
                  'wall_time_s', 'states', 'controls', 'violations'}
