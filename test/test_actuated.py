@@ -150,6 +150,7 @@ def test_bad_actuator_lag_is_refused():
         config.model_from_parameters(_params(math.inf))
 
 
+@pytest.mark.slow
 def test_agrees_with_ipopt_on_the_same_discretisation():
     # The cylindrical robot (its actuated kernels are compiled for the tests above already; a
     # second base model's would cost a minute of CI on a cold cache: test_models checks the

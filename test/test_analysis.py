@@ -272,6 +272,7 @@ def expected_numbers(msgs):
     return plans, executions
 
 
+@pytest.mark.slow
 def test_report_of_a_two_plan_run(run_bag, tmp_path, capsys):
     out = tmp_path / 'report'
     assert main([str(run_bag), '--out', str(out)]) == 0
@@ -341,6 +342,7 @@ def test_missing_topics_are_reported(tmp_path):
     assert 'missing: no topic trajectory' in md
 
 
+@pytest.mark.slow
 def test_truncated_recording_still_reports(run_bag, tmp_path, capsys):
     data = (run_bag / 'run_0.mcap').read_bytes()
     with open(run_bag / 'run_0.mcap', 'rb') as stream:

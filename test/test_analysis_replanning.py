@@ -40,6 +40,8 @@ from toc_ros.core import Status
 from toc_ros.recording.bag_writer import BagWriter
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+pytestmark = pytest.mark.slow
+
 T0 = 1_700_000_000_000_000_000          # log time of the first message [ns]
 LAG_NS = 252_000_000                     # log time - header.stamp of the joint_states
 A = 1.1

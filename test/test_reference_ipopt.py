@@ -26,6 +26,8 @@ from benchmarks import reference_ipopt as ref
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow
+
 pytest.importorskip('casadi')
 
 X0 = np.array([math.pi / 12.0, 0.0, 1.0, 0.0])

@@ -32,6 +32,8 @@ from toc_ros.core import Problem, solve, SolverOptions
 from toc_ros.core.models import load_model
 from toc_ros.core.obstacles import model_clearance
 
+pytestmark = pytest.mark.slow
+
 ca = pytest.importorskip('casadi')
 
 PAPER = replace(Problem(), n_intervals=40)

@@ -32,6 +32,8 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
+pytestmark = pytest.mark.slow
+
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 

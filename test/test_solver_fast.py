@@ -79,6 +79,7 @@ def paper_result():
     return solve(PAPER, SolverOptions(mode='fast'))
 
 
+@pytest.mark.slow
 def test_paper_scenario_is_solved_feasible_and_optimal(paper_result):
     result = paper_result
     assert result.status is Status.SOLVED, result.message
@@ -89,6 +90,7 @@ def test_paper_scenario_is_solved_feasible_and_optimal(paper_result):
     assert result.cost == result.final_time
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', sorted(SCENARIOS))
 def test_other_scenarios_are_solved_feasible_and_near_ipopt(name):
     problem = SCENARIOS[name]

@@ -47,6 +47,8 @@ from toc_ros.core import fast_solver, homotopy, ipm, Problem, solve, SolverOptio
 from toc_ros.core.models import load_model
 from toc_ros.core.obstacles import segment_clearance
 
+pytestmark = pytest.mark.slow
+
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 GAP = 1e-3              # 0.1 %
 TOL = 1e-6              # the SOLVED tolerances (terminal error, clearance)
