@@ -20,7 +20,7 @@ def pytest_configure(config):
     # which a plain venv does not have.
     for marker in ('linter', 'flake8', 'pep257', 'copyright'):
         config.addinivalue_line('markers', f'{marker}: ament code style check')
-    # The quick tier is `pytest -m "not slow"`: node processes, the demo, the ROS CLI, and
-    # heavy solves (large N, reference NLPs) are left to the full run.
+    # The quick tier is `pytest -m "not slow"`: node processes, the demo, the CLIs, heavy
+    # solves (large N, reference NLPs) and the linters (alone: -m linter) are left to the full run.
     config.addinivalue_line(
-        'markers', 'slow: starts processes or solves at full size (deselect: -m "not slow")')
+        'markers', 'slow: processes, full-size solves or linters (deselect: -m "not slow")')

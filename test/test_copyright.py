@@ -20,6 +20,7 @@ import pytest
 main = pytest.importorskip('ament_copyright.main').main
 
 
+@pytest.mark.slow
 @pytest.mark.copyright
 @pytest.mark.linter
 def test_copyright(monkeypatch):

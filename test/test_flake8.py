@@ -18,6 +18,7 @@ from ament_flake8.main import main_with_errors
 import pytest
 
 
+@pytest.mark.slow
 @pytest.mark.flake8
 @pytest.mark.linter
 def test_flake8(monkeypatch):

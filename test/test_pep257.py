@@ -18,6 +18,7 @@ from ament_pep257.main import main
 import pytest
 
 
+@pytest.mark.slow
 @pytest.mark.linter
 @pytest.mark.pep257
 def test_pep257(monkeypatch):
