@@ -50,11 +50,11 @@ def _controls(n):
 
 def time_gradient(n, repeats=15, batch_seconds=0.02):
     """Median seconds per paper_cost_gradient call at horizon n."""
-    problem = Problem(n_intervals=n)
+    problem = Problem.paper(n_intervals=n)
     po = PaperOptions()
     tau0 = problem.t_f0 / n
     args = (np.asarray(problem.x0, float), np.asarray(problem.x_goal, float), _controls(n),
-            tau0, problem.robot.packed(), EULER, problem.robot.u_max,
+            tau0, problem.model.packed(), EULER, problem.model.u_max,
             np.ascontiguousarray(problem.circles()), po.k_b, tau0 * po.k_v, tau0 * po.k_p,
             po.grad_mode())
     ws = Workspace(n)

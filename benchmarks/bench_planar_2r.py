@@ -51,7 +51,6 @@ median and range over the rounds (no IPOPT, a few seconds per round).
 """
 
 import argparse
-from dataclasses import replace
 import math
 import os
 import sys
@@ -107,7 +106,7 @@ def run(repeat=1, fatrop=False):
     warm_up([load_model('planar_2r'), load_model('planar_2r', g=9.81)])
     load_start = load_average()
     fast_options = SolverOptions(mode='fast', timeout=300.0)
-    cyl, _ = time_fast(replace(Problem(), n_intervals=N), repeat, fast_options)
+    cyl, _ = time_fast(Problem.paper(n_intervals=N), repeat, fast_options)
     rows = []
     for name, problem in scenarios():
         fast, result = time_fast(problem, repeat, fast_options)
@@ -146,7 +145,7 @@ def run_fast_only(repeat=5, rounds=3):
     warm_up([load_model('planar_2r'), load_model('planar_2r', g=9.81)])
     load_start = load_average()
     options = SolverOptions(mode='fast', timeout=300.0)
-    cyl = replace(Problem(), n_intervals=N)
+    cyl = Problem.paper(n_intervals=N)
     cases = scenarios()
     for _, problem in [('cylindrical', cyl)] + cases:
         solve(problem, options)             # untimed

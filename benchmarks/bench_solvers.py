@@ -54,8 +54,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from benchmarks import reference_solvers as rs  # noqa: E402, I100
-from toc_ros.core import (measure_violations, Problem, RobotParams, solve,  # noqa: E402
-                          SolverOptions, warm_up)
+from toc_ros.core import (CylindricalRobot, measure_violations, Problem,  # noqa: E402
+                          RobotParams, solve, SolverOptions, warm_up)
 from toc_ros.core.fast_solver import warm_start_point  # noqa: E402
 
 SCALING_N = (100, 200, 500, 1000, 2000, 4000, 8000)
@@ -160,7 +160,7 @@ def run(repeat=5, ref_repeat=3, quick=False):
     warm_up()
     load_start = load_average()
     notes, sections, summary = [], {}, {}
-    paper = Problem()
+    paper = Problem.paper()
     fast_options = SolverOptions(mode='fast', timeout=300.0)
 
     # Cold, N = 1000 and N = 100 ------------------------------------------------------------
@@ -201,7 +201,7 @@ def run(repeat=5, ref_repeat=3, quick=False):
     # RK4 and eq36 --------------------------------------------------------------------------
     for key, problem, label in (
             ('rk4', replace(paper, integrator='rk4'), 'paper scenario, RK4, N = 1000, cold'),
-            ('eq36', replace(paper, robot=RobotParams(model_variant='eq36')),
+            ('eq36', replace(paper, model=CylindricalRobot(RobotParams(model_variant='eq36'))),
              'paper scenario, eq. (36) variant, Euler, N = 1000, cold')):
         fast_row, _ = time_fast(problem, repeat, fast_options)
         ref_rows, _ = _references(problem, 1 if quick else ref_repeat, notes)

@@ -49,8 +49,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from benchmarks.bench_solvers import write_outputs  # noqa: E402, I100
 from benchmarks.reference_ipopt import solve_reference  # noqa: E402
 from benchmarks.reference_solvers import Reference  # noqa: E402
-from toc_ros.core import (measure_violations, Problem, ProblemError, solve,  # noqa: E402
-                          SolverOptions, warm_up)
+from toc_ros.core import (CylindricalRobot, measure_violations, Problem,  # noqa: E402
+                          ProblemError, solve, SolverOptions, warm_up)
 
 # (seed, count, N, max_obstacles): 46 scenarios, 0-3 circles, N = 300 and 1000.
 SUITE = ((1, 15, 300, 2), (2, 15, 300, 3), (3, 8, 1000, 2), (4, 8, 1000, 3))
@@ -114,7 +114,7 @@ def reference(problem):
         runs.append(cand)
         if cand['success'] and cand['feasible']:
             same = cand
-    if problem.model is None:
+    if isinstance(problem.model, CylindricalRobot):
         res = solve_reference(list(problem.x0), list(problem.x_goal), list(problem.obstacles),
                               problem.margin, N=problem.n_intervals,
                               integrator=problem.integrator)

@@ -50,13 +50,14 @@ if str(ROOT) not in sys.path:    # run as a script from a checkout (package not 
 
 from toc_ros.analysis.plots import finish_plane_axes  # noqa: E402
 from toc_ros.core import (  # noqa: E402
-    arm_clearance, hand_position, measure_violations, PaperOptions, Problem, solve,
-    SolverOptions, Status, warm_up)
+    arm_clearance, CylindricalRobot, hand_position, measure_violations, PaperOptions, Problem,
+    solve, SolverOptions, Status, warm_up)
 
 PAPER_CLAIM = 1.71          # [s] t_min of section 4 (Figs. 5-7)
 # The section-4 scenario as the core defines it: every number of the report's text about the
 # scenario (bounds, circle, margin, robot data) is read from here or from the runs.
-BASE = Problem()
+BASE = Problem.paper()
+PAPER_ROBOT = BASE.model.params     # the robot data of section 4.1
 CONTACT = 1e-4              # [m] 'touching' the inflated circle, for the Fig. 7 comparison
 REPORT_NAME = 'paper_reproduction.md'
 FIGURE_DIR = 'figures'
@@ -118,10 +119,10 @@ def paper_problem(n, integrator='euler', variant='eq37', obstacles=True, u1_max=
                   u2_max=None):
     """Return the section-4 scenario with the given changes (bounds: the paper's if None)."""
     base = BASE
-    robot = replace(base.robot, model_variant=variant,
-                    u1_max=float(base.robot.u1_max if u1_max is None else u1_max),
-                    u2_max=float(base.robot.u2_max if u2_max is None else u2_max))
-    return replace(base, n_intervals=n, integrator=integrator, robot=robot,
+    robot = replace(base.model.params, model_variant=variant,
+                    u1_max=float(base.model.params.u1_max if u1_max is None else u1_max),
+                    u2_max=float(base.model.params.u2_max if u2_max is None else u2_max))
+    return replace(base, n_intervals=n, integrator=integrator, model=CylindricalRobot(robot),
                    obstacles=base.obstacles if obstacles else ())
 
 
@@ -148,7 +149,7 @@ def run_core(label, problem, mode, iterations=None):
 
 def run_reference(ref, label, problem, obstacle_mode='arm'):
     """Solve with the IPOPT transcription; violations re-measured by the core (whole arm)."""
-    robot = problem.robot
+    robot = problem.model.params
     res = ref.solve_reference(
         problem.x0, problem.x_goal, problem.obstacles, problem.margin, N=problem.n_intervals,
         integrator=problem.integrator, model_variant=robot.model_variant,
@@ -197,8 +198,8 @@ def paper_breakdown(run, constants=PaperOptions()):
     n = problem.n_intervals
     tau0 = problem.t_f0 / n
     err = run.states[-1] - np.asarray(problem.x_goal)
-    excess = np.maximum(np.abs(run.controls) - problem.robot.u_max[None, :], 0.0)
-    gaps = ray_penetration(run.states, problem.robot.a, problem.circles())
+    excess = np.maximum(np.abs(run.controls) - problem.model.u_max[None, :], 0.0)
+    gaps = ray_penetration(run.states, problem.model.params.a, problem.circles())
     hist = run.history
     accepted = np.flatnonzero(hist[:, 2] < constants.j_eps) if hist is not None else []
     return {
@@ -359,8 +360,8 @@ def run_all(cfg, use_reference=True):
         out['both_scale'] = scale
         out['both_scaled'] = _done(run_core(
             f'fast N={n} u_max x {scale:.4f}',
-            paper_problem(n, u1_max=BASE.robot.u1_max * scale,
-                          u2_max=BASE.robot.u2_max * scale), 'fast'))
+            paper_problem(n, u1_max=PAPER_ROBOT.u1_max * scale,
+                          u2_max=PAPER_ROBOT.u2_max * scale), 'fast'))
     out['total_s'] = time.monotonic() - started
     out['machine']['load_after'] = os.getloadavg() if hasattr(os, 'getloadavg') else None
     return out
@@ -396,7 +397,7 @@ def plot_trajectories(runs, title, path):
             ax.stairs(run.controls[:, j], t, label=label, baseline=None, **style)
         for j, ax in enumerate(x_axes):
             ax.plot(t, run.states[:, j], label=label, **style)
-    u_max = Problem().robot.u_max
+    u_max = BASE.model.u_max
     for j, ax in enumerate(u_axes):
         for bound in (-u_max[j], u_max[j]):
             ax.axhline(bound, color='r', linewidth=0.8, linestyle='-.')
@@ -422,7 +423,7 @@ def _draw_obstacles(ax, problem):
 
 
 def _draw_run(ax, run, colour, arms=6, highlight=None):
-    a = run.problem.robot.a
+    a = run.problem.model.params.a
     hx, hy = hand_position(run.states[:, 0], run.states[:, 2], a)
     ax.plot(hx, hy, color=colour, linewidth=1.6, label=f'{run.label} ({run.t_f:.4f} s)')
     for i in np.linspace(0, len(hx) - 1, arms).round().astype(int):
@@ -437,7 +438,7 @@ def plot_paths(runs, path, title, highlight=None):
     """Fig. 7 analog: hand paths in the x-y plane, obstacle R' and R, arm at a few instants."""
     fig = _figure(7.0, 7.0)
     ax = fig.subplots()
-    _draw_obstacles(ax, Problem())
+    _draw_obstacles(ax, BASE)
     for k, run in enumerate(r for r in runs if has_trajectory(r)):
         _draw_run(ax, run, f'C{k}', highlight=highlight if k == 0 else None)
     finish_plane_axes(ax, title, legend_loc='upper right')
@@ -470,14 +471,14 @@ def plot_sweep(sweep, path):
     if pts:
         ax.plot(*zip(*pts), 'o-', label='whole-arm t_min (fast mode)')
     ax.axhline(PAPER_CLAIM, color='r', linestyle='--', label=f'paper: {PAPER_CLAIM:g} s')
-    ax.axvline(BASE.robot.u2_max, color='0.4', linestyle=':',
-               label=f"paper's u2_max = {BASE.robot.u2_max:g} N")
+    ax.axvline(PAPER_ROBOT.u2_max, color='0.4', linestyle=':',
+               label=f"paper's u2_max = {PAPER_ROBOT.u2_max:g} N")
     ax.set_xlabel('u2_max [N]')
     ax.set_ylabel('t_min [s]')
     ax.grid(True, alpha=0.3)
     ax.legend()
     n = sweep['steps'][0][1].problem.n_intervals
-    ax.set_title(f'Minimum time vs u2_max (u1_max = {BASE.robot.u1_max:g} N m, N = {n})')
+    ax.set_title(f'Minimum time vs u2_max (u1_max = {PAPER_ROBOT.u1_max:g} N m, N = {n})')
     fig.savefig(path)
 
 
@@ -503,7 +504,7 @@ def draw_figures(res, fig_dir):
                'Fig. 7 analog: hand path with and without the obstacle')
     hand = res['reference_variants'].get(('eq37', 'hand'))
     if has_trajectory(hand):
-        gaps = arm_clearance(hand.states, hand.problem.robot.a, hand.problem.circles())
+        gaps = arm_clearance(hand.states, hand.problem.model.params.a, hand.problem.circles())
         plot_paths([hand], out('hand_only', 'hand_only_obstacle.png'),
                    'Hand-point-only obstacle condition (IPOPT): the arm cuts the circle',
                    highlight=int(np.argmin(gaps.min(axis=1))))
@@ -587,10 +588,10 @@ def _sweep_text(res):
         return f'The bisection stopped: {why}.\n\n{table}\n'
     lo, hi = sweep['lo'], sweep['hi']
     text = (f'Bisection on u2_max (fast mode, Euler, N = {cfg.sweep_n}, whole-arm obstacle, '
-            f'u1_max = {BASE.robot.u1_max:g} N m) down to a bracket of {cfg.sweep_tol:g} N: the '
+            f'u1_max = {PAPER_ROBOT.u1_max:g} N m) down to a bracket of {cfg.sweep_tol:g} N: the '
             f'whole-arm t_min reaches {PAPER_CLAIM:g} s for **u2_max ≈ {hi:.0f} N** (between '
-            f"{lo:.1f} and {hi:.1f} N, i.e. {hi / BASE.robot.u2_max:.2f}× the paper's "
-            f'{BASE.robot.u2_max:g} N).')
+            f"{lo:.1f} and {hi:.1f} N, i.e. {hi / PAPER_ROBOT.u2_max:.2f}× the paper's "
+            f'{PAPER_ROBOT.u2_max:g} N).')
     confirm = sweep.get('confirm_fast')
     if confirm is not None:
         text += (f' Confirmed at N = {cfg.n}: fast mode gives t_min = {_t(confirm)} s '
@@ -609,11 +610,11 @@ def _limits_text(res):
     ipopt = res.get('u1_alone_ipopt')
     text.append(
         f'*u1_max alone*: with u1_max = {cfg.u1_large:g} N m '
-        f"({cfg.u1_large / BASE.robot.u1_max:g}× the paper's) and "
-        f'u2_max = {BASE.robot.u2_max:g} N the whole-arm t_min is {_t(u1)} s in fast mode '
+        f"({cfg.u1_large / PAPER_ROBOT.u1_max:g}× the paper's) and "
+        f'u2_max = {PAPER_ROBOT.u2_max:g} N the whole-arm t_min is {_t(u1)} s in fast mode '
         f'({u1.status})'
         + (f' and {_t(ipopt)} s with IPOPT ({ipopt.status})' if ipopt is not None else '')
-        + f' at N = {cfg.sweep_n}, against {base.t_f:.4f} s with {BASE.robot.u1_max:g} N m '
+        + f' at N = {cfg.sweep_n}, against {base.t_f:.4f} s with {PAPER_ROBOT.u1_max:g} N m '
         f'at N = {cfg.n}'
         + _u1_remark(u1, ipopt) + '. '
         'A faster rotation does not remove the need to retract the arm under the circle and '
@@ -626,8 +627,8 @@ def _limits_text(res):
             f'and u → k²u the same path is followed k times faster (exactly, also for Euler and '
             f'RK4 at fixed N); t_min scales as 1/√s. Reaching {PAPER_CLAIM:g} s from '
             f'{base.t_f:.4f} s needs s = ({base.t_f:.4f}/{PAPER_CLAIM:g})² = {s:.4f}, i.e. '
-            f'u1_max = {BASE.robot.u1_max * s:.0f} N m and '
-            f'u2_max = {BASE.robot.u2_max * s:.0f} N; fast mode with these limits gives '
+            f'u1_max = {PAPER_ROBOT.u1_max * s:.0f} N m and '
+            f'u2_max = {PAPER_ROBOT.u2_max * s:.0f} N; fast mode with these limits gives '
             f't_min = {_t(both)} s '
             f'({both.status}), which checks the scaling law.')
     return '\n\n'.join(text)
@@ -648,7 +649,7 @@ def _paper_text(res):
     e = b['terminal']
     po = PaperOptions()
     n = run.problem.n_intervals
-    excess = _excess_text(b, run.problem.robot)
+    excess = _excess_text(b, run.problem.model.params)
     return f"""\
 Paper mode returns t_min = **{run.t_f:.4f} s**: N τ at the last of the {b['accepted']} iterations
 (iteration {b['last_accepted']} of {run.iterations}) whose J_T fell below J_ε = {po.j_eps:g};
@@ -725,7 +726,8 @@ eq. (36) sign changes the whole-arm t_min by {arm36.t_f - arm37.t_f:+.3f} s, whi
 {arm36.t_f - PAPER_CLAIM:+.3f} s from 1.71 s.
 """)
     if have_ref and hand37 is not None:
-        gaps = arm_clearance(hand37.states, hand37.problem.robot.a, hand37.problem.circles())
+        gaps = arm_clearance(hand37.states, hand37.problem.model.params.a,
+                             hand37.problem.circles())
         worst = int(np.argmin(gaps.min(axis=1)))
         hand_gap = _hand_clearance(hand37)
         arm_touch, hand_touch = _contact(arm37), _contact(hand37)
@@ -792,7 +794,7 @@ def _contact(run):
     """(hand nodes, hand time, arm time, arm nodes) within CONTACT of the inflated circles."""
     if not has_trajectory(run):
         return 0, math.nan, math.nan, 0
-    a, circles = run.problem.robot.a, run.problem.circles()
+    a, circles = run.problem.model.params.a, run.problem.circles()
     hx, hy = hand_position(run.states[:, 0], run.states[:, 2], a)
     hand = np.min([np.hypot(hx - cx, hy - cy) - r for cx, cy, r in circles], axis=0)
     arm = arm_clearance(run.states, a, circles).min(axis=1)
@@ -809,7 +811,7 @@ def _span(mask):
 
 def _hand_clearance(run):
     """Smallest hand-point distance to the inflated circles minus R [m]."""
-    a = run.problem.robot.a
+    a = run.problem.model.params.a
     hx, hy = hand_position(run.states[:, 0], run.states[:, 2], a)
     return float(min(np.min(np.hypot(hx - cx, hy - cy) - r) for cx, cy, r in
                      run.problem.circles()))
@@ -829,7 +831,7 @@ def _state_text(x):
 def _scenario_text(problem):
     """Describe the section-4 scenario in words, from the Problem itself."""
     (cx, cy, radius), = problem.obstacles
-    robot = problem.robot
+    robot = problem.model.params
     return (f'x0 = {_state_text(problem.x0)} → x_f = {_state_text(problem.x_goal)}, the '
             f"circle centred at ({cx:g}, {cy:g}) m with R' = {radius:g} m inflated by "
             f'δR = {problem.margin:g} m to R = {radius + problem.margin:g} m, '

@@ -135,16 +135,17 @@ def assert_feasible(problem, result, tol=1e-6):
 
     problem is a toc_ros Problem (only its plain fields are read).  Returns the measured dict.
     """
-    robot = {'hand_mass': problem.robot.hand_mass, 'link_mass': problem.robot.link_mass,
-             'inertia': problem.robot.inertia, 'a': problem.robot.a}
-    u_max = np.array([problem.robot.u1_max, problem.robot.u2_max])
+    data = problem.model.params
+    robot = {'hand_mass': data.hand_mass, 'link_mass': data.link_mass,
+             'inertia': data.inertia, 'a': data.a}
+    u_max = np.array([data.u1_max, data.u2_max])
     circles = np.reshape(np.array(problem.obstacles, dtype=float), (-1, 3))
     circles[:, 2] += problem.margin
     n = problem.n_intervals
     controls = np.asarray(result.controls)
     assert controls.shape == (n, 2) and np.asarray(result.states).shape == (n + 1, 4)
     measured = violations(problem.x0, problem.x_goal, controls, result.final_time, circles,
-                          u_max, problem.integrator, problem.robot.model_variant, robot)
+                          u_max, problem.integrator, data.model_variant, robot)
     # Bounds hold exactly, not within a tolerance.
     assert np.all(np.abs(controls) <= u_max[None, :]), measured['max_control_excess']
     assert measured['terminal_error'] <= tol, measured['terminal_error']

@@ -185,7 +185,7 @@ def build_run(path, result):
 @pytest.fixture(scope='module')
 def solved():
     # N = 100 rather than 200: a quarter of the solve time, same kind of trajectory.
-    result = solve(Problem(n_intervals=100))
+    result = solve(Problem.paper(n_intervals=100))
     assert result.success, result.message
     return result
 

@@ -35,8 +35,9 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
+from toc_ros.core import (CylindricalRobot, horizon, ipm, Problem, RobotParams, solve,
+                          SolverOptions, Status)
 from toc_ros.core import fast_solver as fsv
-from toc_ros.core import horizon, ipm, Problem, solve, SolverOptions, Status
 from toc_ros.core.models import cylindrical, load_model
 from toc_ros.core.obstacles import model_clearance
 
@@ -85,10 +86,10 @@ def _moved(ws, eps, dt, dzt):
 
 PLANAR = load_model('planar_2r', g=9.81)
 CASES = {
-    'cylindrical': Problem(n_intervals=24),
-    'cylindrical_eq36_two_circles': Problem(
+    'cylindrical': Problem.paper(n_intervals=24),
+    'cylindrical_eq36_two_circles': Problem.paper(
         n_intervals=24, obstacles=((1.0, 1.0, 0.2), (0.6, 1.1, 0.15)),
-        robot=replace(Problem().robot, model_variant='eq36')),
+        model=CylindricalRobot(RobotParams(model_variant='eq36'))),
     'planar_2r_gravity': Problem(model=PLANAR, x0=tuple(PLANAR.state([0.0, 0.5])),
                                  x_goal=tuple(PLANAR.state([1.4, 0.3])), n_intervals=24,
                                  t_f0=1.0, obstacles=((1.0, 0.9, 0.2),)),
@@ -106,7 +107,7 @@ def test_newton_step_solves_the_linearised_kkt_system(name):
     rng = np.random.default_rng(7)
     # Multipliers small enough that the Hessian stays positive definite on the dynamics'
     # null space, so the step is computed without an inertia shift (the exact Newton step).
-    ws.lam[1:] = rng.normal(scale=0.3 if problem.model is None else 1e-3,
+    ws.lam[1:] = rng.normal(scale=0.3 if isinstance(problem.model, CylindricalRobot) else 1e-3,
                             size=ws.lam[1:].shape)
     ws.nu[:] = rng.normal(size=ws.nu.shape)
     ws.z[1:] = rng.uniform(1e-5, 1e-4, size=ws.z[1:].shape)
@@ -228,7 +229,7 @@ def test_obstacle_constraint_derivatives_match_finite_differences(model):
 
 
 def test_warm_start_from_a_solution_gives_the_same_optimum_in_fewer_iterations():
-    problem = replace(Problem(), n_intervals=300)
+    problem = Problem.paper(n_intervals=300)
     cold = solve(problem)
     assert cold.status is Status.SOLVED, cold.message
     warm = solve(problem, initial_guess=cold)
@@ -243,7 +244,7 @@ def test_warm_start_from_a_solution_gives_the_same_optimum_in_fewer_iterations()
 
 
 def test_replanning_from_a_moving_state_with_the_plan_remainder():
-    problem = replace(Problem(), n_intervals=1000)
+    problem = Problem.paper(n_intervals=1000)
     plan = solve(problem)
     assert plan.status is Status.SOLVED, plan.message
     k = 300
@@ -276,7 +277,7 @@ def test_replanning_from_a_moving_state_with_the_plan_remainder():
     ('not a guess', 'bad initial guess'),
 ])
 def test_bad_initial_guesses_are_refused(guess, words):
-    result = solve(replace(Problem(), n_intervals=100), initial_guess=guess)
+    result = solve(Problem.paper(n_intervals=100), initial_guess=guess)
     assert result.status is Status.INVALID_INPUT
     assert words in result.message
 
@@ -285,7 +286,7 @@ def test_paper_mode_refuses_other_models_and_initial_guesses():
     planar = CASES['planar_2r_gravity']
     result = solve(planar, SolverOptions(mode='paper'))
     assert result.status is Status.INVALID_INPUT and 'cylindrical' in result.message
-    result = solve(Problem(n_intervals=50), SolverOptions(mode='paper'),
+    result = solve(Problem.paper(n_intervals=50), SolverOptions(mode='paper'),
                    initial_guess=(np.zeros((50, 2)), 2.0))
     assert result.status is Status.INVALID_INPUT and 'fast mode only' in result.message
 

@@ -46,7 +46,7 @@ def test_yaml_defaults_and_core_defaults_agree():
     assert config.load_parameters(str(CONFIG)) == config.DEFAULTS
     assert set(config.DEFAULTS) == {p.name for p in config.SCENARIO_TABLE}
     # The flat defaults build exactly the core's default objects ...
-    assert config.problem_from_parameters(config.DEFAULTS) == Problem()
+    assert config.problem_from_parameters(config.DEFAULTS) == Problem.paper()
     # ... except the wall-clock limit, which the nodes and the file set (the core's is none).
     assert config.options_from_parameters(config.DEFAULTS) == SolverOptions(timeout=60.0)
     assert config.robot_from_parameters(config.DEFAULTS) == RobotParams()
@@ -101,7 +101,7 @@ def test_toc_solve_help_and_overrides_come_from_the_table():
                          '--solver.mode', 'paper', '--N', '200'])
     problem, options = solve.build_problem(args)
     assert options.paper.k_b == 700.0 and options.mode == 'paper'
-    assert (problem.robot.u1_max, problem.robot.u2_max) == (650.0, 450.0)
+    assert (problem.model.params.u1_max, problem.model.params.u2_max) == (650.0, 450.0)
     assert problem.n_intervals == 200
 
 

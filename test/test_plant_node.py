@@ -163,10 +163,10 @@ def test_closed_loop_plan_reaches_the_goal(plant, record_property):
 @pytest.fixture(scope='module')
 def planned():
     """Solve the minimum-time plan to NEAR_GOAL from PAPER_X0 here (no test order needed)."""
-    problem = Problem(x0=PAPER_X0, x_goal=NEAR_GOAL, n_intervals=N)
+    problem = Problem.paper(x0=PAPER_X0, x_goal=NEAR_GOAL, n_intervals=N)
     result = solve(problem, SolverOptions(timeout=SOLVE_TIMEOUT))
     assert result.status is Status.SOLVED, result.message
-    return conversions.trajectory_msg(result, JOINTS, problem.robot, Time())
+    return conversions.trajectory_msg(result, JOINTS, problem.model, Time())
 
 
 def test_model_mismatch_needs_the_feedback(plant, planned, record_property):

@@ -18,13 +18,22 @@ from dataclasses import replace
 import math
 import re
 
+import numpy as np
 import pytest
 
-from toc_ros.core import PaperOptions, Problem, RobotParams, solve, SolverOptions, Status
+from toc_ros.core import (CylindricalRobot, PaperOptions, Problem, RobotParams, solve,
+                          SolverOptions, Status)
+from toc_ros.core.obstacles import model_clearance
+from toc_ros.core.problem import PAPER_GOAL, PAPER_OBSTACLES, PAPER_X0
 
 NAN, INF = math.nan, math.inf
-PAPER = Problem()
+PAPER = Problem.paper()
 ROBOT = RobotParams()
+
+
+def _robot(**changes):
+    return CylindricalRobot(replace(ROBOT, **changes))
+
 
 # (case id, problem, pattern the message must contain)
 BAD_PROBLEMS = [
@@ -34,15 +43,16 @@ BAD_PROBLEMS = [
     ('inf_radius', replace(PAPER, obstacles=((1.0, 1.0, INF),)), 'obstacle 0'),
     ('nan_margin', replace(PAPER, margin=NAN), 'margin'),
     ('negative_margin', replace(PAPER, margin=-0.01), 'margin'),
-    ('nan_mass', replace(PAPER, robot=replace(ROBOT, hand_mass=NAN)), 'hand_mass'),
-    ('zero_link_mass', replace(PAPER, robot=replace(ROBOT, link_mass=0.0)), 'link_mass'),
-    ('negative_inertia', replace(PAPER, robot=replace(ROBOT, inertia=-193.0)), 'inertia'),
-    ('zero_a', replace(PAPER, robot=replace(ROBOT, a=0.0)), r'robot\.a'),
-    ('zero_u1_max', replace(PAPER, robot=replace(ROBOT, u1_max=0.0)), 'u1_max'),
-    ('negative_u2_max', replace(PAPER, robot=replace(ROBOT, u2_max=-500.0)), 'u2_max'),
-    ('inf_u2_max', replace(PAPER, robot=replace(ROBOT, u2_max=INF)), 'u2_max'),
-    ('unknown_variant', replace(PAPER, robot=replace(ROBOT, model_variant='eq38')),
+    ('nan_mass', replace(PAPER, model=_robot(hand_mass=NAN)), 'hand_mass'),
+    ('zero_link_mass', replace(PAPER, model=_robot(link_mass=0.0)), 'link_mass'),
+    ('negative_inertia', replace(PAPER, model=_robot(inertia=-193.0)), 'inertia'),
+    ('zero_a', replace(PAPER, model=_robot(a=0.0)), r'robot\.a'),
+    ('zero_u1_max', replace(PAPER, model=_robot(u1_max=0.0)), 'u1_max'),
+    ('negative_u2_max', replace(PAPER, model=_robot(u2_max=-500.0)), 'u2_max'),
+    ('inf_u2_max', replace(PAPER, model=_robot(u2_max=INF)), 'u2_max'),
+    ('unknown_variant', replace(PAPER, model=_robot(model_variant='eq38')),
      'model_variant'),
+    ('robot_data_instead_of_a_model', replace(PAPER, model=ROBOT), 'model must be'),
     ('zero_N', replace(PAPER, n_intervals=0), 'N must'),
     ('negative_N', replace(PAPER, n_intervals=-5), 'N must'),
     ('fractional_N', replace(PAPER, n_intervals=2.5), 'N must'),
@@ -121,3 +131,48 @@ def test_valid_problems_near_the_limits_are_accepted():
     result = solve(problem, SolverOptions(mode='paper', max_iterations=1))
     assert result.status is not Status.INVALID_INPUT, result.message
     assert result.iterations == 1
+
+
+def test_a_problem_has_no_obstacle_unless_given():
+    """Start and goal are all a problem needs; nothing is avoided that was not given."""
+    problem = Problem(x0=PAPER_X0, x_goal=PAPER_GOAL, n_intervals=100)
+    assert problem.obstacles == () and problem.circles().shape == (0, 3)
+    assert problem.model == CylindricalRobot(RobotParams())
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert result.violations.min_clearance == math.inf      # no circle was measured
+    # The arm sweeps through the paper's circle: it was not planned around (a circle given
+    # to nobody would have kept it outside).
+    paper_circle = Problem.paper().circles()
+    assert float(np.min(model_clearance(problem.model, result.states, paper_circle))) < 0.0
+
+
+def test_the_paper_scenario_is_an_explicit_constructor():
+    paper = Problem.paper()
+    assert paper.obstacles == PAPER_OBSTACLES == ((1.0, 1.0, 0.2),)
+    assert (paper.x0, paper.x_goal, paper.margin) == (PAPER_X0, PAPER_GOAL, 0.01)
+    assert paper.model == CylindricalRobot(RobotParams())
+    assert (paper.n_intervals, paper.integrator, paper.t_f0) == (1000, 'euler', 2.5)
+    changed = Problem.paper(n_intervals=50, margin=0.02)
+    assert (changed.n_intervals, changed.margin, changed.obstacles) == (50, 0.02,
+                                                                        PAPER_OBSTACLES)
+
+
+def test_start_and_goal_are_required():
+    with pytest.raises(TypeError, match='x0'):
+        Problem()
+    with pytest.raises(TypeError, match='x_goal'):
+        Problem(x0=PAPER_X0)
+
+
+def test_the_robot_is_given_one_way_only():
+    """The robot is the model; the former robot= keyword and attribute say so."""
+    for make in (lambda: Problem(x0=PAPER_X0, x_goal=PAPER_GOAL, robot=ROBOT),
+                 lambda: replace(PAPER, robot=ROBOT),
+                 lambda: Problem.paper(robot=ROBOT)):
+        with pytest.raises(TypeError, match=r'model=CylindricalRobot\(RobotParams'):
+            make()
+    with pytest.raises(AttributeError, match='Problem.model'):
+        PAPER.robot
+    heavy = replace(ROBOT, hand_mass=60.0)
+    assert Problem.paper(model=CylindricalRobot(heavy)).model.params.hand_mass == 60.0

@@ -36,7 +36,7 @@ pytestmark = pytest.mark.slow
 
 ca = pytest.importorskip('casadi')
 
-PAPER = replace(Problem(), n_intervals=40)
+PAPER = Problem.paper(n_intervals=40)
 PLANAR = Problem(model=load_model('planar_2r'), x0=(0.0, 0.0, 0.3, 0.0),
                  x_goal=(1.6, 0.0, 0.3, 0.0), obstacles=((0.11, 1.2, 0.15),), n_intervals=40)
 PLANAR_FREE = replace(PLANAR, obstacles=(), model=load_model('planar_2r', g=9.81))

@@ -45,7 +45,7 @@ def rk4(x, u, dt, steps):
 
 @pytest.fixture(scope='module')
 def plan():
-    result = solve(Problem(n_intervals=100), SolverOptions(timeout=120.0))
+    result = solve(Problem.paper(n_intervals=100), SolverOptions(timeout=120.0))
     assert result.success, result.message
     return result
 

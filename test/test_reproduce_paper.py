@@ -32,6 +32,8 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
+from toc_ros.core import CylindricalRobot
+
 pytestmark = pytest.mark.slow
 
 HAVE_CASADI = importlib.util.find_spec('casadi') is not None
@@ -181,7 +183,8 @@ def test_report_numbers_come_from_the_data(quick):
     """The scenario's numbers in the text are read from the Problem, not written by hand."""
     res, _, text = quick
     assert rp._scenario_text(res['paper'].problem) in ' '.join(text.split())
-    changed = replace(rp.BASE, margin=0.03, robot=replace(rp.BASE.robot, u2_max=450.0))
+    changed = replace(rp.BASE, margin=0.03,
+                      model=CylindricalRobot(replace(rp.BASE.model.params, u2_max=450.0)))
     described = rp._scenario_text(changed)
     assert 'to R = 0.23 m' in described and '|u2| ≤ 450 N' in described
     steps = res['paper'].problem.n_intervals * rp.PaperOptions().d_tau

@@ -38,7 +38,7 @@ HAVE_CASADI = importlib.util.find_spec('casadi') is not None
 GAP = 1e-3              # 0.1 % of the reference optimum
 STOP_LATENCY = 0.1      # [s] cancel/timeout honoured within 100 ms
 
-PAPER = Problem()       # the paper's scenario, Euler, N = 1000
+PAPER = Problem.paper()       # the paper's scenario, Euler, N = 1000
 # N = 300 runs the coarse-to-fine ladder like N = 1000, at a fraction of the cost; the
 # obstacle-free case at N = 200 takes the single-grid path.
 SCENARIOS = {
@@ -63,8 +63,8 @@ def _reference():
 def _reference_t_f(problem):
     res = _reference().solve_reference(
         problem.x0, problem.x_goal, problem.obstacles, problem.margin, N=problem.n_intervals,
-        integrator=problem.integrator, model_variant=problem.robot.model_variant,
-        u_max=(problem.robot.u1_max, problem.robot.u2_max))
+        integrator=problem.integrator, model_variant=problem.model.params.model_variant,
+        u_max=tuple(problem.model.u_max))
     assert res['success'], res['attempts']
     return res['t_f']
 

@@ -30,7 +30,7 @@ import pytest
 from toc_ros.core import PaperOptions, Problem, solve, SolverOptions, Status
 from toc_ros.core.result import HISTORY_COLUMNS
 
-PAPER = Problem()
+PAPER = Problem.paper()
 CONSTANTS = PaperOptions()       # K_B 600, K_V 0.01, K_p 1000, eta 1000, d_tau 1e-5, J_eps 0.01
 M = 4000
 

@@ -83,8 +83,8 @@ def _reference_t_f(problem):
     from benchmarks import reference_ipopt as module
     res = module.solve_reference(problem.x0, problem.x_goal, problem.obstacles, problem.margin,
                                  N=problem.n_intervals, integrator=problem.integrator,
-                                 model_variant=problem.robot.model_variant,
-                                 u_max=(problem.robot.u1_max, problem.robot.u2_max))
+                                 model_variant=problem.model.params.model_variant,
+                                 u_max=tuple(problem.model.u_max))
     assert res['success'], res['attempts']
     return res['t_f']
 
@@ -614,7 +614,7 @@ def test_an_actuated_model_starts_from_the_lazy_joint_solution_with_all_circles(
 def test_no_relaxation_is_solved_where_the_circles_make_no_hole(monkeypatch):
     # The cylindrical robot: its circles reach the joint grid's border (no classes), so two
     # circles take the attempts from the straight start as before, without a relaxed one.
-    problem = replace(Problem(), obstacles=((1.0, 1.0, 0.2), (0.5, -1.2, 0.3)))
+    problem = Problem.paper(obstacles=((1.0, 1.0, 0.2), (0.5, -1.2, 0.3)))
     assert not homotopy.has_holes(problem) and homotopy.class_paths(problem) == []
     assert homotopy.has_holes(_bench_problem((CIRCLE_A, CIRCLE_B), 0.0, False))
     runs = _attempt_runs(monkeypatch)

@@ -255,7 +255,8 @@ def test_cases_become_toc_solve_arguments(tmp_path):
     assert argv[argv.index('--robot.u_max') + 1:][:2] == ['600.0', '450.0']
     assert values == {'goal.x': 1.0, 'goal.y': -1e-5, 'robot.u_max.1': 450.0,
                       'obstacles.1.x': -1.0, 'obstacles.1.y': 0.5, 'obstacles.1.radius': 0.1}
-    assert (problem.n_intervals, problem.robot.u2_max, len(problem.obstacles)) == (80, 450.0, 2)
+    assert (problem.n_intervals, problem.model.params.u2_max, len(problem.obstacles)) == (
+        80, 450.0, 2)
     assert (problem, options) == build_problem(args)      # as toc-solve builds it from the file
     for value in (-1e-05, 1.0 / 3.0, -123456.789e10, 5e-324, 2.0 ** 60):
         assert float(format_number(value)) == value

@@ -48,19 +48,36 @@ class Frames:
 
 # The scenario's settings: (dataclass, prefix of its flat names).  The flat names are the ROS
 # parameter names of the nodes; each field's setting() in the core is the one definition.
-SCENARIO = ((Frames, ''), (ModelChoice, 'robot.'), (Problem, ''), (SolverOptions, 'solver.'))
+SCENARIO = ((Frames, ''), (Problem, ''), (ModelChoice, 'robot.'), (RobotParams, 'robot.'),
+            (SolverOptions, 'solver.'))
+# What the nodes do with a core setting, added to its description (the core says what the
+# value is; these say where it comes from on ROS).
+NODE_NOTES = {
+    'initial_state': ' while no joint_states arrived (plant: state at start-up and after '
+                     '~/reset)',
+    'goal_state': ' of the scenario file (toc-solve); the node plans to goals from goal_pose, '
+                  'goal_joints and ~/plan',
+}
+NODE_NOTES.update(dict.fromkeys(
+    ('obstacles.x', 'obstacles.y', 'obstacles.radius'),
+    '; set them together (atomically) or publish on the obstacles topic'))
 
 
 def _scenario_table():
-    """Return the flat parameters of SCENARIO; robot.model(_parameters) lead robot.*."""
-    table = [p for cls, prefix in SCENARIO if cls is not ModelChoice
-             for p in parameter_table(cls, prefix)]
-    first = next(k for k, p in enumerate(table) if p.name.startswith('robot.'))
-    return tuple(table[:first] + parameter_table(ModelChoice, 'robot.') + table[first:])
+    """Return the flat parameters of SCENARIO: robot.* between obstacles.* and solver.*."""
+    table = []
+    for cls, prefix in SCENARIO:
+        for p in parameter_table(cls, prefix):
+            note = NODE_NOTES.get(p.name, '')
+            table.append(replace(p, description=p.description + note) if note else p)
+    robot = [p for p in table if p.name.startswith('robot.')]
+    rest = [p for p in table if not p.name.startswith('robot.')]
+    first = next(k for k, p in enumerate(rest) if p.name.startswith('solver.'))
+    return tuple(rest[:first] + robot + rest[first:])
 
 
 SCENARIO_TABLE = _scenario_table()
-# Flat parameter name -> default; the defaults are the paper's scenario.
+# Flat parameter name -> default; the defaults are the paper's scenario (Problem.paper()).
 DEFAULTS = {p.name: p.default for p in SCENARIO_TABLE}
 
 YAML_HEADER = """\

@@ -29,9 +29,10 @@ from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
-from toc_ros.core import Problem, ProblemError
+from toc_ros.core import ProblemError
 from toc_ros.core.model import dynamics, RobotParams
 from toc_ros.core.models import CylindricalRobot, ModelError, RobotModel
+from toc_ros.core.problem import check_obstacles
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -431,8 +432,8 @@ def obstacle_rows_from_msg(msg):
         raise ConversionError(f'obstacles data must hold rows of (x, y, radius): {data.size} '
                               'values is not a multiple of 3')
     rows = tuple((float(x), float(y), float(r)) for x, y, r in data.reshape(-1, 3))
-    try:    # the one obstacle check: Problem.validate (finite, radius > 0, off the base)
-        Problem(obstacles=rows, margin=0.0).validate(states=False)
+    try:    # the one obstacle check, Problem.validate's (finite, radius > 0, off the base)
+        check_obstacles(rows)
     except ProblemError as exc:
         raise ConversionError(str(exc))
     return rows

@@ -30,7 +30,8 @@ from toc_ros.core import ProblemError
 from toc_ros.recording.bag_reader import Recording, RecordingError
 
 from .plots import draw_all
-from .report import analyse, load_run, markdown, ROLES
+from .recorded_run import load_run, ROLES
+from .report import analyse, markdown
 
 EXIT_OK, EXIT_DAMAGED, EXIT_ERROR = 0, 1, 2
 

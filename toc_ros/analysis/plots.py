@@ -32,7 +32,8 @@ from matplotlib.patches import Circle
 import numpy as np
 
 
-from .report import hand_xy, run_model, tracking_errors
+from .recorded_run import hand_xy, run_model
+from .report_numbers import tracking_errors
 
 DPI = 110
 # Arm drawn at this many instants of each plan (the paper's Fig. 7).

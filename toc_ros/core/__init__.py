@@ -21,14 +21,14 @@ use_source_keyed_cache()
 # The imports below compile or load the numba kernels; the cache directory must be set first.
 
 from .model import hand_position, RobotParams  # noqa: E402
-from .models import load_model, ModelError, MODELS, RobotModel  # noqa: E402
+from .models import CylindricalRobot, load_model, ModelError, MODELS, RobotModel  # noqa: E402, E501
 from .obstacles import arm_clearance  # noqa: E402
 from .problem import measure_violations, PaperOptions, Problem, ProblemError, SolverOptions  # noqa: E402, E501
 from .result import Progress, SolveResult, Status, Violations  # noqa: E402
 from .solver import solve, warm_up  # noqa: E402
 
 __all__ = [
-    'arm_clearance', 'hand_position', 'load_model', 'measure_violations', 'ModelError',
-    'MODELS', 'PaperOptions', 'Problem', 'ProblemError', 'Progress', 'RobotModel', 'RobotParams',
-    'SolveResult', 'SolverOptions', 'solve', 'Status', 'Violations', 'warm_up',
+    'arm_clearance', 'CylindricalRobot', 'hand_position', 'load_model', 'measure_violations',
+    'ModelError', 'MODELS', 'PaperOptions', 'Problem', 'ProblemError', 'Progress', 'RobotModel',
+    'RobotParams', 'SolveResult', 'SolverOptions', 'solve', 'Status', 'Violations', 'warm_up',
 ]

@@ -16,13 +16,13 @@
 
 import dataclasses
 from dataclasses import dataclass, field
+import functools
 import math
 from typing import Optional, Tuple
 
 import numpy as np
 
 from .horizon import integrator_id
-from .model import RobotParams
 from .models.base import RobotModel
 from .models.cylindrical import CylindricalRobot
 from .obstacles import GRAD_EXACT, GRAD_SHORTCUT, model_clearance
@@ -31,6 +31,8 @@ from .settings import setting
 
 PAPER_X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
 PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
+PAPER_OBSTACLES = ((1.0, 1.0, 0.2),)     # section 4: R' = 0.2 m at (1 m, 1 m)
+PAPER_MARGIN = 0.01                      # dR [m] of section 4.2
 MAX_INTERVALS = 200000
 MODES = ('fast', 'paper')
 # Iteration budgets: paper mode runs the paper's M = 30000 gradient iterations; fast mode counts
@@ -47,50 +49,66 @@ class Problem:
     """
     Move the robot from x0 to x_goal (rest or not) in minimum time around circles.
 
-    obstacles: rows (cx, cy, R') [m] in the base frame; margin dR [m] inflates each to
+    Only the start x0 and the goal x_goal must be given.  The defaults: the paper's
+    cylindrical robot as the model, no obstacles, margin dR = 0.01 m, N = 1000 Euler intervals,
+    t_f0 = 2.5 s.  Problem.paper() is the scenario of the paper's section 4 (its start, goal and
+    circle).  obstacles: rows (cx, cy, R') [m] in the base frame; margin dR [m] inflates each to
     R = R' + dR (section 4.2).  N intervals of tau = t_f / N, t_f0 the initial final time.
     """
 
+    # The flat parameters' defaults (ros_default), i.e. the scenario file's, are the paper's.
     x0: Tuple[float, ...] = setting(
-        PAPER_X0, '[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: start state while no joint_states '
-        'arrived (plant: state at start-up and after ~/reset)', ros_name='initial_state')
+        description='[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: start state', ros_name='initial_state',
+        ros_default=PAPER_X0)
     x_goal: Tuple[float, ...] = setting(
-        PAPER_GOAL, '[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: goal of the scenario file '
-        '(toc-solve); the node plans to goals from goal_pose, goal_joints and ~/plan',
-        ros_name='goal_state')
+        description='[q1 rad, dq1 rad/s, q2 m, dq2 m/s]: goal', ros_name='goal_state',
+        ros_default=PAPER_GOAL)
+    # The robot: any RobotModel (models/), e.g. CylindricalRobot(RobotParams(u1_max=700.0)).
+    model: RobotModel = field(default_factory=CylindricalRobot)
     obstacles: Tuple[Tuple[float, float, float], ...] = setting(
-        ((1.0, 1.0, 0.2),), "obstacle circles (x, y, radius R' > 0): obstacles.x/.y/.radius "
-        'have equal lengths; set them together (atomically) or publish on the obstacles topic',
-        unit='m', columns=('x', 'y', 'radius'))
-    margin: float = setting(0.01, "dR: clearance margin, the arm stays outside R' + dR",
+        (), "obstacle circles (x, y, radius R' > 0): obstacles.x/.y/.radius have equal lengths",
+        unit='m', columns=('x', 'y', 'radius'), ros_default=PAPER_OBSTACLES)
+    margin: float = setting(PAPER_MARGIN, "dR: clearance margin, the arm stays outside R' + dR",
                             unit='m', low=0.0, high=100.0, ros_name='obstacles.margin')
-    robot: RobotParams = field(default_factory=RobotParams)
     n_intervals: int = setting(1000, 'number of time intervals of the trajectory', low=2,
                                high=MAX_INTERVALS, ros_name='solver.N')
     integrator: str = setting('euler', "discretisation of eq. (37): 'euler' (the paper's) or "
                               "'rk4'", choices=('euler', 'rk4'), ros_name='solver.integrator')
     t_f0: float = setting(2.5, 'initial guess of the final time (> 0)', unit='s', low=0.0,
                           high=1e4, ros_name='solver.t_f0')
-    # Another robot model (models/): None = the cylindrical robot of eq. (37) with `robot`.
-    model: Optional[RobotModel] = None
+
+    @classmethod
+    def paper(cls, **changes):
+        """
+        Return the paper's scenario (section 4), with changes (field=value) if given.
+
+        The cylindrical robot of eq. (37) with the paper's data moves at rest from
+        q = (pi/12 rad, 1 m) to (5 pi/12 rad, 1 m) around the circle R' = 0.2 m at (1 m, 1 m),
+        margin 0.01 m; N = 1000 Euler intervals.
+        """
+        return cls(**{'x0': PAPER_X0, 'x_goal': PAPER_GOAL, 'model': CylindricalRobot(),
+                      'obstacles': PAPER_OBSTACLES, 'margin': PAPER_MARGIN, 'n_intervals': 1000,
+                      'integrator': 'euler', 't_f0': 2.5, **changes})
 
     @property
     def robot_model(self):
-        """Return the RobotModel solved for (models/base.py)."""
-        return CylindricalRobot(self.robot) if self.model is None else self.model
+        """Return the RobotModel solved for: the model."""
+        return self.model
+
+    @property
+    def robot(self):
+        """Refuse the former second way to give the robot: it is the model now."""
+        raise AttributeError('Problem.robot is gone: the robot is Problem.model (a RobotModel; '
+                             'its data: Problem.model.params)')
 
     def with_model(self, model):
         """
-        Return this problem for another RobotModel (the cylindrical one as `robot` data).
+        Return this problem for another RobotModel.
 
         Joint states x0, x_goal (2 n entries) become the model's states (models with actuator
         states: the torques that hold the joints' velocities, see actuated.py).
         """
         states = {name: _model_state(model, getattr(self, name)) for name in ('x0', 'x_goal')}
-        if isinstance(model, CylindricalRobot):
-            if model.params == self.robot and self.model is None:
-                return dataclasses.replace(self, **states)
-            return dataclasses.replace(self, robot=model.params, model=None, **states)
         return dataclasses.replace(self, model=model, **states)
 
     @property
@@ -105,21 +123,21 @@ class Problem:
         return c
 
     def kernel_arrays(self):
-        """Return the kernels' inputs: packed robot data, x0, x_goal, u_max, inflated circles."""
-        return (self.robot.packed(), np.asarray(self.x0, float), np.asarray(self.x_goal, float),
-                self.robot.u_max, np.ascontiguousarray(self.circles()))
+        """Return the kernels' inputs: packed model data, x0, x_goal, u_max, inflated circles."""
+        return (self.model.packed(), np.asarray(self.x0, float), np.asarray(self.x_goal, float),
+                self.model.u_max, np.ascontiguousarray(self.circles()))
 
     def validate(self, states=True):
         """
         Raise ProblemError with every problem found (nothing is solved before this passes).
 
         states=False skips the checks of x0 and x_goal against the arm length and the
-        obstacles (a node checks those per request, against the measured start).
+        obstacles (for a caller that checks those per request, e.g. against a measured start).
         """
-        if self.model is None and not isinstance(self.robot, RobotParams):
-            raise ProblemError('robot must be a toc_ros.core.RobotParams')
-        if self.model is not None and not isinstance(self.model, RobotModel):
-            raise ProblemError('model must be a toc_ros.core.models.RobotModel')
+        if not isinstance(self.model, RobotModel):
+            raise ProblemError('model must be a toc_ros.core.models.RobotModel, e.g. '
+                               'CylindricalRobot(RobotParams(...)), got '
+                               f'{type(self.model).__name__}')
         model = self.robot_model
         errors = list(model.check())
         x0 = _vector('x0', self.x0, model.nx, errors)
@@ -136,20 +154,7 @@ class Problem:
             errors.append(f't_f0 must be a finite positive time [s], got {self.t_f0!r}')
         if not _finite_number(self.margin) or self.margin < 0.0:
             errors.append(f'margin must be finite and >= 0 [m], got {self.margin!r}')
-        circles = None
-        try:
-            circles = np.array(self.obstacles, dtype=float).reshape(-1, 3)
-        except (TypeError, ValueError):
-            errors.append('obstacles must be rows (x, y, radius) of numbers')
-        if circles is not None:
-            for k, (cx, cy, radius) in enumerate(circles):
-                if not all(map(math.isfinite, (cx, cy, radius))):
-                    errors.append(f'obstacle {k} has a non-finite value ({cx}, {cy}, {radius})')
-                elif radius <= 0.0:
-                    errors.append(f'obstacle {k} radius must be > 0, got {radius}')
-                elif _finite_number(self.margin) and math.hypot(cx, cy) <= radius + self.margin:
-                    errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
-                                  f'{radius + self.margin} contains the robot base')
+        circles = _obstacle_rows(self.obstacles, self.margin, errors)
         if not errors and states:
             for name, x in (('start', x0), ('goal', xg)):
                 errors += model.check_state(x, name)
@@ -164,6 +169,21 @@ class Problem:
                                       f'(inflated by the margin): clearance {gaps[j]:.6g} m')
         if errors:
             raise ProblemError('; '.join(errors))
+
+
+def _refuse_robot_keyword(init):
+    """Wrap Problem.__init__: the robot keyword of earlier versions gets a clear TypeError."""
+    @functools.wraps(init)
+    def __init__(self, *args, **kwargs):
+        if 'robot' in kwargs:
+            raise TypeError('Problem(robot=...) is gone: give the robot as a model, '
+                            'Problem(model=CylindricalRobot(RobotParams(...)), ...) '
+                            '(toc_ros.core.models.CylindricalRobot)')
+        init(self, *args, **kwargs)
+    return __init__
+
+
+Problem.__init__ = _refuse_robot_keyword(Problem.__init__)
 
 
 @dataclass(frozen=True)
@@ -200,7 +220,7 @@ class SolverOptions:
     max_iterations: Optional[int] = setting(
         None, "iteration limit of one solve; 0 = the mode's default (paper: M = 30000 gradient "
         'steps, fast: 2000 interior-point iterations)', low=0, high=1_000_000_000, none_value=0)
-    # [s] wall clock; None = no limit (the nodes and the scenario file default to 60 s)
+    # [s] wall clock; None = no limit (the scenario file's default is 60 s)
     timeout: Optional[float] = setting(None, 'wall-clock limit of one solve; 0 = none',
                                        unit='s', low=0.0, high=86400.0, none_value=0.0,
                                        ros_default=60.0)
@@ -254,6 +274,32 @@ def measure_violations(problem, controls, final_time):
         max_control_excess=max(float(excess), 0.0),
         terminal_error=float(np.linalg.norm(states[-1] - np.asarray(problem.x_goal, float))),
         min_clearance=clearance)
+
+
+def check_obstacles(obstacles, margin=0.0):
+    """Raise ProblemError unless obstacles are rows (x, y, R' > 0), finite, off the base."""
+    errors = []
+    _obstacle_rows(obstacles, margin, errors)
+    if errors:
+        raise ProblemError('; '.join(errors))
+
+
+def _obstacle_rows(obstacles, margin, errors):
+    """Return obstacles as a (K, 3) array (None if not rows of numbers); problems to errors."""
+    try:
+        circles = np.array(obstacles, dtype=float).reshape(-1, 3)
+    except (TypeError, ValueError):
+        errors.append('obstacles must be rows (x, y, radius) of numbers')
+        return None
+    for k, (cx, cy, radius) in enumerate(circles):
+        if not all(map(math.isfinite, (cx, cy, radius))):
+            errors.append(f'obstacle {k} has a non-finite value ({cx}, {cy}, {radius})')
+        elif radius <= 0.0:
+            errors.append(f'obstacle {k} radius must be > 0, got {radius}')
+        elif _finite_number(margin) and math.hypot(cx, cy) <= radius + margin:
+            errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
+                          f'{radius + margin} contains the robot base')
+    return circles
 
 
 def _model_state(model, x):

@@ -13,12 +13,12 @@
 # limitations under the License.
 
 """
-Settings: dataclass fields that also describe their flat parameter (ROS name, range, text).
+Settings: dataclass fields that also describe their flat parameter (name, range, text).
 
 A field declared with ``setting(default, description, ...)`` is the one place of a setting:
 its default, description, unit, range and choices.  ``parameter_table(cls, prefix)`` walks a
-dataclass (and the dataclass fields nested in it, e.g. ``Problem.robot``) and returns the flat
-parameters ('robot.a', 'solver.paper.K_B', ...) that the ROS nodes declare, the scenario YAML
+dataclass (and the dataclass fields nested in it, e.g. ``SolverOptions.paper``) and returns the
+flat parameters ('robot.a', 'solver.paper.K_B', ...) that the nodes declare, the scenario YAML
 holds and toc-solve lists; ``from_parameters(cls, params, prefix)`` builds the dataclass back
 from such a flat dict.  Plain fields (no ``setting``) are not parameters.
 
@@ -28,10 +28,12 @@ Adding an option is one line in its dataclass, e.g. in ``SolverOptions``::
 
 The flat name is ``prefix + (ros_name or field name)``; nested dataclass fields (a
 ``default_factory`` that is a dataclass) add ``<field name>.`` to the prefix.  Two special
-shapes keep the historical ROS names: fields with the same ``ros_name`` and an ``index``
+shapes keep the historical parameter names: fields with the same ``ros_name`` and an ``index``
 form one array parameter (``robot.u_max`` = [u1_max, u2_max]), and a field of rows with
 ``columns`` is stored as one array per column (``obstacles.x``, ``obstacles.y``, ...).
-``none_value`` maps a parameter value (e.g. 0) to a field value of None ("no limit").
+``none_value`` maps a parameter value (e.g. 0) to a field value of None ("no limit");
+``ros_default`` is the parameter default where it differs from the field's, or where the field
+has none (a required field such as a problem's start state).
 This module is ROS-free and numba-free.
 """
 
@@ -61,7 +63,7 @@ class Setting:
 
 @dataclass(frozen=True)
 class Parameter:
-    """One flat parameter: name, default (plain Python), ROS type name, range, description."""
+    """One flat parameter: name, default (plain Python), type name, range, description."""
 
     name: str
     default: object
@@ -73,7 +75,7 @@ class Parameter:
     choices: Optional[Tuple[str, ...]] = None
 
     def full_description(self):
-        """Return the description with the unit in front, as the ROS descriptor shows it."""
+        """Return the description with the unit in front, as parameter descriptions show it."""
         return f'[{self.unit}] {self.description}' if self.unit else self.description
 
 
@@ -103,11 +105,11 @@ def _type_name(value):
     if isinstance(value, (list, tuple)) and value:
         inner = _type_name(value[0])
         if inner in ('double', 'integer', 'string', 'bool'):
-            # Mixed int/float arrays are double arrays (ROS has no implicit conversion).
+            # Mixed int/float arrays are double arrays (parameter types do not convert).
             if inner == 'integer' and any(isinstance(v, float) for v in value):
                 inner = 'double'
             return inner + '_array'
-    raise TypeError(f'no ROS parameter type for default {value!r}')
+    raise TypeError(f'no parameter type for default {value!r}')
 
 
 def _plain(value):
@@ -122,6 +124,14 @@ def _field_default(f):
     if f.default_factory is not MISSING:
         return f.default_factory()
     raise TypeError(f'setting {f.name} has no default')
+
+
+def _example(f, meta):
+    """Return a value of the field's type: its default, else its parameter default."""
+    if f.default is MISSING and f.default_factory is MISSING and \
+            meta.ros_default is not _NOT_GIVEN:
+        return meta.ros_default       # a required field (e.g. a problem's start state)
+    return _field_default(f)
 
 
 def _nested(f):
@@ -229,7 +239,7 @@ def from_parameters(cls, params, prefix='', **overrides):
         if meta is None:
             continue
         name = prefix + (meta.ros_name or f.name)
-        like = _field_default(f)
+        like = _example(f, meta)
         if meta.columns is not None:
             columns = [list(params[f'{name}.{c}']) for c in meta.columns]
             if len({len(c) for c in columns}) > 1:

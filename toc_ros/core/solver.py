@@ -29,6 +29,7 @@ import numpy as np
 
 from . import homotopy
 from .fast_solver import FastSolve, warm_start_point
+from .models.cylindrical import CylindricalRobot
 from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
 from .result import Progress, SolveResult, Status
@@ -80,7 +81,7 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
             raise ProblemError('options must be a toc_ros.core.SolverOptions')
         problem.validate()
         options.validate()
-        if options.mode == 'paper' and problem.model is not None:
+        if options.mode == 'paper' and not isinstance(problem.model, CylindricalRobot):
             raise ProblemError("paper mode is the paper's heuristic for the cylindrical robot "
                                'of eq. (37) only; use mode fast for other models')
         if initial_guess is not None:
@@ -192,7 +193,7 @@ def warm_up(models=None):
     """Compile (or load from cache) every numba kernel, so no user request pays for it."""
     homotopy.warm_up()
     for integrator in ('euler', 'rk4'):
-        tiny = replace(Problem(), n_intervals=20, integrator=integrator)
+        tiny = Problem.paper(n_intervals=20, integrator=integrator)
         solve(tiny, SolverOptions(mode='paper', max_iterations=2))
         solve(tiny, SolverOptions(mode='fast', max_iterations=3))
         for model in models or ():

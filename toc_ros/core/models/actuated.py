@@ -280,7 +280,7 @@ class ActuatedModel(RobotModel):
         """
         Return the model's state (3 n,) from a joint state (2 n,) and the applied torques.
 
-        effort: the applied torques (joint_states effort); None: the torques that keep the
+        effort: the applied torques (the measured joint efforts); None: the torques that keep the
         joints' velocities constant at x (the hold torque at rest), within the bounds.  A
         state that already has 3 n entries is returned as it is.
         """

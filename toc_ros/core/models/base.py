@@ -142,7 +142,7 @@ class RobotModel:
         """
         Return the model's state from a joint state (q_1, dq_1, ..., q_n, dq_n).
 
-        effort: the applied controls (joint_states effort), used by models with actuator
+        effort: the applied controls (the measured joint efforts), used by models with actuator
         states (actuated.py); here the joint state is the whole state.
         """
         return np.asarray(x, dtype=float).reshape(-1).copy()
