@@ -52,7 +52,7 @@ from toc_ros.conversions import (as_model, ConversionError, joint_state_arrays,
                                  joint_state_to_state, obstacle_rows_from_msg,
                                  pose_to_joint_goal, trajectory_arrays)
 from toc_ros.core import ProblemError, Status
-from toc_ros.core.obstacles import model_clearance, segment_clearance
+from toc_ros.core.obstacles import model_clearance, scheduled_clearance
 from toc_ros.progress import (EVENT_REPLACED, EVENT_REPLAN_KEPT, EVENT_REPLANNED, EVENT_STOPPED,
                               progress_from_msg, ProgressReport)
 
@@ -635,19 +635,8 @@ def obstacle_schedule(run, first_rows, warn=None):
 
 
 def obstacle_clearance(model, times, positions, schedule):
-    """Return (K, n) clearance [m] of every link to each true obstacle row (nan: absent)."""
-    width = max((len(rows) for _, rows in schedule), default=0)
-    out = np.full((len(times), width), np.nan)
-    starts = [t for t, _ in schedule]
-    for j, (start, rows) in enumerate(schedule):
-        stop = starts[j + 1] if j + 1 < len(schedule) else math.inf
-        inside = (times >= start) & (times < stop)
-        if not np.any(inside) or not len(rows):
-            continue
-        gaps = segment_clearance(model.link_segments(positions[inside]), rows)
-        out[np.nonzero(inside)[0], :len(rows)] = gaps.reshape(
-            int(np.sum(inside)), -1, len(rows)).min(axis=1)
-    return out
+    """Return (n, K) clearance [m] of every link to each true obstacle row (nan: absent)."""
+    return scheduled_clearance(model, times, positions, schedule)
 
 
 def _by_stamp(items):

@@ -28,10 +28,11 @@ import time
 import numpy as np
 
 from . import homotopy
-from .fast_solver import FastSolve, warm_start_point
+from .fast_solver import FastSolve
 from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
 from .result import Progress, SolveResult, Status
+from .start_points import warm_start_point
 
 
 class _Clock:
