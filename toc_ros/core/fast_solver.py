@@ -45,12 +45,13 @@ import numpy as np
 from . import homotopy, ipm, workers
 from .class_starts import ClassStarts, relaxation
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
-    EXPLORE_TIME, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, REFINE_BAND, \
-    WARM_BUDGET, WARM_EXACT, WARM_PUSH
+    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, \
+    MU_WARM, REFINE_BAND, WARM_BUDGET, WARM_EXACT, WARM_PUSH
 from .ip_run import BOUND_PUSH, Cancelled, InteriorPointRun, Stop
 from .result import SolveResult, Status
-from .start_points import actuator_states, has_actuators, interpolation_start, \
-    interpolation_states, ladder, resample, resample_duals, start_along, warm_start_point
+from .start_points import actuator_states, fitted_final_time, has_actuators, \
+    interpolation_start, interpolation_states, ladder, resample, resample_duals, start_along, \
+    warm_start_point
 
 CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITERATIONS,
                ipm.LINE_SEARCH_FAILED: Status.STALLED, ipm.NUMERICAL_FAILURE: Status.STALLED}
@@ -218,8 +219,15 @@ class FastSolve(ClassStarts):
                 for pair in COLD_ATTEMPTS[1:]:
                     if self._may_explore():
                         self._attempt(grid, n, start, pair, found)
+            for t_f in self._fitted_times():
+                if self.done < self.limit // 2:
+                    self._attempt(grid, n, interpolation_start(problem, grid, t_f),
+                                  COLD_ATTEMPTS[0], found)
         if grid == n and found:
-            return min(found, key=lambda r: r.t_f), ipm.CONVERGED   # ties: the first attempt
+            # Ties (the same optimum from several starts, within 1e-6): the first attempt.
+            shortest = min(run.t_f for run in found)
+            return next(run for run in found if run.t_f <= (1.0 + 1e-6) * shortest), \
+                ipm.CONVERGED
         if found:
             self._finish(found, n, allowance, prefetched)
         if self.best is not None:
@@ -234,6 +242,20 @@ class FastSolve(ClassStarts):
             if code == ipm.CONVERGED:
                 return run, code
         return first
+
+    def _fitted_times(self):
+        """
+        Return the final times [s] of the cold starts that fit the problem (FIT_FACTORS).
+
+        Those off the problem's t_f0 by more than FIT_BAND, in order; none when the fitted
+        time cannot be formed (fitted_final_time) or t_f0 is within FIT_BAND of it.
+        """
+        fitted = fitted_final_time(self.problem)
+        t_f0 = float(self.problem.t_f0)
+        if fitted is None or max(fitted, t_f0) <= FIT_BAND * min(fitted, t_f0):
+            return []
+        return [factor * fitted for factor in FIT_FACTORS
+                if max(factor * fitted, t_f0) > FIT_BAND * min(factor * fitted, t_f0)]
 
     def _cold_actuated(self, n):
         """

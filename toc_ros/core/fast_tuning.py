@@ -71,3 +71,11 @@ EXPLORE_INTERVALS = 50
 # from (segment clearance, at every node of the coarse run): fewer constraints per node on the
 # ladder and the N grid; a climb that comes closer is checked and redone as a relaxed one.
 NARROW_MARGIN = 0.05
+# Cold starts that fit the problem: besides the straight start over the problem's t_f0, the
+# same joint path over each of these multiples of the fitted final time (the slowest joint's
+# bang-bang time, start_points.fitted_final_time) that t_f0 exceeds more than FIT_BAND times
+# (or falls short of): a start much slower than the robot lets the first iterations wander
+# into optima that spin the distal joints (three-link arms).  The problem's own start stays
+# the first, so that where it is fit (within FIT_BAND of the fitted time) nothing changes.
+FIT_FACTORS = (1.0, 2.0)
+FIT_BAND = 3.0

@@ -35,23 +35,23 @@ BLEND = 0.1
 SMOOTHING = 3
 
 
-def interpolation_start(problem, n):
+def interpolation_start(problem, n, t_f=None):
     """
-    Return the cold starting point for n intervals over t_f0.
+    Return the cold starting point for n intervals over t_f (default the problem's t_f0).
 
     Each joint moves from x0 to x_goal along a cubic in time (positions and velocities match
     both ends), and the controls are that motion's inverse dynamics clipped to the bounds
     (least squares through df/du; exact for models affine in u).  The same point is handed to
     the reference solvers in benchmarks/ so that all start alike.
     """
-    t_f = float(problem.t_f0)
-    return start_along(problem, interpolation_states(problem, n), t_f) + (t_f,)
+    t_f = float(problem.t_f0 if t_f is None else t_f)
+    return start_along(problem, interpolation_states(problem, n, t_f), t_f) + (t_f,)
 
 
-def interpolation_states(problem, n):
+def interpolation_states(problem, n, t_f=None):
     """Return the joint states (n + 1, 2 n) of interpolation_start (its controls cost more)."""
     model = problem.robot_model
-    t_f = float(problem.t_f0)
+    t_f = float(problem.t_f0 if t_f is None else t_f)
     x0 = np.asarray(problem.x0, dtype=float)
     xg = np.asarray(problem.x_goal, dtype=float)
     q0, qg = model.positions(x0), model.positions(xg)
@@ -69,6 +69,70 @@ def interpolation_states(problem, n):
     states[:, 0::2] = q
     states[:, 1::2] = dq
     return states
+
+
+def bang_bang_time(distance, v0, v1, acceleration):
+    """
+    Return the least time [s] of a double integrator from velocity v0 to v1 over distance.
+
+    Under |acceleration| <= acceleration (> 0): one switch between full acceleration and full
+    deceleration (either order), the switching velocity from v_s^2 = s a d + (v0^2 + v1^2) / 2.
+    """
+    best = math.inf
+    for sign in (1.0, -1.0):
+        square = sign * acceleration * distance + 0.5 * (v0 * v0 + v1 * v1)
+        if square < 0.0:
+            continue
+        switch = sign * math.sqrt(square)
+        first, second = (switch - v0) / (sign * acceleration), \
+            (switch - v1) / (sign * acceleration)
+        if first >= -1e-12 and second >= -1e-12:
+            best = min(best, max(first, 0.0) + max(second, 0.0))
+    return best
+
+
+def joint_accelerations(problem):
+    """
+    Return the acceleration [rad/s^2 or m/s^2] each joint gets from its own bound, (n,).
+
+    u_max_j |df/du|_jj (the diagonal of the inverse mass matrix times the bound), the smaller
+    at the start's and the goal's configuration, at rest; less the larger gravity (drift)
+    acceleration there, but never below a quarter of it.
+    """
+    model = problem.robot_model.joint_model      # the joints driven directly by u
+    u_max = np.asarray(model.u_max, dtype=float)
+    f = np.zeros(model.nx)
+    fx = np.zeros((model.nx, model.nx))
+    fu = np.zeros((model.nx, model.nu))
+    least = np.full(model.n_joints, math.inf)
+    for state in (problem.x0, problem.x_goal):
+        x = model.joint_states(np.asarray(state, dtype=float)).copy()
+        x[1::2] = 0.0
+        model.kernels.rhs_jac(x, np.zeros(model.nu), model.packed(), f, fx, fu)
+        own = np.abs(np.diag(fu[1::2, :])) * u_max
+        least = np.minimum(least, np.maximum(own - np.abs(f[1::2]), 0.25 * own))
+    return least
+
+
+def fitted_final_time(problem):
+    """
+    Return a final time [s] that fits the problem: the slowest joint's bang-bang time.
+
+    Each joint alone from its start to its goal (positions and velocities) under the
+    acceleration of joint_accelerations: a lower estimate of the minimum time, ignoring the
+    coupling between the joints (and the obstacles).  None when it cannot be formed (a model
+    whose controls do not drive its joints one to one).
+    """
+    model = problem.robot_model.joint_model
+    if model.nu != model.n_joints:
+        return None
+    acc = joint_accelerations(problem)
+    x0 = model.joint_states(np.asarray(problem.x0, dtype=float))
+    xg = model.joint_states(np.asarray(problem.x_goal, dtype=float))
+    times = [bang_bang_time(xg[2 * j] - x0[2 * j], x0[2 * j + 1], xg[2 * j + 1], acc[j])
+             for j in range(model.n_joints) if acc[j] > 0.0 and math.isfinite(acc[j])]
+    t_f = max(times, default=math.nan)
+    return t_f if math.isfinite(t_f) and t_f > 0.0 else None
 
 
 def start_along(problem, joint_states, t_f):
