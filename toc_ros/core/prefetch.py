@@ -26,6 +26,7 @@ import threading
 from . import ipm, workers
 from .ip_run import Cancelled
 
+
 class Prefetch:
     """
     The class attempts of one FastSolve, with the climbs of their candidates started early.
