@@ -56,7 +56,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from benchmarks import reference_solvers as rs  # noqa: E402, I100
 from toc_ros.core import (CylindricalRobot, measure_violations, Problem,  # noqa: E402
                           RobotParams, solve, SolverOptions, warm_up)
-from toc_ros.core.fast_solver import warm_start_point  # noqa: E402
+from toc_ros.core.start_points import warm_start_point  # noqa: E402
 
 SCALING_N = (100, 200, 500, 1000, 2000, 4000, 8000)
 REPLAN_FRACTION = 0.3

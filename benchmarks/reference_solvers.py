@@ -64,10 +64,11 @@ except ImportError:  # pragma: no cover - exercised only where casadi is absent
 
 from benchmarks.casadi_models import casadi_model, with_actuators  # noqa: I100
 from toc_ros.core import measure_violations  # noqa: E402
-from toc_ros.core.fast_solver import interpolation_start, T_HIGH_FACTOR, T_LOW  # noqa: E402
+from toc_ros.core.ip_run import T_HIGH_FACTOR, T_LOW  # noqa: E402
 from toc_ros.core.models.actuated import ActuatedModel  # noqa: E402
 from toc_ros.core.models.cylindrical import CylindricalRobot  # noqa: E402
 from toc_ros.core.models.planar_2r import Planar2R  # noqa: E402
+from toc_ros.core.start_points import interpolation_start  # noqa: E402
 
 SOLVERS = ('ipopt', 'fatrop')
 LAYOUTS = {'ipopt': 'global', 'fatrop': 'stagewise'}

@@ -73,23 +73,60 @@ def simulate(x0, controls, t_f, integrator='euler', variant='eq37', robot=None):
     return np.array(xs)
 
 
-def clearance(states, circles, a=PAPER['a']):
+def segment_clearance(segments, circles, squared=False):
     """
-    Distance from the arm segment [0, (a + q2) e(q1)] to each circle's edge: (N+1, K).
+    Clearance of segments (..., L, 4) rows (ax, ay, bx, by) to circles (K, 3): (..., L K).
 
-    Closed form: the closest point of the segment to the centre c is s* e with
-    s* = clip(c . e, 0, L).  Negative means the arm cuts the circle.
+    The tests' one clearance oracle (numpy, independent of the package's compiled one).
+    Column link * K + k; squared=False: d - R [m], squared=True: (d^2 - R^2) / (2 R).  The
+    closest point of a segment to a centre c is a + t (b - a), t = clip((c - a).(b - a) /
+    |b - a|^2, 0, 1).
     """
-    states = np.atleast_2d(states)
+    seg = np.asarray(segments, dtype=float)
     circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
-    out = np.full((states.shape[0], circles.shape[0]), np.inf)
-    for i, x in enumerate(states):
-        e = np.array([math.cos(x[0]), math.sin(x[0])])
-        length = a + x[2]
-        for k, (cx, cy, radius) in enumerate(circles):
-            s = min(max(e @ (cx, cy), 0.0), length)
-            out[i, k] = math.hypot(s * e[0] - cx, s * e[1] - cy) - radius
-    return out
+    a, b = seg[..., None, 0:2], seg[..., None, 2:4]          # (..., L, 1, 2)
+    c = circles[:, 0:2]                                       # (K, 2)
+    v = b - a
+    length_sq = np.sum(v * v, axis=-1)
+    t = np.sum((c - a) * v, axis=-1) / np.where(length_sq > 0.0, length_sq, 1.0)
+    t = np.clip(np.where(length_sq > 0.0, t, 0.0), 0.0, 1.0)
+    closest = a + t[..., None] * v
+    d_sq = np.sum((closest - c) ** 2, axis=-1)                # (..., L, K)
+    radius = circles[:, 2]
+    out = (d_sq - radius ** 2) / (2.0 * radius) if squared else np.sqrt(d_sq) - radius
+    return out.reshape(out.shape[:-2] + (-1,))
+
+
+def chain_segments(q, lengths):
+    """Link segments (M, L, 4) of a planar serial chain with revolute joints q (M, L)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    angles = np.cumsum(q, axis=1)
+    lengths = np.asarray(lengths, dtype=float)[None, :, None]
+    steps = np.stack([np.cos(angles), np.sin(angles)], axis=2) * lengths
+    ends = np.cumsum(steps, axis=1)
+    starts = np.concatenate([np.zeros_like(ends[:, :1]), ends[:, :-1]], axis=1)
+    return np.concatenate([starts, ends], axis=2)
+
+
+def arm_segments(states, a=PAPER['a']):
+    """Return the paper arm's segment [0, (a + q2) e(q1)] at states (M, 4): (M, 1, 4)."""
+    states = np.atleast_2d(np.asarray(states, dtype=float))
+    reach = a + states[:, 2]
+    return np.stack([np.zeros_like(reach), np.zeros_like(reach), reach * np.cos(states[:, 0]),
+                     reach * np.sin(states[:, 0])], axis=1)[:, None, :]
+
+
+def clearance(states, circles, a=PAPER['a']):
+    """Distance from the paper arm [0, (a + q2) e(q1)] to each circle's edge: (N+1, K)."""
+    return segment_clearance(arm_segments(states, a), circles)
+
+
+def arm_clearance(q, circles, a=PAPER['a']):
+    """clearance() of joint positions q (M, 2) = (q1, q2) rows: (M, K)."""
+    q = np.reshape(np.asarray(q, dtype=float), (-1, 2))
+    states = np.zeros((q.shape[0], 4))
+    states[:, 0], states[:, 2] = q[:, 0], q[:, 1]
+    return clearance(states, circles, a)
 
 
 def sampled_clearance(states, circles, a=PAPER['a'], samples=4001):

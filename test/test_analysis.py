@@ -31,6 +31,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
+import numpy_model as nm
 import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
@@ -214,14 +215,9 @@ def seconds(duration):
 
 def clearance(q1, q2, circles):
     """Distance of the arm segment from base to hand to each inflated circle's edge."""
-    best = math.inf
-    for q, ext in zip(q1, q2):
-        end = np.array([(A + ext) * math.cos(q), (A + ext) * math.sin(q)])
-        for x, y, r in circles:
-            c = np.array([x, y])
-            s = np.clip(np.dot(c, end) / np.dot(end, end), 0.0, 1.0)
-            best = min(best, float(np.linalg.norm(s * end - c)) - (r + MARGIN))
-    return best
+    inflated = np.array(circles, dtype=float).reshape(-1, 3) + [0.0, 0.0, MARGIN]
+    gaps = nm.arm_clearance(np.column_stack([q1, q2]), inflated, A)
+    return float(np.min(gaps, initial=math.inf))
 
 
 def expected_numbers(msgs):

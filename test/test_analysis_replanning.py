@@ -29,6 +29,7 @@ import math
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
+import numpy_model as nm
 import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
@@ -167,13 +168,7 @@ def build(path):
 
 def arm_clearance(q, rows):
     """Clearance [m] of the arm segment (base to hand) to each circle's edge."""
-    end = np.array([(A + q[1]) * math.cos(q[0]), (A + q[1]) * math.sin(q[0])])
-    out = []
-    for x, y, r in rows:
-        c = np.array([x, y])
-        s = np.clip(np.dot(c, end) / np.dot(end, end), 0.0, 1.0)
-        out.append(float(np.linalg.norm(s * end - c)) - r)
-    return out
+    return [float(v) for v in nm.arm_clearance(q, rows, A)[0]]
 
 
 def expected_clearance(t_from, t_to, moving=True):

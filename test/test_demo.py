@@ -29,6 +29,8 @@ import subprocess
 import sys
 
 from mcap_ros2.reader import read_ros2_messages
+import numpy as np
+import numpy_model as nm
 import pytest
 from rosbags.highlevel import AnyReader
 from toc_ros.core import Status
@@ -218,12 +220,7 @@ def test_recorded_joint_states_reach_each_goal(demo):
 
 def arm_clearance(q, rows, a):
     """Smallest distance [m] of the cylindrical robot's arm (base to hand) to the circles."""
-    e = (math.cos(q[0]), math.sin(q[0]))
-    best = math.inf
-    for cx, cy, radius in rows:
-        s = min(max(e[0] * cx + e[1] * cy, 0.0), a + q[1])
-        best = min(best, math.hypot(s * e[0] - cx, s * e[1] - cy) - radius)
-    return best
+    return float(np.min(nm.arm_clearance(q, rows, a), initial=math.inf))
 
 
 def test_closed_loop_stage_recomputed_from_the_recording(demo, recorded):

@@ -35,11 +35,9 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
-from toc_ros.core import (CylindricalRobot, horizon, ipm, Problem, RobotParams, solve,
-                          SolverOptions, Status)
-from toc_ros.core import fast_solver as fsv
+from toc_ros.core import CylindricalRobot, horizon, ip_run, ipm, ipm_obstacles, Problem, \
+    RobotParams, solve, SolverOptions, start_points, Status
 from toc_ros.core.models import cylindrical, load_model
-from toc_ros.core.obstacles import model_clearance
 
 
 def _residual(run, ws):
@@ -100,8 +98,8 @@ CASES = {
 def test_newton_step_solves_the_linearised_kkt_system(name):
     problem = CASES[name]
     n = problem.n_intervals
-    run = fsv.InteriorPointRun(problem, n, 10)
-    states, controls, t_f = fsv.interpolation_start(problem, n)
+    run = ip_run.InteriorPointRun(problem, n, 10)
+    states, controls, t_f = start_points.interpolation_start(problem, n)
     run.start(states, controls, t_f, 0.05)
     ws = run.ws
     rng = np.random.default_rng(7)
@@ -187,8 +185,8 @@ def test_euler_stage_hessian_matches_finite_differences_of_the_jacobians():
 
 @njit
 def _obstacle(segments, q, p, circles, z, sigma, cons, cons_q, hess):
-    work = ipm.obstacle_work(cons.shape[0] // circles.shape[0], q.shape[0])
-    ipm.obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess, work)
+    work = ipm_obstacles.obstacle_work(cons.shape[0] // circles.shape[0], q.shape[0])
+    ipm_obstacles.obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess, work)
 
 
 @pytest.mark.parametrize('model', [cylindrical.CylindricalRobot(), PLANAR],
@@ -206,7 +204,7 @@ def test_obstacle_constraint_derivatives_match_finite_differences(model):
         _obstacle(segments, q, p, circles, z, np.zeros(n_con), cons, grad, hess)
         # Against the numpy geometry (independent of the kernels).
         seg = model.link_segments(q)
-        ref = model_clearance(model, model.state(q), circles)[0]
+        ref = nm.segment_clearance(seg, circles)
         d = ref + np.tile(circles[:, 2], model.n_links)
         radius = np.tile(circles[:, 2], model.n_links)
         np.testing.assert_allclose(cons, (d ** 2 - radius ** 2) / (2 * radius), atol=1e-12)
@@ -303,6 +301,8 @@ def test_planar_2r_is_solved_and_feasible_for_both_links():
     # measured by the numpy geometry (independent of the kernels).
     states = result.states
     assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= 1e-6
-    clearance = model_clearance(model, states, problem.circles())
+    prm = model.params
+    clearance = nm.segment_clearance(nm.chain_segments(states[:, 0::2], (prm.l1, prm.l2)),
+                                     problem.circles())
     assert clearance.shape == (201, 4)
     assert clearance.min() >= -1e-6

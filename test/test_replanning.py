@@ -27,6 +27,7 @@ from types import SimpleNamespace
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_harness import A, JOINTS, NodeProcess, PAPER_GOAL, RosClient
 import numpy as np
+import numpy_model as nm
 import pytest
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -81,12 +82,7 @@ def loop(tmp_path_factory):
 
 def arm_clearance(q, rows, margin=0.0, a=A):
     """Smallest distance [m] of the arm segment (base to hand) at q to the circles."""
-    e = np.array([math.cos(q[0]), math.sin(q[0])])
-    best = math.inf
-    for cx, cy, radius in rows:
-        s = min(max(float(e @ np.array([cx, cy])), 0.0), a + q[1])
-        best = min(best, math.hypot(s * e[0] - cx, s * e[1] - cy) - radius - margin)
-    return best
+    return float(np.min(nm.arm_clearance(q, rows, a), initial=math.inf)) - margin
 
 
 def stamp_of(msg):

@@ -210,7 +210,7 @@ OVERSHOOT = replace(PAPER, x0=(1.3058269, 0.0755279, 0.99260788, 0.24495655), n_
 
 @pytest.mark.parametrize('reason', [Status.TIMEOUT, Status.CANCELED])
 def test_a_timeout_during_further_attempts_returns_the_converged_one(monkeypatch, reason):
-    from toc_ros.core import fast_solver
+    from toc_ros.core import fast_solver, ip_run
     reference = solve(OVERSHOOT, SolverOptions())
     assert reference.status is Status.SOLVED, reference.message
     attempts = []
@@ -218,7 +218,7 @@ def test_a_timeout_during_further_attempts_returns_the_converged_one(monkeypatch
 
     def attempt(self, *args):
         if attempts:                  # the stop lands during the second attempt
-            raise fast_solver.Stop(reason)
+            raise ip_run.Stop(reason)
         attempts.append(original(self, *args))
         return attempts[-1]
 

@@ -42,10 +42,11 @@ import numpy_model as nm
 import pytest
 from test_solver_fast import _solve_with_cancel
 
-from toc_ros.core import fast_solver, homotopy, ipm, Problem, solve, SolverOptions, Status, \
-    warm_up, workers
+from toc_ros.core import fast_solver, homotopy, ip_run, ipm, Problem, solve, SolverOptions, \
+    start_points, Status, warm_up, workers
 from toc_ros.core.models import load_model
 from toc_ros.core.obstacles import segment_clearance
+from toc_ros.core.prefetch import Prefetch
 
 pytestmark = pytest.mark.slow
 
@@ -118,14 +119,6 @@ def _planar_rhs(x, u, prm):
     return np.array([dq1, ddq[0], dq2, ddq[1]])
 
 
-def _segment_distance(a, b, p):
-    """Distance from the points p (M, 2) to the segments [a, b] (M, 2 each)."""
-    ab = b - a
-    t = np.clip(np.sum((p - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-300),
-                0.0, 1.0)
-    return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
-
-
 def _planar_problem(g):
     model = load_model('planar_2r', g=g)
     return Problem(model=model, x0=tuple(float(v) for v in model.state(np.array([0.0, 0.3]))),
@@ -150,14 +143,10 @@ def _assert_planar_feasible(problem, result):
     assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= TOL
     np.testing.assert_allclose(result.states, states, rtol=0, atol=1e-9)
     # Both links, every node 1..N, outside every inflated circle.
-    q1, q2 = states[:, 0], states[:, 2]
-    elbow = prm[0] * np.column_stack([np.cos(q1), np.sin(q1)])
-    hand = elbow + prm[1] * np.column_stack([np.cos(q1 + q2), np.sin(q1 + q2)])
-    for circle in problem.obstacles:
-        centre = np.tile(circle[:2], (n + 1, 1))
-        radius = circle[2] + problem.margin
-        for a, b in ((np.zeros_like(elbow), elbow), (elbow, hand)):
-            assert np.min(_segment_distance(a, b, centre)[1:]) >= radius - TOL
+    circles = np.array(problem.obstacles, dtype=float).reshape(-1, 3)
+    circles[:, 2] += problem.margin
+    segments = nm.chain_segments(states[1:, 0::2], prm[:2])
+    assert np.min(nm.segment_clearance(segments, circles)) >= -TOL
 
 
 @pytest.mark.parametrize('name', sorted(PLANAR))
@@ -231,14 +220,11 @@ def test_class_starts_are_collision_free_and_pairwise_not_homotopic():
         # a grid cell (the grid's corners).
         s = np.linspace(0.0, 1.0, 20)[:, None]
         q = np.concatenate([(1.0 - s) * a + s * b for a, b in zip(path[:-1], path[1:])])
-        elbow = l1 * np.column_stack([np.cos(q[:, 0]), np.sin(q[:, 0])])
-        hand = elbow + l2 * np.column_stack([np.cos(q[:, 0] + q[:, 1]),
-                                             np.sin(q[:, 0] + q[:, 1])])
-        for circle in (CIRCLE_A, CIRCLE_B):
-            centre = np.tile(circle[:2], (q.shape[0], 1))
-            for a, b in ((np.zeros_like(elbow), elbow), (elbow, hand)):
-                assert np.min(_segment_distance(a, b, centre)) >= radius - 0.02
-        states, _, _ = homotopy.path_start(problem, path, 50)
+        circles = np.array([CIRCLE_A, CIRCLE_B])
+        circles[:, 2] = radius
+        gaps = nm.segment_clearance(nm.chain_segments(q, (l1, l2)), circles)
+        assert np.min(gaps) >= -0.02
+        states, _, _ = start_points.path_start(problem, path, 50)
         assert np.array_equal(states[0], problem.x0)
         assert np.array_equal(states[-1], problem.x_goal)
     # Configurations with the hand on a circle's centre (both elbow branches, and copies
@@ -263,14 +249,14 @@ def test_parallel_attempts_are_bit_identical_to_one_after_the_other(monkeypatch,
     # g = 9.81: two class starts end at the same coarse optimum (the first one's climb counts).
     problem = _bench_problem((CIRCLE_A, CIRCLE_B), g, False)
     prefetched = []
-    run = fast_solver._Prefetch.run
+    run = Prefetch.run
 
     def counted(self):
         found, done = run(self)
         prefetched.append((len(done['climbs']), len(done['finals'])))
         return found, done
 
-    monkeypatch.setattr(fast_solver._Prefetch, 'run', counted)
+    monkeypatch.setattr(Prefetch, 'run', counted)
     results = []
     for count in (2, 1):
         monkeypatch.setattr(workers, 'WORKERS', count)
@@ -295,7 +281,7 @@ def test_further_cold_attempts_are_deterministic():
     assert np.array_equal(first.history, second.history, equal_nan=True)
 
 
-def test_compiled_clearance_has_the_bits_of_segment_clearance():
+def test_compiled_clearance_has_the_bits_of_the_numpy_oracle():
     rng = np.random.default_rng(3)
     seg = rng.normal(size=(500, 2, 4))
     seg[::7, 1, 2:] = seg[::7, 1, :2]                 # zero-length segments
@@ -304,8 +290,13 @@ def test_compiled_clearance_has_the_bits_of_segment_clearance():
     circles = np.concatenate([circles, np.column_stack([rng.normal(size=(3, 2)),
                                                         rng.uniform(0.05, 0.5, 3)])])
     for squared in (False, True):
-        assert np.array_equal(homotopy.clearance(seg, circles, squared),
-                              segment_clearance(seg, circles, squared=squared))
+        assert np.array_equal(segment_clearance(seg, circles, squared),
+                              nm.segment_clearance(seg, circles, squared=squared))
+    # Leading dimensions and a non-finite segment end are kept as the oracle keeps them.
+    seg[5, 1, 2] = np.nan
+    assert np.array_equal(segment_clearance(seg.reshape(50, 10, 2, 4), circles),
+                          nm.segment_clearance(seg.reshape(50, 10, 2, 4), circles),
+                          equal_nan=True)
 
 
 def test_class_search_stops_with_the_goal_states_of_the_full_search(monkeypatch):
@@ -354,7 +345,7 @@ def test_candidates_are_the_distinct_optima_in_the_band_and_the_first_attempt_of
 def test_prefetch_cancels_the_climbs_and_refinements_of_displaced_candidates():
     solver = SimpleNamespace(done=0, limit=2000, _poller=lambda logs: None)
     solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
-    prefetch = fast_solver._Prefetch(solver, [None] * 5, None, None)
+    prefetch = Prefetch(solver, [None] * 5, None, None)
     slow, fast, again, other = _coarse(0.80), _coarse(0.70), _coarse(0.70), _coarse(0.71)
     prefetch._finished(('attempt', 2), (again, ipm.CONVERGED))
     prefetch._finished(('attempt', 0), (slow, ipm.CONVERGED))
@@ -401,13 +392,13 @@ def _attempt_runs(monkeypatch, one_worker=True):
     if one_worker:
         monkeypatch.setattr(workers, 'WORKERS', 1)
     runs = []
-    start = fast_solver.InteriorPointRun.start
+    start = ip_run.InteriorPointRun.start
 
     def recorded(self, *args, **kwargs):
         runs.append(self)
         return start(self, *args, **kwargs)
 
-    monkeypatch.setattr(fast_solver.InteriorPointRun, 'start', recorded)
+    monkeypatch.setattr(ip_run.InteriorPointRun, 'start', recorded)
     return runs
 
 
@@ -417,15 +408,17 @@ def test_lazy_circles_solve_the_classes_of_the_circle_in_the_way_only(monkeypatc
     problem = _bench_problem((CIRCLE_A, CIRCLE_B), 9.81, False)
     runs = _attempt_runs(monkeypatch)
     searched = []
-    paths = homotopy.class_paths
-    monkeypatch.setattr(homotopy, 'class_paths', lambda *a: searched.append(a) or paths(*a))
+    classes = homotopy.classes
+    monkeypatch.setattr(homotopy, 'classes', lambda problem, *a: searched.append(
+        problem.obstacles) or classes(problem, *a))
     result = solve(problem, SolverOptions(mode='fast'))
     assert result.status is Status.SOLVED, result.message
     _assert_planar_feasible(problem, result)
     assert abs(result.final_time - CLASS_CASES['2 circles, g = 9.81'][3]) <= 1e-6
     coarse = [run.kept for run in runs if run.n == fast_solver.EXPLORE_INTERVALS]
     assert coarse == [(), (0,), (0,)], coarse
-    assert not searched
+    # The class search ran on the relaxation with circle A only, never with both circles.
+    assert searched == [(CIRCLE_A,)], searched
     # The climbs and the N grid without circles: the candidate stays 0.24 m clear of A (more
     # than NARROW_MARGIN), and the N grid's solution is clear of both.
     # (Runs started, with prefetches that a later attempt cancelled: a set.)
@@ -566,7 +559,7 @@ def test_widened_duals_put_each_kept_circle_in_its_column_and_zero_elsewhere():
     # Columns link * K + k (ipm.py): 2 links, circles 1 and 3 of 4 kept.
     z = np.arange(12.0).reshape(3, 4) + 1.0            # (nodes, 2 links x 2 kept)
     duals = {'z': z, 'lam': np.ones((4, 4)), 'rho': 10.0}
-    wide = fast_solver.widen_duals(duals, (1, 3), 4, 2)
+    wide = start_points.widen_duals(duals, (1, 3), 4, 2)
     assert wide['z'].shape == (3, 8)
     assert np.array_equal(wide['z'][:, [1, 3, 5, 7]], z)
     assert not np.any(wide['z'][:, [0, 2, 4, 6]])
@@ -588,8 +581,8 @@ def test_prefetch_climbs_no_candidate_while_one_hits_a_dropped_circle():
                              _bind=lambda task, *a, **k: task)
     solver._candidates = lambda found: fast_solver.FastSolve._candidates(solver, found)
     blocked = _coarse(0.71)
-    prefetch = fast_solver._Prefetch(solver, ['attempt 0', 'attempt 1', 'attempt 2'], None,
-                                     None, lambda run: run is not blocked)
+    prefetch = Prefetch(solver, ['attempt 0', 'attempt 1', 'attempt 2'], None, None,
+                        lambda run: run is not blocked)
     prefetch.waiting = [2]
     prefetch._finished(('attempt', 0), (_coarse(0.70), ipm.CONVERGED))
     prefetch._finished(('attempt', 1), (blocked, ipm.CONVERGED))

@@ -30,6 +30,7 @@ from node_harness import (
     A, LATCHED, NEAR_GOAL, NodeProcess, PAPER_GOAL, parameter_round_trips, pose_of, report,
     reports, RosClient, running_solver, SOLVE_TIMEOUT, TEST_PARAMS, wait_final)
 import numpy as np
+import numpy_model as nm
 import pytest
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64MultiArray
@@ -82,15 +83,7 @@ def set_obstacles(ctx, rows):
 
 def clearance(positions, rows, margin=MARGIN, a=A):
     """Smallest distance [m] of the arm segments at the points to the inflated circles."""
-    q = np.asarray(positions, dtype=float).reshape(-1, 2)
-    e = np.column_stack([np.cos(q[:, 0]), np.sin(q[:, 0])])
-    reach = a + q[:, 1]
-    best = math.inf
-    for cx, cy, radius in rows:
-        s = np.clip(e @ np.array([cx, cy]), 0.0, reach)
-        gaps = np.hypot(s * e[:, 0] - cx, s * e[:, 1] - cy) - (radius + margin)
-        best = min(best, float(np.min(gaps)))
-    return best
+    return float(np.min(nm.arm_clearance(positions, rows, a), initial=math.inf)) - margin
 
 
 def positions(trajectory):

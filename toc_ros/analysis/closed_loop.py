@@ -26,7 +26,7 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from toc_ros.core.obstacles import model_clearance
+from toc_ros.core.obstacles import scheduled_clearance
 
 # The robot has arrived once every joint stays within this of the goal [rad or m] (1 cm of
 # extension, 0.01 rad): the tracking PD settles the last millimetres slowly.
@@ -76,13 +76,8 @@ def executed_clearance(model, times, positions, schedule):
     Each joint_states sample is checked, every link, against the obstacle rows (x, y, R'
     without margin) in force at its time; samples without obstacles give +inf.
     """
-    clearance = np.full(len(times), np.inf)
-    for i, t in enumerate(times):
-        rows = obstacles_at(schedule, t)
-        if len(rows):
-            state = model.state(positions[i])[None, :]
-            clearance[i] = float(np.min(model_clearance(model, state, np.asarray(rows))))
-    return clearance
+    gaps = scheduled_clearance(model, times, positions, schedule)
+    return np.min(np.where(np.isnan(gaps), np.inf, gaps), axis=1, initial=np.inf)
 
 
 def execution_metrics(model, goal_q, plans: Sequence[PlanSpan], times, positions,

@@ -33,7 +33,7 @@ from typing import List
 import numpy as np
 
 from toc_ros.conversions import ConversionError, obstacle_rows_from_msg
-from toc_ros.core.obstacles import segment_clearance
+from toc_ros.core.obstacles import scheduled_clearance
 from toc_ros.progress import (EVENT_REPLACED, EVENT_REPLAN_KEPT, EVENT_REPLANNED, EVENT_STOPPED,
                               progress_from_msg)
 
@@ -120,18 +120,7 @@ def obstacle_schedule(run, first_rows, warn=None):
 
 def obstacle_clearance(model, times, positions, schedule):
     """Return (K, n) clearance [m] of every link to each true obstacle row (nan: absent)."""
-    width = max((len(rows) for _, rows in schedule), default=0)
-    out = np.full((len(times), width), np.nan)
-    starts = [t for t, _ in schedule]
-    for j, (start, rows) in enumerate(schedule):
-        stop = starts[j + 1] if j + 1 < len(schedule) else math.inf
-        inside = (times >= start) & (times < stop)
-        if not np.any(inside) or not len(rows):
-            continue
-        gaps = segment_clearance(model.link_segments(positions[inside]), rows)
-        out[np.nonzero(inside)[0], :len(rows)] = gaps.reshape(
-            int(np.sum(inside)), -1, len(rows)).min(axis=1)
-    return out
+    return scheduled_clearance(model, times, positions, schedule)
 
 
 def _by_stamp(items):

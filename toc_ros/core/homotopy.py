@@ -15,7 +15,7 @@
 """
 Cold starts around the obstacles, one per homotopy class of a two-joint configuration space.
 
-A local method started from the straight joint-space interpolation (fast_solver's
+A local method started from the straight joint-space interpolation (start_points'
 interpolation_start) must carry its iterates through the obstacles to one side or the other;
 which side it ends on is a matter of its path.  For a model with two joints the configuration
 space is a plane, and the obstacles (every link against every inflated circle) are holes in
@@ -24,12 +24,13 @@ by the parities of their crossings of one ray from each hole to the border of th
 homotopy signature of Bhattacharya, Likhachev and Kumar, "Topological constraints in
 search-based robot path planning", Autonomous Robots 33, 2012).  A Dijkstra search over
 (grid cell, crossing parities) finds the shortest collision-free path of each class on a
-CELLS x CELLS grid in 2-4 ms; each path, timed over t_f0 like the interpolation start, is a
-start already on one side of every obstacle.
+CELLS x CELLS grid in 2-4 ms; each path (timed by start_points.path_start) is a start already
+on one side of every obstacle.
 
-Numpy and compiled clearance (the model's link_segments, obstacles.segment_clearance_rows), a
-numba search; nothing here knows the model beyond the interface.  Models with another number
-of joints, or problems whose obstacles leave no hole inside the grid, get no class starts.
+The model's link_segments and obstacles.segment_clearance, a numba search; the results are
+joint paths, and nothing here knows the model beyond that interface, nor the solver.  Models
+with another number of joints, or problems whose obstacles leave no hole inside the grid, get
+no class starts.
 """
 
 import math
@@ -37,7 +38,7 @@ import math
 from numba import njit
 import numpy as np
 
-from .obstacles import segment_clearance_rows
+from .obstacles import segment_clearance
 
 # Grid cells per joint.
 CELLS = 64
@@ -48,10 +49,6 @@ MAX_HOLES = 4
 CHECK_CELLS = 32
 MAX_CLASSES = 4
 CLASS_FACTOR = 2.0
-# Fraction of t_f over which a start or goal velocity is blended in (path_start).
-BLEND = 0.1
-# Smoothing passes (weights 1/4, 1/2, 1/4, ends fixed) over the grid path.
-SMOOTHING = 3
 
 
 @njit(cache=True)
@@ -196,15 +193,6 @@ def class_search(free, start, goal, ray_col, ray_row, w0, w1, max_ends, factor):
     return dist, parent
 
 
-def clearance(segments, circles, squared=False):
-    """Return segment_clearance of segments (M, L, 4) as (M, L K): the same bits, compiled."""
-    seg = np.ascontiguousarray(segments, dtype=float)
-    circles = np.ascontiguousarray(np.reshape(circles, (-1, 3)), dtype=float)
-    out = np.empty((seg.shape[0], seg.shape[1] * circles.shape[0]))
-    segment_clearance_rows(seg, circles, squared, out)
-    return out
-
-
 def _box(model, q0, qg):
     """Grid box per joint: +-pi around the midpoint for revolute joints, else the move +-."""
     lo, hi = np.empty(2), np.empty(2)
@@ -282,7 +270,7 @@ def _holes(problem, cells):
     axes = [np.linspace(lo[j], hi[j], cells) for j in range(2)]
     g0, g1 = np.meshgrid(axes[0], axes[1], indexing='ij')
     q = np.stack([g0.ravel(), g1.ravel()], axis=1)
-    clear = clearance(model.link_segments(q), circles).min(axis=1)
+    clear = segment_clearance(model.link_segments(q), circles).min(axis=1)
     occupied = (clear < 0.0).reshape(cells, cells)
     step = (hi - lo) / (cells - 1)
     start = np.rint((q0 - lo) / step).astype(np.int64)
@@ -336,52 +324,9 @@ def classes(problem, cells=CELLS):
     return paths, (feet if paths else none[1])
 
 
-def path_start(problem, path, n):
-    """
-    Return (states, controls, t_f) for n intervals along a joint path (M, n_joints), over t_f0.
-
-    The smoothed path is parameterised by arc length and traversed with s(t) = 3 t^2 - 2 t^3
-    (rest at both ends); cubic Hermite velocity terms as in interpolation_start, over the first
-    and last BLEND of the time only, add the start and goal velocities.  Controls as in
-    interpolation_start (fast_solver.start_along).
-    """
-    model = problem.robot_model
-    t_f = float(problem.t_f0)
-    x0 = np.asarray(problem.x0, dtype=float)
-    xg = np.asarray(problem.x_goal, dtype=float)
-    p = np.array(path, dtype=float)
-    for _ in range(SMOOTHING):
-        p[1:-1] = 0.25 * p[:-2] + 0.5 * p[1:-1] + 0.25 * p[2:]
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    arc /= max(arc[-1], 1e-12)
-    keep = np.concatenate([[True], np.diff(arc) > 1e-12])
-    p, arc = p[keep], arc[keep]
-    s = np.linspace(0.0, 1.0, n + 1)
-    sig = 3.0 * s**2 - 2.0 * s**3
-    dsig = (6.0 * s - 6.0 * s**2) / t_f
-    # Hermite velocity terms compressed into the first / last BLEND of the time (so that they
-    # move the path by at most 0.15 BLEND t_f |v|): w h10(s / w), w h11(1 - (1 - s) / w).
-    a = np.clip(s / BLEND, 0.0, 1.0)
-    b = np.clip(1.0 - (1.0 - s) / BLEND, 0.0, 1.0)
-    h10, h11 = a**3 - 2.0 * a**2 + a, b**3 - b**2
-    d10, d11 = 3.0 * a**2 - 4.0 * a + 1.0, 3.0 * b**2 - 2.0 * b
-    d10[s > BLEND] = 0.0
-    d11[s < 1.0 - BLEND] = 0.0
-    v0, vg = model.velocities(x0), model.velocities(xg)
-    joints = range(p.shape[1])
-    q = np.column_stack([np.interp(sig, arc, p[:, j]) for j in joints])
-    slope = np.column_stack([np.interp(sig, arc, np.gradient(p[:, j], arc)) for j in joints])
-    states = np.empty((n + 1, 2 * model.n_joints))
-    states[:, 0::2] = q + BLEND * t_f * (h10[:, None] * v0 + h11[:, None] * vg)
-    states[:, 1::2] = slope * dsig[:, None] + d10[:, None] * v0 + d11[:, None] * vg
-    states[0], states[-1] = model.joint_states(x0), model.joint_states(xg)
-    from .fast_solver import start_along
-    return start_along(problem, states, t_f) + (t_f,)
-
-
 def warm_up():
     """Compile (or load from the cache) the kernels on a tiny grid."""
-    clearance(np.zeros((1, 1, 4)), np.array([[1.0, 0.0, 0.5]]))
+    segment_clearance(np.zeros((1, 1, 4)), np.array([[1.0, 0.0, 0.5]]))
     occupied = np.zeros((3, 3), dtype=np.bool_)
     occupied[1, 1] = True
     label_holes(occupied)

@@ -114,17 +114,14 @@ def arm_clearance(states, a, circles):
     """
     Distance from the arm segment to each circle's edge at every node: (N+1, K) [m].
 
-    Plain numpy (independent of the kernels): negative means the arm cuts the inflated circle.
+    The arm of the paper's robot, [0, (a + q2) e(q1)]; negative means the arm cuts the
+    inflated circle.
     """
-    states = np.atleast_2d(states)
-    circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
-    e = np.stack([np.cos(states[:, 0]), np.sin(states[:, 0])], axis=1)
+    states = np.atleast_2d(np.asarray(states, dtype=float))
     reach = a + states[:, 2]
-    out = np.empty((states.shape[0], circles.shape[0]))
-    for k, (cx, cy, radius) in enumerate(circles):
-        s = np.clip(e @ np.array([cx, cy]), 0.0, reach)
-        out[:, k] = np.hypot(s * e[:, 0] - cx, s * e[:, 1] - cy) - radius
-    return out
+    tip = np.stack([reach * np.cos(states[:, 0]), reach * np.sin(states[:, 0])], axis=1)
+    segments = np.concatenate([np.zeros_like(tip), tip], axis=1)[:, None, :]
+    return segment_clearance(segments, circles)
 
 
 def segment_clearance(segments, circles, squared=False):
@@ -133,21 +130,16 @@ def segment_clearance(segments, circles, squared=False):
 
     Column link * K + k.  squared=False: distance to the circle's edge d - R [m];
     squared=True: (d^2 - R^2) / (2 R), the fast mode's constraint (same sign, ~ d - R).
-    Plain numpy, independent of the kernels.
+    The one clearance of the package (solver, class search, validation, nodes, analysis).
     """
     seg = np.asarray(segments, dtype=float)
-    circles = np.reshape(np.asarray(circles, dtype=float), (-1, 3))
-    a, b = seg[..., None, 0:2], seg[..., None, 2:4]          # (..., L, 1, 2)
-    c = circles[:, 0:2]                                       # (K, 2)
-    v = b - a
-    length_sq = np.sum(v * v, axis=-1)
-    t = np.sum((c - a) * v, axis=-1) / np.where(length_sq > 0.0, length_sq, 1.0)
-    t = np.clip(np.where(length_sq > 0.0, t, 0.0), 0.0, 1.0)
-    closest = a + t[..., None] * v
-    d_sq = np.sum((closest - c) ** 2, axis=-1)                # (..., L, K)
-    radius = circles[:, 2]
-    out = (d_sq - radius ** 2) / (2.0 * radius) if squared else np.sqrt(d_sq) - radius
-    return out.reshape(out.shape[:-2] + (-1,))
+    if seg.ndim < 2 or seg.shape[-1] != 4:
+        raise ValueError(f'segments must be an (..., L, 4) array, got shape {seg.shape}')
+    circles = np.ascontiguousarray(np.reshape(np.asarray(circles, dtype=float), (-1, 3)))
+    rows = np.ascontiguousarray(seg.reshape((-1,) + seg.shape[-2:]))
+    out = np.empty((rows.shape[0], rows.shape[1] * circles.shape[0]))
+    segment_clearance_rows(rows, circles, bool(squared), out)
+    return out.reshape(seg.shape[:-2] + (out.shape[1],))
 
 
 @njit(cache=True)
@@ -155,9 +147,8 @@ def segment_clearance_rows(seg, circles, squared, out):
     """
     segment_clearance for segments (M, L, 4) into out (M, L K), compiled.
 
-    The same operations in the same order as the numpy version, so the same bits (tested):
-    for the fast mode's starts and the class search, where the numpy version's temporaries
-    cost ~0.4 ms per call at N = 1000.
+    Compiled because the fast mode's starts and the class search call it on every node of a
+    grid, where numpy's temporaries cost ~0.4 ms per call at N = 1000.
     """
     n_circles = circles.shape[0]
     for m in range(seg.shape[0]):
@@ -183,3 +174,28 @@ def model_clearance(model, states, circles):
     """Clearance d - R [m] of every link of model to every circle at each state: (M, L K)."""
     states = np.atleast_2d(np.asarray(states, dtype=float))
     return segment_clearance(model.link_segments(model.positions(states)), circles)
+
+
+def scheduled_clearance(model, times, positions, schedule):
+    """
+    Clearance [m] of every link to each obstacle row in force at each sample: (n, K).
+
+    times (n,) [s] and joint positions (n, n_joints) of samples; schedule: [(start time,
+    rows (K_j, 3))] sorted by time, each set in force from its start to the next one's.  Column
+    k is the least clearance of the links to row k of the set in force; nan where that set has
+    no row k or no set is in force yet.
+    """
+    times = np.asarray(times, dtype=float)
+    positions = np.asarray(positions, dtype=float)
+    width = max((len(rows) for _, rows in schedule), default=0)
+    out = np.full((len(times), width), np.nan)
+    starts = [t for t, _ in schedule]
+    for j, (start, rows) in enumerate(schedule):
+        stop = starts[j + 1] if j + 1 < len(schedule) else math.inf
+        inside = (times >= start) & (times < stop)
+        if not np.any(inside) or not len(rows):
+            continue
+        gaps = segment_clearance(model.link_segments(positions[inside]), rows)
+        out[np.nonzero(inside)[0], :len(rows)] = gaps.reshape(
+            int(np.sum(inside)), -1, len(rows)).min(axis=1)
+    return out

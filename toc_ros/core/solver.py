@@ -28,11 +28,12 @@ import time
 import numpy as np
 
 from . import homotopy
-from .fast_solver import FastSolve, warm_start_point
+from .fast_solver import FastSolve
 from .models.cylindrical import CylindricalRobot
 from .paper_solver import PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
 from .result import Progress, SolveResult, Status
+from .start_points import warm_start_point
 
 
 class _Clock:

@@ -1,0 +1,81 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Tuning of the fast mode's strategy: grids, barrier parameters, attempts and bands.
+
+Read by fast_solver.py and class_starts.py; the interior-point run's own tolerances are
+ip_run.py's.
+"""
+
+from .ip_run import ELASTIC_WEIGHT
+
+# Grids: a cold solve on N > 2 COARSE_INTERVALS starts on COARSE_INTERVALS intervals.
+COARSE_INTERVALS = 100
+# Barrier parameter of the first cold attempt (IPOPT's default 0.1 led into poorer local optima
+# more often: planar_2r with circles, the demo scenario), and of a warm start on N intervals:
+# MU_WARM / N, since the bound multipliers of the discrete problem scale with tau = t_f / N.
+MU_COLD = 0.01
+# Further cold starts of the N grid after a failure, with these barrier parameters.
+MU_COLD_RETRIES = (0.01, 1.0)
+MU_WARM = 1e-5
+# ... and of a warm start whose first state the robot has drifted from (a replan cycle):
+# MU_DRIFT / N, re-centred more than a refinement's.  Over 38 perturbed cycle starts of the
+# paper scenario (150 intervals) 1e-4 needed no cold fallback where 1e-5 needed 2-9, and on
+# the actuated model 26 instead of 35 iterations (median).
+MU_DRIFT = 1e-4
+# A warm start keeps the controls of the guess on their bounds (within WARM_PUSH).
+WARM_PUSH = 1e-6
+# A warm start whose first state lies within WARM_EXACT of the start uses MU_EXACT.
+WARM_EXACT = 1e-6
+MU_EXACT = 1e-10
+# Iterations a warm start may take before fast mode solves from scratch instead.
+WARM_BUDGET = 60
+# Cold-start attempts (elastic weight, initial barrier parameter), all from the same cold
+# start: the first always; the others when the problem has obstacles and the first did not
+# converge on the coarse grid or needed the inertia correction on more than EXPLORE_NONCONVEX
+# of its iterations there (other weights and barrier parameters lead around the obstacles
+# other ways, into other local optima; see FastSolve._explore).
+COLD_ATTEMPTS = ((ELASTIC_WEIGHT, MU_COLD), (0.3, 1.0), (1.0, 0.1), (10.0, 0.01), (0.1, 0.1),
+                 (1.0, 1e-3), (100.0, 1.0), (0.03, 0.1))
+EXPLORE_NONCONVEX = 20
+# (Elastic weight, initial barrier parameter) of the attempt from each class start of
+# homotopy.py (near collision-free starts, one per homotopy class of a two-joint configuration
+# space), tried instead of the interpolation start when that crosses an obstacle.  The first
+# cold attempt's pair: on the 12 planar_2r scenarios of bench_planar_2r.py it reached the best
+# known optimum from some class start in every one (so did mu0 = 1.0, at more iterations).
+CLASS_ATTEMPT = (ELASTIC_WEIGHT, MU_COLD)
+# Fraction of a solve's timeout after which no further cold attempt starts.
+EXPLORE_TIME = 0.25
+# Converged coarse optima within REFINE_BAND of the shortest (scaled by COARSE_INTERVALS / their
+# grid: the discretisation error ~ 1 / intervals) are refined (at most MAX_REFINE distinct
+# ones); the shortest refined one is the result (_finish).
+REFINE_BAND = 0.02
+MAX_REFINE = 3
+# Grid of the cold attempts from the class starts (when the coarse grid is not the N grid):
+# half the cost per iteration and fewer iterations than on COARSE_INTERVALS, the same optima
+# after refinement on planar_2r (with mu0 = 0.01 on 100 intervals two of them were missed).
+EXPLORE_INTERVALS = 50
+# A lazy solve's candidates (_lazy_classes) climb without the circles they stay this far [m]
+# from (segment clearance, at every node of the coarse run): fewer constraints per node on the
+# ladder and the N grid; a climb that comes closer is checked and redone as a relaxed one.
+NARROW_MARGIN = 0.05
+# Cold starts that fit the problem: besides the straight start over the problem's t_f0, the
+# same joint path over each of these multiples of the fitted final time (the slowest joint's
+# bang-bang time, start_points.fitted_final_time) that t_f0 exceeds more than FIT_BAND times
+# (or falls short of): a start much slower than the robot lets the first iterations wander
+# into optima that spin the distal joints (three-link arms).  The problem's own start stays
+# the first, so that where it is fit (within FIT_BAND of the fitted time) nothing changes.
+FIT_FACTORS = (1.0, 2.0)
+FIT_BAND = 3.0
