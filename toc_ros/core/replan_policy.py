@@ -352,6 +352,6 @@ def cancel_goal_action(plan, now, measured):
     return BRAKE
 
 
-def cycle_allowed(plan, enabled, fast_mode, ready):
-    """Tell whether replan cycles may run for plan: on, fast mode, ready, goal active."""
-    return enabled and fast_mode and ready and plan is not None and plan.replannable
+def cycle_allowed(plan, replanning, ready):
+    """Tell whether replan cycles may run for plan: replanning on, ready, its goal active."""
+    return replanning and ready and plan is not None and plan.replannable
