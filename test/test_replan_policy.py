@@ -30,10 +30,10 @@ from toc_ros.core import Problem
 from toc_ros.core.executing_plan import (braking_plan, ExecutingPlan, goal_warm_start,
                                          nearest_node, remaining_nodes, Seed,
                                          true_conflict_time, violation)
+from toc_ros.core import replan_policy as policy
 from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
 from toc_ros.core.replan import BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED
-from toc_ros.core import replan_policy as policy
 
 MODEL = CylindricalRobot()
 U_MAX = np.array([600.0, 500.0])
@@ -55,7 +55,7 @@ def rk4(x, u, dt, steps):
 
 
 def make_plan(start=0.0, u1=600.0, result=None, goal=None):
-    """A rotation: u1 full ahead for half the time, full back for the rest (an RK4 rollout)."""
+    """Return a rotation: u1 full ahead for half the time, full back for the rest (an RK4 rollout)."""
     controls = np.zeros((N, 2))
     controls[:N // 2, 0], controls[N // 2:, 0] = u1, -u1
     states = nm.simulate(X0, controls, T, integrator='rk4')

@@ -40,9 +40,10 @@ from typing import Any
 import numpy as np
 
 from toc_ros.core.estimation import estimate_text, ParameterEstimator
+from toc_ros.core.executing_plan import nearest_node
 from toc_ros.core.models import with_actuator_lag
 from toc_ros.core.obstacles import model_clearance
-from toc_ros.core.replan import stop_later_is_clear
+from toc_ros.core.replan import predict, stop_later_is_clear
 
 # A replan cycle needs at least this many nodes of the executing plan left (a cycle keeps its
 # plan's grid, so near the end of a plan cut to the largest cycle size few are left).
@@ -154,6 +155,59 @@ def cycle_start(plan, now, lead, min_remaining):
     if plan.duration - start_at < float(min_remaining):
         return None
     return start_at, plan.start + start_at
+
+
+def next_cycle(plan, state, t, now, received, lead, settings, next_due, revision,
+               reason=None):
+    """
+    Return the replan Cycle due from a measured state, or None.
+
+    state: measured at node-clock time t, received at monotonic time received; settings:
+    replan_deviation and replan_min_remaining (the node's settings); next_due: monotonic time
+    of the next regular cycle; reason: None (due by deviation or rate) or why it is due at
+    once (DATA_CHANGE).  The cycle starts from the state predicted along the plan to the plan
+    node at or after now + lead (cycle_start) and must be published by received + lead.
+    """
+    t = state_time(t, now)
+    measured_at = t - plan.start
+    if measured_at < 0.0:
+        # The plan starts a lead after the state of the cycle that made it, and the state is
+        # from before that: wait for it to apply, unless new data cannot wait; then start
+        # from the plan's own start (that cycle's prediction).
+        if reason is None:
+            return None
+        state, measured_at = plan.states[0], 0.0
+    deviation = plan.deviation(state, measured_at)
+    if reason is None:
+        reason = cycle_reason(deviation, settings.replan_deviation, received, next_due)
+        if reason is None:
+            return None
+    timing = cycle_start(plan, now, lead, settings.replan_min_remaining)
+    if timing is None:
+        return None
+    start_at, stamp = timing
+    start = predict(plan.model, state, plan.times, plan.controls, measured_at, start_at)
+    return Cycle(plan, start, stamp, received, t, deviation, reason, revision, received + lead)
+
+
+def cycle_problem(source, cycle, problem, max_nodes, options, now):
+    """
+    Return (problem, options, warm start) of a cycle, or (None, None, why) when it cannot run.
+
+    source: what warm-starts it (cycle_warm_source); problem: the cycle's problem from
+    cycle.start to the goal (model and data current); the warm start is source's remainder
+    from its node nearest to cycle.start, on its own grid (cycle_nodes), and the solve may run
+    until the deadline plus SEED_EXTRA_S (cycle_timeout).
+    """
+    guess = source.result.remainder(source.times[nearest_node(
+        source.model, source.states, cycle.start)])
+    if guess.controls.shape[0] < MIN_CYCLE_GUESS_NODES:
+        return None, None, f'only {guess.controls.shape[0]} plan nodes left'
+    problem = dataclasses.replace(problem, n_intervals=cycle_nodes(
+        guess.controls.shape[0], max_nodes, guess.final_time, problem.robot_model.max_step))
+    options = dataclasses.replace(options, timeout=cycle_timeout(
+        cycle.deadline, now, options.timeout))
+    return problem, options, guess
 
 
 def cycle_nodes(guess_nodes, max_nodes, final_time, max_step):

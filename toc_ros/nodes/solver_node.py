@@ -102,10 +102,9 @@ from toc_ros import conversions, progress as schema
 from toc_ros.config import problem_from_parameters
 from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
 from toc_ros.core import replan_policy as policy
-from toc_ros.core.executing_plan import (braking_plan, goal_warm_start, nearest_node,
-                                         plan_from_result, Seed, true_conflict_time, violation)
+from toc_ros.core.executing_plan import (braking_plan, goal_warm_start, plan_from_result,
+                                         Seed, true_conflict_time, violation)
 from toc_ros.core.models import CylindricalRobot
-from toc_ros.core.replan import predict
 from toc_ros.core.result import CLEARANCE_TOL
 from toc_ros.goal_worker import GoalWorker, Request
 from toc_ros.nodes import parameters
@@ -803,34 +802,13 @@ class SolverNode(Node):
         if not policy.cycle_allowed(plan, config.replanning, self._ready.is_set()) \
                 or state.shape[0] != plan.model.nx:
             return False
-        now = self._now()
-        state_time = policy.state_time(state_time, now)
-        measured_at = state_time - plan.start
-        if measured_at < 0.0:
-            # The plan starts replan.lead after the state of the cycle that made it, and the
-            # state is from before that: wait for it to apply, unless new data cannot wait;
-            # then start from the plan's own start (that cycle's prediction).
-            if reason is None:
-                return False
-            state, measured_at = plan.states[0], 0.0
-        deviation = plan.deviation(state, measured_at)
-        if reason is None:
-            reason = policy.cycle_reason(deviation, config.node.replan_deviation, received,
-                                         self._next_cycle)
-            if reason is None:
-                return False
-        # The lead covers the solve; new data gets the same: its first cycle usually needs a
-        # new switching structure, runs late and seeds the next (_run_cycle).
-        lead = self._cycle_lead(config)
-        timing = policy.cycle_start(plan, now, lead, config.node.replan_min_remaining)
-        if timing is None:
+        cycle = policy.next_cycle(plan, state, state_time, self._now(), received,
+                                  self._cycle_lead(config), config.node, self._next_cycle,
+                                  revision, reason)
+        if cycle is None:
             return False
-        start_at, stamp = timing
-        start = predict(plan.model, state, plan.times, plan.controls, measured_at, start_at)
-        request = Request(plan.goal, CYCLE_SOURCE, policy.Cycle(
-            plan, start, stamp, received, state_time, deviation, reason, revision,
-            received + lead))
-        if not self._worker.offer(request, behind_cycle=reason == policy.DATA_CHANGE):
+        request = Request(plan.goal, CYCLE_SOURCE, cycle)
+        if not self._worker.offer(request, behind_cycle=cycle.reason == policy.DATA_CHANGE):
             return False
         self._next_cycle = received + 1.0 / config.node.replan_rate
         return True
@@ -856,21 +834,18 @@ class SolverNode(Node):
         result, problem, why = None, None, ''
         estimated, estimate = self._estimated_model(config)
         try:
-            guess = source.result.remainder(source.times[nearest_node(
-                source.model, source.states, cycle.start)])
             problem = problem_from_parameters(config.flat, x0=cycle.start, x_goal=plan.goal)
             if estimated is not None:
                 problem = problem.with_model(estimated)
-            problem = dataclasses.replace(problem, n_intervals=policy.cycle_nodes(
-                guess.controls.shape[0], config.node.replan_max_nodes, guess.final_time,
-                problem.robot_model.max_step))
             # Published only by its deadline (its lead after its joint_states arrived): the
             # lead bounds the latency; a late solve seeds the next cycle's warm start.
-            options = dataclasses.replace(config.options, timeout=policy.cycle_timeout(
-                cycle.deadline, time.monotonic(), config.options.timeout))
-            if guess.controls.shape[0] < policy.MIN_CYCLE_GUESS_NODES:
-                why = f'only {guess.controls.shape[0]} plan nodes left'
+            planned, options, guess = policy.cycle_problem(
+                source, cycle, problem, config.node.replan_max_nodes, config.options,
+                time.monotonic())
+            if planned is None:
+                why = guess
             else:
+                problem = planned
                 result = solve(problem, options, cancel=cancel, initial_guess=guess)
         except (ProblemError, TypeError, ValueError) as exc:
             why = f'no plan from the predicted state: {exc}'
