@@ -26,11 +26,10 @@ from node_harness import eq37
 import numpy as np
 import numpy_model as nm
 import pytest
-from toc_ros.core import Problem
+from toc_ros.core import Problem, replan_policy as policy, SolverOptions
 from toc_ros.core.executing_plan import (braking_plan, ExecutingPlan, goal_warm_start,
                                          nearest_node, remaining_nodes, Seed,
                                          true_conflict_time, violation)
-from toc_ros.core import replan_policy as policy
 from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
 from toc_ros.core.replan import BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED
@@ -55,7 +54,7 @@ def rk4(x, u, dt, steps):
 
 
 def make_plan(start=0.0, u1=600.0, result=None, goal=None):
-    """Return a rotation: u1 full ahead for half the time, full back for the rest (an RK4 rollout)."""
+    """Return a rotation: u1 full ahead for half the time, full back after (an RK4 rollout)."""
     controls = np.zeros((N, 2))
     controls[:N // 2, 0], controls[N // 2:, 0] = u1, -u1
     states = nm.simulate(X0, controls, T, integrator='rk4')
@@ -163,7 +162,7 @@ def follow_then_brake(plan, k, wait, dt=0.002):
     path = [x]
     while np.max(np.abs(x[1::2])) >= BRAKE_REST_SPEED:
         u = -U_MAX * np.clip(x[1::2] / BRAKE_SMOOTHING_SPEED, -1.0, 1.0)
-        x = rk4(x, u, dt / 10, 10)
+        x = rk4(x, u, dt / 2, 2)
         path.append(x)
     return np.array(path)
 
@@ -182,7 +181,7 @@ def test_braking_waits_for_a_replan_only_while_a_later_stop_still_ends_clear(pla
     conflict = true_conflict_time(plan, [circle], plan.times[k])
     assert conflict is not None and conflict > policy.brake_wait(long_)
     outcomes = {}
-    for lead in (short, 0.05, 0.1, 0.15, long_):
+    for lead in (short, 0.1, long_):
         stop = follow_then_brake(plan, k, policy.brake_wait(lead))
         expected = bool(np.min(nm.clearance(stop, [circle])) >= 0.0)
         got = policy.brake_can_wait(plan, [circle], plan.states[k], plan.times[k], lead,
@@ -383,3 +382,60 @@ def test_a_plant_reset_during_a_goal_is_a_deviation_that_replans_to_the_goal():
     assert policy.cycle_allowed(executing, True, True)
     assert not policy.cycle_allowed(executing, False, True)       # replanning off
     assert not policy.cycle_allowed(executing, True, False)       # not ready
+
+
+def test_a_due_cycle_starts_from_the_state_predicted_to_its_plan_node():
+    """The start is an independent RK4 of eq. (37) from the measured state to the stamp."""
+    executing = make_plan(start=50.0, result=FakeResult(N))
+    settings = SimpleNamespace(replan_deviation=0.02, replan_min_remaining=0.15)
+    k = 30
+    measured = executing.states[k] + np.array([0.004, 0.01, -0.003, 0.0])   # off the plan
+    t = 50.0 + executing.times[k]
+    now, lead = t + 0.004, 0.025
+    cycle = policy.next_cycle(executing, measured, t, now, 7.0, lead, settings, 6.0, 3)
+    assert cycle.reason == policy.RATE and cycle.revision == 3
+    assert cycle.deadline == 7.0 + lead and cycle.state_stamp == t
+    node = executing.times[executing.times >= now + lead - 50.0 - 1e-12][0]
+    assert cycle.stamp_s == pytest.approx(50.0 + node)
+    x, s = measured.copy(), executing.times[k]
+    while s < node - 1e-12:                   # the plan's controls, interval by interval
+        i = int(np.searchsorted(executing.times, s, side='right')) - 1
+        h = min(node, executing.times[i + 1]) - s
+        x, s = rk4(x, executing.controls[i], h / 20, 20), s + h
+    assert np.max(np.abs(cycle.start - x)) < 1e-7
+    assert cycle.deviation == pytest.approx(0.004, abs=1e-9)
+    # Not due before the next tick unless it deviates; a state from before the plan's start
+    # waits unless new data cannot wait; too little left: none.
+    assert policy.next_cycle(executing, measured, t, now, 5.0, lead, settings, 6.0, 3) is None
+    off = executing.states[k] + np.array([0.05, 0.0, 0.0, 0.0])
+    assert policy.next_cycle(executing, off, t, now, 5.0, lead, settings, 6.0,
+                             3).reason == policy.DEVIATION
+    early = policy.next_cycle(executing, measured, 49.9, 50.0, 5.0, lead, settings, 6.0, 3)
+    assert early is None
+    forced = policy.next_cycle(executing, measured, 49.9, 50.0, 5.0, lead, settings, 6.0, 3,
+                               reason=policy.DATA_CHANGE)
+    assert forced.reason == policy.DATA_CHANGE and forced.deviation == 0.0
+    end = 50.0 + T - 0.1
+    assert policy.next_cycle(executing, executing.states[-5], end, end, 9.0, lead, settings,
+                             6.0, 3) is None
+
+
+def test_a_cycle_problem_keeps_the_warm_starts_grid_within_its_budget():
+    result = FakeResult(N)
+    executing = make_plan(start=0.0, result=result)
+    cycle = policy.Cycle(executing, executing.states[40], 0.5, 1.0, 0.45, 0.0, policy.RATE,
+                         deadline=1.025)
+    problem = Problem(x0=tuple(executing.states[40]), x_goal=tuple(executing.goal),
+                      obstacles=())
+    options = SolverOptions(timeout=None)
+    guess = SimpleNamespace(controls=np.zeros((60, 2)), final_time=0.72)
+    source = SimpleNamespace(result=SimpleNamespace(remainder=lambda t: guess),
+                             times=executing.times, states=executing.states, model=MODEL)
+    planned, budget, got = policy.cycle_problem(source, cycle, problem, 300, options, 1.0)
+    assert got is guess and planned.n_intervals == 60
+    assert budget.timeout == pytest.approx(0.025 + policy.SEED_EXTRA_S)
+    planned, _, _ = policy.cycle_problem(source, cycle, problem, 40, options, 1.0)
+    assert planned.n_intervals == 40
+    guess = SimpleNamespace(controls=np.zeros((4, 2)), final_time=0.05)
+    assert policy.cycle_problem(source, cycle, problem, 300, options, 1.0) == (
+        None, None, 'only 4 plan nodes left')

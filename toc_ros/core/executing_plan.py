@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The plan a robot executes, as a typed object, and what new data means for it (ROS-free).
+The plan a robot executes, as a typed object, and what new data means for it.
 
 An ``ExecutingPlan`` is the last trajectory published: its start on the node clock, its grid,
 states and controls, the goal it drives to and the model it was planned with.  A braking stop

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The replan and braking policy of a goal's execution, free of ROS (solver_node wires it).
+The replan and braking policy of a goal's execution (a planner node wires it to its inputs).
 
 While a plan executes, replan cycles solve to the same goal from the measured state predicted
 forward by a lead (the time the solve and the transport need).  This module decides:

@@ -307,9 +307,9 @@ class SolverNode(Node):
                 self._latencies.clear()
         if any(p.name.startswith('replan.estimate') for p in changed):
             self._estimate.reset()      # set (even to the same value): start afresh
+        config = SolverNodeConfig.from_flat(parameters.candidate(self._config.flat, changed))
         with self._lock:
-            config = self._config = SolverNodeConfig.from_flat(
-                parameters.candidate(self._config.flat, changed))
+            self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed
         if any(p.name.startswith('robot.') for p in changed):
             self._load_kernels_of(config)
@@ -704,15 +704,12 @@ class SolverNode(Node):
             message = f'{request.stop_reason} ({result.message})'
         if status is Status.INVALID_INPUT:
             message = f'{message} (start state from {start_source})'
-        if status in schema.PUBLISHED and result.has_trajectory:
-            if not self._worker.current(request):       # the goal was canceled meanwhile
-                status, message = Status.CANCELED, f'{request.stop_reason}: not published'
-            elif not self._publish_plan(request, result, problem, config, revision):
-                if not self._worker.current(request):
-                    status, message = Status.CANCELED, f'{request.stop_reason}: not published'
-                else:
-                    request.restart_reason = 'planning data changed at the end of the solve'
-                    return
+        if status in schema.PUBLISHED and result.has_trajectory \
+                and not self._publish_plan(request, result, problem, config, revision):
+            if self._worker.current(request):
+                request.restart_reason = 'planning data changed at the end of the solve'
+                return
+            status, message = Status.CANCELED, f'{request.stop_reason}: not published'
         report = schema.result_report(
             result, message, goal_source=request.source, start_source=start_source,
             goal=tuple(float(v) for v in np.round(request.goal, 9)),
