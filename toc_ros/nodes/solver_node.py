@@ -551,24 +551,25 @@ class SolverNode(Node):
         reason = 'goal canceled by ~/cancel_goal'
         with self._plan_lock:       # first: no new cycle and no replan after a stop for it
             plan = self._executing
+            active = plan is not None and plan.goal_active and plan.executing(self._now())
             if plan is not None:
                 plan.goal_active = False
         stopped, dropped = self._worker.cancel_goal(reason)
         config, measured = self._snapshot()
-        action = policy.cancel_goal_action(plan, self._now(), measured)
         how = None
-        if action != policy.NOTHING:
+        if policy.cancel_goal_action(plan, self._now(), measured) != policy.NOTHING:
             published, braking = self._publish_stop(plan, config, lambda: self._executing is plan)
-            if published:
-                how = 'braking to rest' if braking is not None else 'stopped (no measured state)'
-        elif plan is not None and plan.braking and plan.executing(self._now()):
-            how = 'braking to rest'     # a braking stop already executes
-        response.success = bool(stopped or dropped or how)
+            if published and braking is None:
+                how = 'stopped (no measured state)'
+        with self._plan_lock:
+            current, revision = self._executing, self._revision
+        if how is None and current is not None and current.braking \
+                and current.executing(self._now()):
+            how = 'braking to rest'
+        response.success = bool(stopped or dropped or active)
         if not response.success:
             response.message = 'no active goal (nothing solving, queued or executing)'
             return response
-        with self._plan_lock:
-            revision = self._revision
         response.message = (f'{reason}: ' + (how or 'no plan was executing')
                             + f' ({time.monotonic() - started:.4f} s)')
         self.get_logger().warning(response.message)
