@@ -121,7 +121,7 @@ MAX_PROGRESS_GAP_S = 0.15
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
-# Queue depth of the services: a burst of requests up to this depth is kept.
+# Queue depth of the services: every request of a burst is kept and answered.
 SERVICE_QOS = QoSProfile(depth=100)
 # [m] a ~/plan start farther than this from the measured hand position is warned about.
 START_TOLERANCE_M = 1e-3
@@ -513,7 +513,10 @@ class SolverNode(Node):
         response.plan.header.frame_id = config.frames.base_frame
         response.plan.header.stamp = self.get_clock().now().to_msg()
         start, start_source = self._start_state(config, measured)
-        why = ignored_start(request.start, config, start)
+        try:
+            why = ignored_start(request.start, config, start)
+        except (ValueError, IndexError) as exc:      # a model without a hand position
+            why = f'cannot be compared with the measured state ({exc})'
         if why is not None:
             note = (f'~/plan: the request start {why}; planning from the {start_source} state '
                     'instead (the start is always the measured state)')

@@ -48,8 +48,9 @@ class SolverNodeConfig:
     node: SolverNodeSettings     # solver_node's own settings (replan.*, start_lead, ...)
     frames: Frames               # joint_names, base_frame
     robot: ModelChoice           # robot.model, robot.model_parameters, robot.actuator_lag
-    problem: Problem             # initial_state (x0), obstacles, margin, N, ... with the model
+    problem: Problem             # the scenario's data as given: initial_state (x0), obstacles
     options: SolverOptions       # solver.*
+    model: Any                   # the RobotModel planned for (with its actuator lag)
 
     @classmethod
     def from_flat(cls, params):
@@ -58,16 +59,12 @@ class SolverNodeConfig:
         try:
             node = from_parameters(SolverNodeSettings, params)
             frames = from_parameters(Frames, params)
+            problem = from_parameters(Problem, params)
         except (TypeError, ValueError) as exc:
             raise ProblemError(str(exc))
         return cls(flat=params, node=node, frames=frames, robot=model_choice(params),
-                   problem=problem_from_parameters(params),
-                   options=options_from_parameters(params))
-
-    @property
-    def model(self):
-        """Return the RobotModel (with its actuator lag) these settings plan for."""
-        return self.problem.robot_model
+                   problem=problem, options=options_from_parameters(params),
+                   model=model_from_parameters(params))
 
     @property
     def replanning(self):
