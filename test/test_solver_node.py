@@ -169,7 +169,8 @@ def test_plan_service_plans_from_the_measured_state_and_warns_about_another_star
         response = solver.client.call(solver.plan, GetPlan.Request(start=start,
                                                                    goal=pose_of(NEAR_GOAL)),
                                       SOLVE_TIMEOUT)
-        assert len(response.plan.poses) == N + 1
+        # N + 1 poses, or fewer: a repeated goal warm-starts on the rest of its plan.
+        assert 2 <= len(response.plan.poses) <= N + 1
         first = response.plan.poses[0].pose.position       # the measured state's hand
         assert (first.x, first.y) == pytest.approx(
             ((A + PAPER_X0[2]) * math.cos(PAPER_X0[0]), (A + PAPER_X0[2]) * math.sin(PAPER_X0[0])),

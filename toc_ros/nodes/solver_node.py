@@ -109,7 +109,7 @@ from toc_ros.core.result import CLEARANCE_TOL
 from toc_ros.goal_worker import GoalWorker, Request
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
-from toc_ros.nodes.solver_settings import parameter_errors, SolverNodeConfig
+from toc_ros.nodes.solver_settings import checked, parameter_errors, SolverNodeConfig
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
@@ -182,6 +182,7 @@ class SolverNode(Node):
         if errors:
             raise parameters.ParameterError('; '.join(errors))
         self._config = SolverNodeConfig.from_flat(flat)
+        self._accepted = None               # the config of the last accepted candidate
         self._name = self.get_fully_qualified_name()
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest joint state from joint_states
@@ -293,7 +294,9 @@ class SolverNode(Node):
     def _on_set_parameters(self, changed):
         with self._lock:
             flat = parameters.candidate(self._config.flat, changed)
-        result = parameters.result(parameter_errors(flat))
+        errors, config = checked(flat)
+        self._accepted = config       # built once: _after_set_parameters takes it
+        result = parameters.result(errors)
         if not result.successful:
             self.get_logger().warning(f'refused parameter change: {result.reason}')
             if any(p.name.startswith('robot.model') for p in changed):
@@ -307,7 +310,10 @@ class SolverNode(Node):
                 self._latencies.clear()
         if any(p.name.startswith('replan.estimate') for p in changed):
             self._estimate.reset()      # set (even to the same value): start afresh
-        config = SolverNodeConfig.from_flat(parameters.candidate(self._config.flat, changed))
+        flat = parameters.candidate(self._config.flat, changed)
+        config = self._accepted
+        if config is None or config.flat != flat:
+            config = SolverNodeConfig.from_flat(flat)
         with self._lock:
             self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed

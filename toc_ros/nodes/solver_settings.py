@@ -94,10 +94,15 @@ def parameter_errors(params):
     Whether start and goal states clear the obstacles is checked per request, against the
     measured start state, not here.
     """
+    return checked(params)[0]
+
+
+def checked(params):
+    """Return (errors, the SolverNodeConfig of params or None) of a candidate set."""
     try:
         model = model_from_parameters(params)
     except ProblemError as exc:
-        return [str(exc)]
+        return [str(exc)], None
     errors = parameters.joint_name_errors(params['joint_names'], model.n_joints, model.name)
     if params['replan.estimate']:
         try:
@@ -115,7 +120,7 @@ def parameter_errors(params):
     count, limit = len(params['obstacles.x']), int(params['obstacles.max_count'])
     if count > limit:
         errors.append(f'{count} obstacles exceed obstacles.max_count = {limit}')
-        return errors      # no per-obstacle work on a refused set
+        return errors, None     # no per-obstacle work on a refused set
     state_errors = (
         parameters.vector_errors('initial_state', params['initial_state'], 2 * model.n_joints)
         + parameters.vector_errors('goal_state', params['goal_state'], 2 * model.n_joints))
@@ -131,9 +136,10 @@ def parameter_errors(params):
             problem_from_parameters(params).validate(states=False)
         except (ProblemError, TypeError, ValueError) as exc:
             errors.append(str(exc))
+    config = None
     if not errors:
         try:    # the typed settings of an accepted set must build
-            SolverNodeConfig.from_flat(params)
+            config = SolverNodeConfig.from_flat(params)
         except (ProblemError, TypeError, ValueError) as exc:
             errors.append(str(exc))
-    return errors
+    return errors, config
