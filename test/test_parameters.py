@@ -144,3 +144,31 @@ def test_declared_parameters_agree_with_the_table(tmp_path):
     finally:
         node.stop()
         client.close()
+
+
+def test_solver_node_settings_are_built_once_as_typed_objects():
+    """The node's typed settings carry exactly the flat values (no name looked up twice)."""
+    from toc_ros.nodes.solver_settings import parameter_errors, SolverNodeConfig
+    flat = {name: parameters.default(name) for name in parameters.SOLVER_NODE_NAMES}
+    assert parameter_errors(flat) == []
+    typed = SolverNodeConfig.from_flat(flat)
+    for p in parameter_table(parameters.SolverNodeSettings):
+        field_name = next(f for f in parameters.SolverNodeSettings.__dataclass_fields__.values()
+                          if (f.metadata['toc_ros.setting'].ros_name or f.name) == p.name).name
+        value = getattr(typed.node, field_name)
+        assert (list(value) if isinstance(value, tuple) else value) == p.default, p.name
+    assert list(typed.frames.joint_names) == flat['joint_names']
+    assert typed.frames.base_frame == flat['base_frame']
+    assert typed.robot.name == flat['robot.model'] and typed.options.mode == 'fast'
+    assert typed.problem.obstacles == ((1.0, 1.0, 0.2),) and typed.problem.margin == 0.01
+    assert list(typed.problem.x0) == flat['initial_state']
+    assert typed.replanning and typed.model.nx == 4
+    assert typed.model_keys() == {'robot_model': 'cylindrical', 'model_parameters': ''}
+    changed = SolverNodeConfig.from_flat(dict(flat, **{
+        'replan.rate': 0.0, 'replan.estimate': ['hand_mass'], 'obstacles.margin': 0.05}))
+    assert changed.node.replan_rate == 0.0 and not changed.replanning
+    assert changed.node.replan_estimate == ('hand_mass',) and changed.problem.margin == 0.05
+    assert 'obstacles.margin' in changed.planning_data()
+    assert 'obstacles.max_count' not in changed.planning_data()
+    assert parameter_errors(dict(flat, **{'replan.estimate': ['no_such']}))
+    assert parameter_errors(dict(flat, base_frame='/')) == ['base_frame must not be empty']

@@ -372,3 +372,53 @@ def test_late_cycles_seed_the_next_and_published_ones_are_on_time(loop):
     assert all(ago <= 0.005 for stamp, ago in starts if stamp > stamp_of(first)), starts
     final = positions_since(loop, since)[-1]
     assert np.max(np.abs(final - GOAL_Q)) < 1e-3
+
+
+def test_cancel_goal_brakes_to_rest_and_ends_the_cycles(loop):
+    """~/cancel_goal during a replanned execution: one braking stop, rest, CANCELED."""
+    ctx = loop
+    cancel_goal = ctx.client.node.create_client(Trigger,
+                                                ctx.client.name('solver_node/cancel_goal'))
+    assert cancel_goal.wait_for_service(timeout_sec=30.0)
+    since, first = start(ctx, 20.0)
+    # Mid-motion, after the cycles have replanned at least once.
+    ctx.client.wait_for(lambda: [r for r in cycle_reports(ctx, since)
+                                 if r.event == schema.EVENT_REPLANNED], 10.0, 'a replan cycle')
+    time.sleep(max(0.0, 0.4 * duration_of(first) - (time.monotonic() - since)))
+    moving = positions_since(ctx, time.monotonic() - 0.05)
+    called = time.monotonic()
+    response = ctx.client.call(cancel_goal, Trigger.Request())
+    answered = time.monotonic()
+    assert response.success, response.message
+    assert 'braking to rest' in response.message
+    notices = ctx.client.wait_for(lambda: [
+        schema.progress_from_msg(m)
+        for m in ctx.client.messages('solver_node/progress', called)
+        if schema.progress_from_msg(m).event == schema.EVENT_GOAL_CANCELED], 5.0, 'the notice')
+    assert notices[0].status is Status.CANCELED
+    time.sleep(duration_of(first) + 1.0)       # longer than the rest of the plan would take
+    # The braking trajectory is the last one: published during the call, none after it.
+    after = ctx.client.stamped('trajectory', called)
+    assert after, 'no braking trajectory'
+    t_brake, braking = after[-1]
+    assert t_brake <= answered + 0.5
+    assert all(t <= t_brake for t, _ in after)
+    assert not [t for t, _ in ctx.client.stamped('trajectory', answered + 0.5)]
+    end = braking.points[-1]
+    assert list(end.velocities) == [0.0, 0.0]
+    assert duration_of(braking) < 1.0          # a stop, not a plan to the goal
+    # No replan cycle ran after the cancel (its notice is the last cycle-free word).
+    assert not [r for r in cycle_reports(ctx, answered + 0.1)
+                if r.event in (schema.EVENT_REPLANNED, schema.EVENT_REPLAN_KEPT)]
+    # The robot rests where the stop ends, short of the goal.
+    recent = np.array([list(m.position) + list(m.velocity)
+                       for m in ctx.client.messages('joint_states', time.monotonic() - 0.3)])
+    assert len(recent) > 5
+    assert np.max(np.abs(recent[:, 2:])) < 1e-3
+    assert np.max(np.ptp(recent[:, :2], axis=0)) < 1e-4
+    assert np.max(np.abs(recent[-1, :2] - np.array(end.positions))) < 5e-3
+    assert abs(recent[-1, 0] - GOAL_Q[0]) > 0.05, 'the robot went on to the goal'
+    assert len(moving) and abs(moving[-1][0] - GOAL_Q[0]) > 0.05
+    # A second cancel finds no active goal.
+    again = ctx.client.call(cancel_goal, Trigger.Request())
+    assert not again.success and 'no active goal' in again.message

@@ -23,7 +23,7 @@ from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from node_harness import (
     A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL,
-    PAPER_GOAL, PAPER_X0, pose_of, report, running_solver, SOLVE_TIMEOUT,
+    PAPER_GOAL, PAPER_X0, pose, pose_of, report, running_solver, SOLVE_TIMEOUT,
     TEST_PARAMS, U_MAX)
 import numpy as np
 import pytest
@@ -156,6 +156,36 @@ def test_plan_service_blocks_until_solved(solver):
     assert len(bad.plan.poses) == 0
     refusal = wait_final(solver, since, timeout=10.0)[0]
     assert level_name(refusal) == 'ERROR' and "frame 'map'" in refusal.message
+
+
+def test_plan_service_plans_from_the_measured_state_and_warns_about_another_start(solver):
+    """~/plan never plans from the request's start; a start it ignores is warned about."""
+    set_start(solver, PAPER_X0)
+
+    def warnings(since):
+        return [report(m) for m in solver.client.messages('solver_node/progress', since)
+                if report(m).event == 'start_ignored']
+    for start, why in ((pose_of(PAPER_X0), None), (pose_of(NEAR_GOAL), 'm from the measured'),
+                       (pose(math.nan, 0.0), 'is not finite'), (pose(1.0, 0.5, 'map'), "'map'")):
+        since = time.monotonic()
+        response = solver.client.call(solver.plan, GetPlan.Request(start=start,
+                                                                   goal=pose_of(NEAR_GOAL)),
+                                      SOLVE_TIMEOUT)
+        # N + 1 poses, or fewer: a repeated goal warm-starts on the rest of its plan.
+        assert 2 <= len(response.plan.poses) <= N + 1
+        first = response.plan.poses[0].pose.position       # the measured state's hand
+        assert (first.x, first.y) == pytest.approx(
+            ((A + PAPER_X0[2]) * math.cos(PAPER_X0[0]), (A + PAPER_X0[2]) * math.sin(PAPER_X0[0])),
+            abs=1e-9)
+        if why is None:
+            assert not warnings(since)
+            continue
+        notice = solver.client.wait_for(lambda: warnings(since), 5.0, 'the warning')[0]
+        assert why in notice.message and notice.start_source == 'joint_states'
+        raw = [m for m in solver.client.messages('solver_node/progress', since)
+               if report(m).event == 'start_ignored'][0]
+        assert level_name(raw) == 'WARN'
+    assert 'the request start' in solver.node.log()
 
 
 def wait_running(ctx, since, phase):

@@ -57,6 +57,8 @@ EVENT_STOPPED = 'trajectory_stopped'     # the executing plan violates new data:
 EVENT_REPLACED = 'trajectory_replaced'   # ... and a replacement plan was published
 EVENT_REPLANNED = 'replanned'            # a replan cycle published a new plan (stamp ahead)
 EVENT_REPLAN_KEPT = 'replan_kept'        # a replan cycle failed or was late: plan kept
+EVENT_GOAL_CANCELED = 'goal_canceled'    # the goal was abandoned: no more cycles, braking
+EVENT_START_IGNORED = 'start_ignored'    # a plan request's start differs from the measured
 
 
 @dataclass(frozen=True)
