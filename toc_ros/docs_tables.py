@@ -47,7 +47,7 @@ def _range(parameter):
     if parameter.choices:
         return ', '.join(f'`{c}`' for c in parameter.choices)
     if parameter.low is not None and parameter.high is not None:
-        return f'{_yaml_value(parameter.low)} – {_yaml_value(parameter.high)}'
+        return f'{parameter.low:g} – {parameter.high:g}'
     return ''
 
 
