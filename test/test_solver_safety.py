@@ -222,9 +222,10 @@ def test_responsive_at_the_obstacle_limit(solver, paper_obstacles):
 
 def test_every_request_of_a_burst_is_answered(solver, paper_obstacles):
     client = solver.client
-    # The clients of one process share their response history in rmw_fastrtps: with the
-    # default depth 10 this process itself would drop answers of a burst.  Separate client
-    # processes need no such depth; the node's own queues are deep enough either way.
+    # rmw_fastrtps delivers every response of a service to every client's response reader
+    # (of this process and of others alike), so a burst larger than a client's history depth
+    # (default 10) overwrites that client's own answer: every client of a burst needs a depth
+    # of at least the burst's size.  The node's own queues are deep enough either way.
     deep = QoSProfile(depth=100)
     plans = [client.node.create_client(GetPlan, client.name('solver_node/plan'),
                                        qos_profile=deep) for _ in range(20)]
