@@ -24,9 +24,9 @@ import pytest
 
 pin = pytest.importorskip('pinocchio')
 
+from test_arm_model import toy  # noqa: E402
 from toc_ros.core.arms import (ArmError, default_spheres, load_arm, solve_ik,  # noqa: E402
                                worst_collision)
-from test_arm_model import toy  # noqa: E402
 import urdf_oracle  # noqa: E402
 
 TIPS = {'panda': 'panda_hand_tcp', 'ur5': 'tool0'}
@@ -141,18 +141,18 @@ def test_unreachable_and_colliding_goals_are_refused():
 
 
 @pytest.mark.parametrize('kwargs, reason', [
-    (dict(link='nope'), "unknown link 'nope'"),
-    (dict(position=[0.5, 0.0]), 'goal position must be 3 finite numbers'),
-    (dict(position=[0.5, float('nan'), 0.4]), 'goal position must be 3 finite numbers'),
-    (dict(orientation=[0, 0, 0, 0]), 'has norm 0'),
-    (dict(orientation=[0, 0, float('inf'), 1]), 'must be 4 finite numbers'),
-    (dict(orientation=[0, 0, 1]), 'must be 4 finite numbers'),
-    (dict(obstacles=[[1, 1, 1, 0.1]]), 'needs the arm\'s collision spheres'),
-    (dict(q_start=[0.0] * 6), 'IK start positions has 6 values'),
+    ({'link': 'nope'}, "unknown link 'nope'"),
+    ({'position': [0.5, 0.0]}, 'goal position must be 3 finite numbers'),
+    ({'position': [0.5, float('nan'), 0.4]}, 'goal position must be 3 finite numbers'),
+    ({'orientation': [0, 0, 0, 0]}, 'has norm 0'),
+    ({'orientation': [0, 0, float('inf'), 1]}, 'must be 4 finite numbers'),
+    ({'orientation': [0, 0, 1]}, 'must be 4 finite numbers'),
+    ({'obstacles': [[1, 1, 1, 0.1]]}, "needs the arm's collision spheres"),
+    ({'q_start': [0.0] * 6}, 'IK start positions has 6 values'),
 ])
 def test_bad_goals_are_refused_with_their_reason(kwargs, reason):
     arm = load_arm('panda')
-    args = dict(link='panda_hand_tcp', position=[0.5, 0.0, 0.4])
+    args = {'link': 'panda_hand_tcp', 'position': [0.5, 0.0, 0.4]}
     args.update(kwargs)
     with pytest.raises(ArmError) as error:
         solve_ik(arm, **args)

@@ -35,14 +35,14 @@ from toc_ros.core.arms import (ArmError, check_obstacles, check_state, default_s
 import urdf_oracle  # noqa: E402
 
 ARMS = {
-    'panda': dict(source='panda'),
-    'ur5': dict(source='ur5'),
+    'panda': {'source': 'panda'},
+    'ur5': {'source': 'ur5'},
     # Joints 3 and 5 locked: links 3 and 5 ride on their parents' bodies.
-    'panda_locked': dict(source='panda',
-                         joints=('panda_joint1', 'panda_joint2', 'panda_joint4',
-                                 'panda_joint6', 'panda_joint7'),
-                         locked={'panda_joint3': 0.4, 'panda_joint5': -1.1,
-                                 'panda_finger_joint1': 0.03, 'panda_finger_joint2': 0.01}),
+    'panda_locked': {'source': 'panda',
+                     'joints': ('panda_joint1', 'panda_joint2', 'panda_joint4', 'panda_joint6',
+                                'panda_joint7'),
+                     'locked': {'panda_joint3': 0.4, 'panda_joint5': -1.1,
+                                'panda_finger_joint1': 0.03, 'panda_finger_joint2': 0.01}},
 }
 
 
@@ -198,14 +198,14 @@ def test_check_state_refuses_bad_states_with_reasons():
     assert q.tolist() == home and v.tolist() == [0.1] * 7
     hand = arm.frame_position(np.array(home), 'panda_hand')
     cases = [
-        (dict(q=home[:6]), 'start positions has 6 values; the arm has 7 joints'),
-        (dict(q=home[:3] + [float('nan')] + home[4:]), 'panda_joint4 is nan (NaN or infinite)'),
-        (dict(q=home, v=[0, 0, float('inf'), 0, 0, 0, 0]), 'panda_joint3 is inf'),
-        (dict(q=home[:3] + [0.1] + home[4:]), 'panda_joint4 = 0.1 is outside its limits'),
-        (dict(q=home, v=[0, 3.0, 0, 0, 0, 0, 0]), 'panda_joint2 velocity 3 exceeds its limit'),
-        (dict(q=home, obstacles=[list(hand) + [0.05]]), 'start in collision: panda_'),
-        (dict(q=[0.0, 1.7, 0.0, -3.0, 0.0, 0.0, 0.0]), '(self-collision)'),
-        (dict(q=home, obstacles=[[0, 0, 0, -1]]), 'obstacle 0: negative radius'),
+        ({'q': home[:6]}, 'start positions has 6 values; the arm has 7 joints'),
+        ({'q': home[:3] + [float('nan')] + home[4:]}, 'panda_joint4 is nan (NaN or infinite)'),
+        ({'q': home, 'v': [0, 0, float('inf'), 0, 0, 0, 0]}, 'panda_joint3 is inf'),
+        ({'q': home[:3] + [0.1] + home[4:]}, 'panda_joint4 = 0.1 is outside its limits'),
+        ({'q': home, 'v': [0, 3.0, 0, 0, 0, 0, 0]}, 'panda_joint2 velocity 3 exceeds its limit'),
+        ({'q': home, 'obstacles': [list(hand) + [0.05]]}, 'start in collision: panda_'),
+        ({'q': [0.0, 1.7, 0.0, -3.0, 0.0, 0.0, 0.0]}, '(self-collision)'),
+        ({'q': home, 'obstacles': [[0, 0, 0, -1]]}, 'obstacle 0: negative radius'),
     ]
     for kwargs, reason in cases:
         with pytest.raises(ArmError) as error:

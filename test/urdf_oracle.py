@@ -56,12 +56,12 @@ class UrdfOracle:
         for joint in root.findall('joint'):
             origin = joint.find('origin')
             axis = joint.find('axis')
-            self.joints[joint.get('name')] = dict(
-                type=joint.get('type'), parent=joint.find('parent').get('link'),
-                child=joint.find('child').get('link'),
-                xyz=_vector(origin.get('xyz') if origin is not None else None, [0, 0, 0]),
-                rpy=_vector(origin.get('rpy') if origin is not None else None, [0, 0, 0]),
-                axis=_vector(axis.get('xyz') if axis is not None else None, [1, 0, 0]))
+            self.joints[joint.get('name')] = {
+                'type': joint.get('type'), 'parent': joint.find('parent').get('link'),
+                'child': joint.find('child').get('link'),
+                'xyz': _vector(origin.get('xyz') if origin is not None else None, [0, 0, 0]),
+                'rpy': _vector(origin.get('rpy') if origin is not None else None, [0, 0, 0]),
+                'axis': _vector(axis.get('xyz') if axis is not None else None, [1, 0, 0])}
         children = {j['child'] for j in self.joints.values()}
         links = [link.get('name') for link in root.findall('link')]
         self.root = [link for link in links if link not in children][0]
@@ -93,7 +93,7 @@ class UrdfOracle:
         return poses
 
     def adjacent(self, link_a, link_b):
-        """True if the links are parent and child, links joined by fixed joints counted as one."""
+        """Return True if the links are parent and child (fixed-joined links count as one)."""
         def group(link):
             # walk up and down fixed joints
             members, frontier = {link}, [link]

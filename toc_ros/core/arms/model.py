@@ -301,27 +301,27 @@ class ArmModel:
 
     @property
     def n(self):
-        """Number of planned joints."""
+        """Return the number of planned joints."""
         return len(self.joint_names)
 
     @property
     def nq(self):
-        """Configuration size (= n: revolute and prismatic joints only)."""
+        """Return the configuration size (= n: revolute and prismatic joints only)."""
         return self.model.nq
 
     @property
     def nv(self):
-        """Velocity size (= n)."""
+        """Return the velocity size (= n)."""
         return self.model.nv
 
     @property
     def gravity(self):
-        """Gravity acceleration in the base frame (m/s^2)."""
+        """Return the gravity acceleration in the base frame (m/s^2)."""
         return np.array(self.model.gravity.linear)
 
     @property
     def name(self):
-        """The named model ('panda', 'ur5') or None for a URDF path or string."""
+        """Return the named model ('panda', 'ur5'), or None for a URDF path or string."""
         return self.source.get('model')
 
     def full_configuration(self, q):
