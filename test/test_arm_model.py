@@ -187,6 +187,11 @@ def test_dynamics_derivatives_match_central_differences(name):
                                  - pin.aba(arm.model, arm.model.createData(), *minus)) / (2 * eps)
             scale = max(1.0, np.abs(numeric).max())
             assert np.abs(analytic - numeric).max() < 1e-6 * scale, (name, wrt)
+        ddq, *together = arm.dynamics_and_derivatives(q, v, tau)
+        np.testing.assert_allclose(ddq, arm.forward_dynamics(q, v, tau), rtol=1e-12,
+                                   atol=1e-10)
+        for one, other in zip(together, (ddq_dq, ddq_dv, ddq_dtau)):
+            np.testing.assert_array_equal(one, other)
         # M^-1 is the inverse of the mass matrix (not just its upper triangle).
         mass = pin.crba(arm.model, arm.model.createData(), q)
         mass = np.triu(mass) + np.triu(mass, 1).T

@@ -27,11 +27,13 @@ import pytest
 
 pytest.importorskip('pinocchio')
 
+from test_arm_model import toy  # noqa: E402
 from toc_ros.core.arms import (ArmError, check_obstacles, check_state, default_spheres,  # noqa
                                load_arm, load_spheres, obstacle_clearance,
-                               obstacle_clearance_jacobian, self_clearance,
-                               self_clearance_jacobian, shipped_spheres_path, sphere_centres,
-                               sphere_jacobians, worst_collision)
+                               obstacle_clearance_jacobian, obstacle_clearances_batch,
+                               self_clearance, self_clearance_jacobian, self_clearances_batch,
+                               shipped_spheres_path, sphere_centres, sphere_jacobians,
+                               sphere_kinematics_batch, worst_collision)
 import urdf_oracle  # noqa: E402
 
 ARMS = {
@@ -152,6 +154,58 @@ def test_jacobians_match_central_differences(key):
                 (self_clearance(plus, spheres.radii, spheres.self_pairs)
                  - self_clearance(minus, spheres.radii, spheres.self_pairs)) / (2 * eps),
                 atol=1e-8)
+
+
+@pytest.mark.parametrize('key', sorted(ARMS))
+def test_centres_match_pinocchio_frame_placements(key):
+    arm, spheres = arm_and_spheres(key)
+    for q in random_q(arm, 3, seed=8):
+        expected = np.array([arm.frame_pose(q, link).act(offset)
+                             for link, offset in zip(spheres.links, spheres.offsets)])
+        np.testing.assert_allclose(sphere_centres(arm, spheres, q), expected, atol=1e-12)
+
+
+def test_prismatic_and_continuous_joints_in_the_sphere_kinematics():
+    arm = load_arm(toy())
+    spheres = load_spheres({'a': [[0.02, 0.0, 0.3, 0.05]], 'c': [[0.01, 0.02, 0.0, 0.03]],
+                            'tool': [[0.03, 0.0, 0.01, 0.02]]}, arm)
+    oracle = urdf_oracle.UrdfOracle(arm.urdf)
+    for q in ([0.3, 0.5, 0.1], [5.0, -1.5, 0.2], [-4.0, 1.9, 0.0]):
+        q = np.array(q)
+        centres, jac = sphere_jacobians(arm, spheres, q)
+        np.testing.assert_allclose(centres, urdf_oracle.sphere_centres(
+            oracle, dict(zip(arm.joint_names, q)), spheres.links, spheres.offsets), atol=1e-12)
+        for k in range(arm.n):
+            step = np.zeros(arm.n)
+            step[k] = 1e-6
+            np.testing.assert_allclose(jac[:, :, k], (sphere_centres(arm, spheres, q + step)
+                                                      - sphere_centres(arm, spheres, q - step))
+                                       / 2e-6, atol=1e-8)
+    # The sphere on link a moves only with the first joint.
+    assert spheres.support.tolist() == [[True, False, False], [True, True, True],
+                                        [True, True, True]]
+
+
+def test_batches_equal_single_configurations():
+    arm, spheres = arm_and_spheres('panda')
+    qs = np.array(random_q(arm, 5, seed=9))
+    obstacles = np.array([[0.4, 0.1, 0.5, 0.1], [-0.2, 0.3, 0.2, 0.05]])
+    centres, jac = sphere_kinematics_batch(spheres, qs)
+    values, gradients = obstacle_clearances_batch(centres, jac, spheres.radii, obstacles, 0.03)
+    own, own_gradients = self_clearances_batch(centres, jac, spheres.radii, spheres.self_pairs,
+                                               0.01)
+    for i, q in enumerate(qs):
+        c, j = sphere_jacobians(arm, spheres, q)
+        np.testing.assert_array_equal(centres[i], c)
+        np.testing.assert_array_equal(jac[i], j)
+        np.testing.assert_allclose(values[i], obstacle_clearance(c, spheres.radii, obstacles,
+                                                                 0.03), atol=1e-14)
+        np.testing.assert_allclose(gradients[i], obstacle_clearance_jacobian(c, j, obstacles),
+                                   atol=1e-14)
+        np.testing.assert_allclose(own[i], self_clearance(c, spheres.radii, spheres.self_pairs,
+                                                          0.01), atol=1e-14)
+        np.testing.assert_allclose(own_gradients[i],
+                                   self_clearance_jacobian(c, j, spheres.self_pairs), atol=1e-14)
 
 
 def test_worst_collision_names_the_pair_and_depth():

@@ -16,20 +16,23 @@
 URDF arms (ROS-free): Pinocchio model and limits, collision spheres, inverse kinematics.
 
 model.py loads an arm and its planned joints, spheres.py its collision spheres and their
-clearances to obstacle spheres and to each other, ik.py end-effector pose goals, validate.py
-the checks of start/goal states.
+clearances to obstacle spheres and to each other (kernels.py: the same for many
+configurations in one compiled call), ik.py end-effector pose goals, validate.py the checks of
+start/goal states.
 """
 
 from .ik import solve_ik
 from .model import ArmError, ArmModel, load_arm, NAMED_ARMS
 from .spheres import (check_obstacles, Collision, default_spheres, load_spheres,
-                      obstacle_clearance, obstacle_clearance_jacobian, self_clearance,
-                      self_clearance_jacobian, shipped_spheres_path, sphere_centres,
-                      sphere_jacobians, Spheres, worst_collision)
+                      obstacle_clearance, obstacle_clearance_jacobian,
+                      obstacle_clearances_batch, self_clearance, self_clearance_jacobian,
+                      self_clearances_batch, shipped_spheres_path, sphere_centres,
+                      sphere_jacobians, sphere_kinematics_batch, Spheres, worst_collision)
 from .validate import check_state
 
 __all__ = ['ArmError', 'ArmModel', 'check_obstacles', 'check_state', 'Collision',
            'default_spheres', 'load_arm', 'load_spheres', 'NAMED_ARMS', 'obstacle_clearance',
-           'obstacle_clearance_jacobian', 'self_clearance', 'self_clearance_jacobian',
-           'shipped_spheres_path', 'solve_ik', 'sphere_centres', 'sphere_jacobians', 'Spheres',
-           'worst_collision']
+           'obstacle_clearance_jacobian', 'obstacle_clearances_batch', 'self_clearance',
+           'self_clearance_jacobian', 'self_clearances_batch', 'shipped_spheres_path',
+           'solve_ik', 'sphere_centres', 'sphere_jacobians', 'sphere_kinematics_batch',
+           'Spheres', 'worst_collision']

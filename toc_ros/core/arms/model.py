@@ -354,6 +354,12 @@ class ArmModel:
                                                              q, v, tau)
         return ddq_dq.copy(), ddq_dv.copy(), ddq_dtau.copy()
 
+    def dynamics_and_derivatives(self, q, v, tau, data=None):
+        """(ddq, d ddq/dq, d ddq/dv, M^-1) from one pass (ddq agrees with ABA to rounding)."""
+        data = data or self.data
+        ddq_dq, ddq_dv, ddq_dtau = pin.computeABADerivatives(self.model, data, q, v, tau)
+        return data.ddq.copy(), ddq_dq.copy(), ddq_dv.copy(), ddq_dtau.copy()
+
     def frame_pose(self, q, link, data=None):
         """Pose (pin.SE3) of a link frame in the base frame."""
         data = data or self.data

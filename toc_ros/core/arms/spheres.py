@@ -28,6 +28,10 @@ the URDF.  After pinocchio.buildReducedModel the links beyond a locked joint are
 their parent body; their Pinocchio frames (found by link name) keep the right placement, so a
 sphere is attached to its frame's parent joint with the frame's placement.
 
+Centres and Jacobians (LOCAL_WORLD_ALIGNED: d centre / dq in the base frame) come from the
+compiled kernels.py for one configuration or a batch (sphere_kinematics_batch), with the
+clearances of a batch in obstacle_clearances_batch and self_clearances_batch.
+
 Obstacles are spheres (cx, cy, cz, R) in the base frame.  Clearance of robot sphere s and
 obstacle o: |p_s - c_o| - (r_s + R_o + margin) (negative: penetration depth).
 
@@ -49,6 +53,7 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
+from . import kernels
 from .model import ArmError
 
 SHIPPED_NAMES = ('panda', 'ur5')
@@ -68,6 +73,7 @@ class Spheres:
     ignore_pairs: FrozenSet[FrozenSet[str]]
     self_pairs: np.ndarray          # (P, 2) sphere index pairs checked for self-collision
     source: Optional[str]           # file path, or None for a mapping
+    chain: Tuple[np.ndarray, ...]   # the reduced model's joints for kernels.sphere_kinematics
 
     def __len__(self):
         """Return the number of spheres."""
@@ -173,6 +179,29 @@ def adjacent_links(arm):
     return adjacent
 
 
+def kinematic_chain(model):
+    """(parent, placement R, placement t, axis, prismatic, v index) of a 1-DOF joint tree."""
+    data = model.createData()
+    pin.computeJointJacobians(model, data, pin.neutral(model))
+    count = model.njoints
+    axis = np.zeros((count, 3))
+    prismatic = np.zeros(count, dtype=np.bool_)
+    v_index = np.zeros(count, dtype=np.int64)
+    for j in range(1, count):
+        if model.nvs[j] != 1:
+            raise ArmError(f'joint {model.names[j]!r} has {model.nvs[j]} degrees of freedom: '
+                           'only 1-DOF joints are supported')
+        # The joint's motion in its own frame: (0, axis) if revolute, (axis, 0) if prismatic.
+        column = pin.getJointJacobian(model, data, j, pin.LOCAL)[:, model.idx_vs[j]]
+        prismatic[j] = np.linalg.norm(column[3:]) < 0.5
+        axis[j] = column[:3] if prismatic[j] else column[3:]
+        v_index[j] = model.idx_vs[j]
+    return (np.array(list(model.parents), dtype=np.int64),
+            np.array([placement.rotation for placement in model.jointPlacements]),
+            np.array([placement.translation for placement in model.jointPlacements]),
+            axis, prismatic, v_index)
+
+
 def _check_pairs(pairs, arm, where):
     checked = set()
     for pair in pairs or ():
@@ -240,7 +269,7 @@ def load_spheres(path_or_mapping, arm, ignore_pairs=None, self_collision=True):
                       radii=rows[:, 3].copy(), joint_ids=joint_ids,
                       joint_offsets=np.array(joint_offsets), support=support,
                       ignore_pairs=frozenset(ignored), self_pairs=np.zeros((0, 2), dtype=int),
-                      source=path)
+                      source=path, chain=kinematic_chain(model))
     pairs, rigid = _self_pairs(arm, spheres)
     if len(rigid):
         centres = sphere_centres(arm, spheres, pin.neutral(model))
@@ -271,33 +300,47 @@ def _self_pairs(arm, spheres):
     return (np.array(pairs, dtype=int).reshape(-1, 2), np.array(rigid, dtype=int).reshape(-1, 2))
 
 
-def _joint_placements(data, joint_ids):
-    """Rotations (S, 3, 3) and translations (S, 3) of the joints the spheres hang on."""
-    rotations = np.array([placement.rotation for placement in data.oMi])
-    translations = np.array([placement.translation for placement in data.oMi])
-    return rotations[joint_ids], translations[joint_ids]
+def sphere_kinematics_batch(spheres, qs):
+    """Centres (N, S, 3) and d centre / dq (N, S, 3, n) for configurations qs (N, n)."""
+    qs = np.ascontiguousarray(qs, dtype=float)
+    count, n = qs.shape
+    centres = np.empty((count, len(spheres), 3))
+    jacobians = np.empty((count, len(spheres), 3, n))
+    kernels.sphere_kinematics(qs, *spheres.chain, spheres.joint_ids, spheres.joint_offsets,
+                              spheres.support, centres, jacobians)
+    return centres, jacobians
 
 
-def sphere_centres(arm, spheres, q, data=None):
+def sphere_centres(arm, spheres, q):
     """Centres (S, 3) of the spheres in the base frame at configuration q."""
-    data = data or arm.data
-    pin.forwardKinematics(arm.model, data, q)
-    rotations, translations = _joint_placements(data, spheres.joint_ids)
-    return np.einsum('sij,sj->si', rotations, spheres.joint_offsets) + translations
+    return sphere_kinematics_batch(spheres, np.reshape(q, (1, arm.n)))[0][0]
 
 
-def sphere_jacobians(arm, spheres, q, data=None):
+def sphere_jacobians(arm, spheres, q):
     """(centres (S, 3), d centre / dq (S, 3, n)) in the base frame at configuration q."""
-    data = data or arm.data
-    # One pass for every joint: data.J holds each joint's motion column in the world frame
-    # (linear velocity of the point at the origin, angular velocity), so the velocity of a
-    # point p carried by joint k's subtree is v_k + w_k x p.
-    jac = pin.computeJointJacobians(arm.model, data, q)
-    rotations, translations = _joint_placements(data, spheres.joint_ids)
-    centres = np.einsum('sij,sj->si', rotations, spheres.joint_offsets) + translations
-    linear, angular = jac[:3].T, jac[3:].T                        # (n, 3)
-    point = linear[None] + np.cross(angular[None], centres[:, None])  # (S, n, 3)
-    return centres, np.where(spheres.support[:, :, None], point, 0.0).transpose(0, 2, 1)
+    centres, jacobians = sphere_kinematics_batch(spheres, np.reshape(q, (1, arm.n)))
+    return centres[0], jacobians[0]
+
+
+def obstacle_clearances_batch(centres, jacobians, radii, obstacles, margin=0.0):
+    """Clearances (N, S, O) and their gradients (N, S, O, n) for batched kinematics."""
+    obstacles = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, 4)
+    count, n_spheres, _, n = jacobians.shape
+    values = np.empty((count, n_spheres, len(obstacles)))
+    gradients = np.empty((count, n_spheres, len(obstacles), n))
+    kernels.obstacle_clearances(centres, jacobians, radii, obstacles, float(margin), values,
+                                gradients)
+    return values, gradients
+
+
+def self_clearances_batch(centres, jacobians, radii, pairs, margin=0.0):
+    """Clearances (N, P) of sphere pairs and their gradients (N, P, n) for batched kinematics."""
+    count, _, _, n = jacobians.shape
+    values = np.empty((count, len(pairs)))
+    gradients = np.empty((count, len(pairs), n))
+    kernels.pair_clearances(centres, jacobians, radii, np.ascontiguousarray(pairs),
+                            float(margin), values, gradients)
+    return values, gradients
 
 
 def check_obstacles(obstacles):
@@ -339,7 +382,7 @@ def obstacle_clearance_jacobian(centres, jacobians, obstacles):
     """Return d clearance / dq (S, O, n) of obstacle_clearance."""
     obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
     normal = _unit(centres[:, None] - obstacles[None, :, :3])     # (S, O, 3)
-    return np.einsum('soi,sin->son', normal, jacobians)
+    return np.matmul(normal, jacobians)
 
 
 def self_clearance(centres, radii, pairs, margin=0.0):
@@ -352,7 +395,7 @@ def self_clearance_jacobian(centres, jacobians, pairs):
     """Return d clearance / dq (P, n) of self_clearance."""
     a, b = pairs[:, 0], pairs[:, 1]
     normal = _unit(centres[a] - centres[b])
-    return np.einsum('pi,pin->pn', normal, jacobians[a] - jacobians[b])
+    return np.matmul(normal[:, None], jacobians[a] - jacobians[b])[:, 0]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -363,11 +406,10 @@ class Collision:
     text: str
 
 
-def worst_collision(arm, spheres, q, obstacles=None, margin=0.0, self_collision=True,
-                    data=None):
+def worst_collision(arm, spheres, q, obstacles=None, margin=0.0, self_collision=True):
     """Deepest collision at q (obstacles with margin, self without), or None if clear."""
     obstacles = check_obstacles(obstacles)
-    centres = sphere_centres(arm, spheres, q, data)
+    centres = sphere_centres(arm, spheres, q)
     worst = None
     if len(obstacles):
         clearance = obstacle_clearance(centres, spheres.radii, obstacles, margin)
