@@ -36,8 +36,9 @@ import numpy as np
 import pinocchio as pin
 
 from toc_ros.core.arms import (default_spheres, load_arm, obstacle_clearance,
-                               obstacle_clearance_jacobian, self_clearance,
-                               self_clearance_jacobian, sphere_centres, sphere_jacobians)
+                               obstacle_clearance_jacobian, obstacle_clearances_batch,
+                               self_clearance, self_clearance_jacobian, self_clearances_batch,
+                               sphere_centres, sphere_jacobians, sphere_kinematics_batch)
 
 
 def per_call(function, states, calls):
@@ -97,6 +98,20 @@ def measure(name, calls, horizon):
     node = (us['arm.dynamics_and_derivatives'] + us['sphere_jacobians']
             + us['obstacle_clearance+jacobian (1 obstacle)']
             + us['self_clearance+jacobian (all pairs)'])
+    # The same for all N + 1 nodes at once: derivatives call by call, spheres batched.
+    q_nodes = np.array([states[i % 64][0] for i in range(horizon + 1)])
+    batch = {
+        'derivatives_python_loop': batch_time(lambda: [
+            arm.dynamics_and_derivatives(*states[i % 64]) for i in range(horizon)]),
+        'sphere_kinematics_batch': batch_time(lambda: sphere_kinematics_batch(spheres,
+                                                                              q_nodes)),
+    }
+    centres_n, jac_n = sphere_kinematics_batch(spheres, q_nodes)
+    batch['obstacle_clearances_batch (1 obstacle)'] = batch_time(
+        lambda: obstacle_clearances_batch(centres_n, jac_n, spheres.radii, obstacle))
+    batch['self_clearances_batch'] = batch_time(
+        lambda: self_clearances_batch(centres_n, jac_n, spheres.radii, spheres.self_pairs))
+    batch = {key: 1e6 * value for key, value in batch.items()}
     # Batched ABA: one call for N states against N Python calls, 1 and 2 threads.
     q_batch = np.array([states[i % 64][0] for i in range(horizon)]).T.copy()
     v_batch = np.array([states[i % 64][1] for i in range(horizon)]).T.copy()
@@ -113,10 +128,18 @@ def measure(name, calls, horizon):
         'arm': name, 'dof': arm.n, 'spheres': len(spheres),
         'self_pairs': len(spheres.self_pairs), 'median_us': us,
         'per_node_us (derivatives + sphere jacobians + clearances)': node,
-        f'iteration_ms_N{horizon}': {'euler': horizon * node / 1e3,
-                                     'rk4 (4 derivative calls per interval)':
-                                     horizon * (node + 3 * us['arm.dynamics_and_derivatives'])
-                                     / 1e3},
+        f'iteration_ms_N{horizon}_call_by_call': {
+            'euler': horizon * node / 1e3,
+            'rk4 (4 derivative calls per interval)':
+            horizon * (node + 3 * us['arm.dynamics_and_derivatives']) / 1e3},
+        f'nodes_N{horizon}_us': batch,
+        f'iteration_ms_N{horizon}_spheres_batched': {
+            'euler': (batch['derivatives_python_loop'] + batch['sphere_kinematics_batch']
+                      + batch['obstacle_clearances_batch (1 obstacle)']
+                      + batch['self_clearances_batch']) / 1e3,
+            'rk4': (4 * batch['derivatives_python_loop'] + batch['sphere_kinematics_batch']
+                    + batch['obstacle_clearances_batch (1 obstacle)']
+                    + batch['self_clearances_batch']) / 1e3},
         f'aba_batch_N{horizon}_us': {'python_loop': 1e6 * loop,
                                      'abaInParallel_1_thread': 1e6 * batched[1],
                                      'abaInParallel_2_threads': 1e6 * batched[2],
