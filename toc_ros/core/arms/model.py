@@ -1,0 +1,490 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Arms from URDF: the planned joints' rigid-body model (Pinocchio), their limits and dynamics.
+
+load_arm(source, joints, locked, limits) builds an ArmModel from
+  - 'panda' or 'ur5': the Franka Panda (7 arm joints, fingers locked) and the UR5 (6 joints)
+    of the example-robot-data wheel,
+  - 'urdf:PATH': a URDF file,
+  - a URDF XML string (a ROS user's robot_description).
+Meshes are never loaded: the model is built from the XML without geometry.
+
+The plan model has only the planned joints free; every other joint is locked at its value
+(default 0 clamped into its limits) with pinocchio.buildReducedModel, which fuses the links
+beyond a locked joint into their parent body.  Joints are kept in the URDF's kinematic order
+(Pinocchio's depth-first order), so q, v and tau are vectors over joint_names in that order.
+
+Physics of the plan model: the URDF inertials only, gravity (0, 0, -9.81) m/s^2 in the base
+(root link) frame, z up (REP-103).  The URDF's <dynamics damping/friction> and any rotor
+inertia (armature) are NOT modelled: a real arm's friction and damping then act as a small
+unmodelled disturbance that the drives' tracking must absorb.
+
+Limits come from the URDF's <limit effort velocity lower upper>; a limits mapping overrides
+them per joint like MoveIt's joint_limits.yaml ({'joint': {'effort': .., 'velocity': ..,
+'lower': .., 'upper': ..}}).  A planned joint without an effort or velocity limit (0 or
+missing) is refused unless overridden.  Continuous joints are modelled as revolute joints
+with an unbounded angle (lower/upper = -inf/+inf, continuous mask True) so that nq = nv = n.
+
+Mimic joints are not modelled: a joint with <mimic> cannot be planned (lock it).  The model
+has one pinocchio.Data workspace; the dynamics methods are therefore not thread-safe (give
+each thread its own Data: model.createData(), and pass it as data=).
+"""
+
+import dataclasses
+import hashlib
+import math
+import os
+import sys
+from typing import Dict, Optional, Tuple
+import xml.etree.ElementTree as ElementTree
+
+import numpy as np
+import pinocchio as pin
+
+GRAVITY = (0.0, 0.0, -9.81)
+LIMIT_KEYS = ('effort', 'velocity', 'lower', 'upper')
+ONE_DOF_TYPES = ('revolute', 'continuous', 'prismatic')
+
+# Named arms shipped by the example-robot-data wheel: URDF below its robots/ folder and the
+# default set of planned joints (everything else locked).
+NAMED_ARMS = {
+    'panda': ('panda_description/urdf/panda.urdf',
+              tuple(f'panda_joint{i}' for i in range(1, 8))),
+    'ur5': ('ur_description/urdf/ur5_robot.urdf',
+            ('shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
+             'wrist_2_joint', 'wrist_3_joint')),
+}
+
+
+class ArmError(ValueError):
+    """An arm, its limits, spheres or goals that cannot be used; the message is the reason."""
+
+
+def _robots_dir_candidates():
+    """Folders that may hold example-robot-data's robots/ (wheel, env override, ROS share)."""
+    rel = os.path.join('share', 'example-robot-data', 'robots')
+    env = os.environ.get('EXAMPLE_ROBOT_DATA_MODEL_DIR')
+    if env:
+        yield env
+    # The pin wheel lives in <site-packages>/cmeel.prefix/lib/pythonX.Y/site-packages: its
+    # cmeel prefix is the one example-robot-data was installed into.
+    pin_dir = os.path.dirname(os.path.abspath(pin.__file__))
+    yield os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
+        pin_dir)))), rel)
+    for entry in sys.path:
+        if entry:
+            yield os.path.join(entry, 'cmeel.prefix', rel)
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        yield os.path.join(get_package_share_directory('example-robot-data'), 'robots')
+    except (ImportError, LookupError, OSError, ValueError):
+        pass    # no ament index or no example-robot-data package in it
+
+
+def example_robot_data_dir():
+    """Return the robots/ folder of example-robot-data (ArmError if it is not installed)."""
+    for folder in _robots_dir_candidates():
+        if os.path.isdir(os.path.join(folder, 'panda_description')):
+            return folder
+    raise ArmError('the named arms need the example-robot-data package (pip install '
+                   'example-robot-data): its robots/ folder was not found')
+
+
+def named_arm_path(name):
+    """Return the URDF path of a named arm ('panda', 'ur5')."""
+    if name not in NAMED_ARMS:
+        raise ArmError(f'unknown arm {name!r}: named arms are {", ".join(sorted(NAMED_ARMS))}')
+    path = os.path.join(example_robot_data_dir(), NAMED_ARMS[name][0])
+    if not os.path.isfile(path):
+        raise ArmError(f'arm {name!r}: {path} is missing from example-robot-data')
+    return path
+
+
+def _read_source(source):
+    """(URDF text, source description, default joints) of a load_arm source."""
+    if isinstance(source, os.PathLike):
+        source = 'urdf:' + os.fspath(source)
+    if not isinstance(source, str) or not source.strip():
+        raise ArmError(f"arm source must be 'panda', 'ur5', 'urdf:PATH' or a URDF XML string, "
+                       f'got {source!r}')
+    text = source.strip()
+    if text in NAMED_ARMS:
+        path = named_arm_path(text)
+        with open(path) as stream:
+            urdf = stream.read()
+        described = {'model': text, 'path': path}
+        defaults = NAMED_ARMS[text][1]
+    elif text.startswith('urdf:'):
+        path = os.path.expanduser(text[len('urdf:'):].strip())
+        try:
+            with open(path) as stream:
+                urdf = stream.read()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ArmError(f'cannot read URDF {path!r}: {exc}') from None
+        described = {'path': os.path.abspath(path)}
+        defaults = None
+    elif text.startswith('<'):
+        urdf = source
+        described = {'string': True}
+        defaults = None
+    else:
+        raise ArmError(f"unknown arm {text!r}: give 'panda', 'ur5', 'urdf:PATH' or a URDF XML "
+                       'string')
+    described['sha256'] = hashlib.sha256(urdf.encode()).hexdigest()
+    return urdf, described, defaults
+
+
+def _number(text, what):
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise ArmError(f'{what} is not a number: {text!r}') from None
+    if math.isnan(value):
+        raise ArmError(f'{what} is NaN')
+    return value
+
+
+@dataclasses.dataclass(frozen=True)
+class UrdfJoint:
+    """A URDF joint as written (before any override): kinematics and <limit>."""
+
+    name: str
+    type: str  # noqa: A003 (the URDF attribute's name)
+    parent: str
+    child: str
+    limits: Dict[str, float]        # the attributes present in <limit>
+    mimic: Optional[str]
+
+
+def parse_urdf(urdf):
+    """Return (robot element, {joint name: UrdfJoint}) or raise ArmError for invalid XML."""
+    try:
+        root = ElementTree.fromstring(urdf)
+    except ElementTree.ParseError as exc:
+        raise ArmError(f'the URDF does not parse as XML: {exc}') from None
+    if root.tag != 'robot':
+        raise ArmError(f'the URDF root element is <{root.tag}>, not <robot>')
+    joints = {}
+    for element in root.findall('joint'):
+        name = element.get('name')
+        kind = element.get('type')
+        parent, child = element.find('parent'), element.find('child')
+        if not name or kind is None or parent is None or child is None:
+            raise ArmError(f'URDF joint {name!r} lacks a name, type, parent or child')
+        if name in joints:
+            raise ArmError(f'URDF joint {name!r} is defined twice')
+        limit = element.find('limit')
+        limits = {}
+        if limit is not None:
+            for key in LIMIT_KEYS:
+                if limit.get(key) is not None:
+                    limits[key] = _number(limit.get(key), f'joint {name!r} <limit {key}>')
+        mimic = element.find('mimic')
+        joints[name] = UrdfJoint(name, kind, parent.get('link'), child.get('link'), limits,
+                                 None if mimic is None else mimic.get('joint'))
+    return root, joints
+
+
+def _pinocchio_xml(root, joints):
+    """URDF text for Pinocchio: continuous joints as revolute, every 1-DOF joint with <limit>."""
+    changed = False
+    for element in root.findall('joint'):
+        joint = joints[element.get('name')]
+        if joint.type not in ONE_DOF_TYPES:
+            continue
+        if joint.type == 'continuous':
+            # Angle coordinates (nq = nv) instead of Pinocchio's (cos, sin) for continuous.
+            element.set('type', 'revolute')
+            changed = True
+        limit = element.find('limit')
+        if limit is None:
+            limit = ElementTree.SubElement(element, 'limit')
+            changed = True
+        for key in LIMIT_KEYS:
+            if limit.get(key) is None:
+                # The real limits are kept in ArmModel; these only make the XML parse.
+                limit.set(key, {'lower': '-1e6', 'upper': '1e6'}.get(key, '0'))
+                changed = True
+        if joint.type == 'continuous':
+            limit.set('lower', '-1e6')
+            limit.set('upper', '1e6')
+    return ElementTree.tostring(root, encoding='unicode') if changed else None
+
+
+def _joint_limits(joint, override, planned=True):
+    """(effort, velocity, lower, upper, continuous) of a planned (or a locked) joint."""
+    values = dict(joint.limits)
+    continuous = joint.type == 'continuous'
+    if continuous:
+        values.pop('lower', None)
+        values.pop('upper', None)
+    for key, value in override.items():
+        values[key] = value
+    if continuous and ('lower' in override or 'upper' in override):
+        continuous = False      # the override bounds the angle
+    if continuous or (not planned and ('lower' not in values or 'upper' not in values)):
+        lower, upper = -math.inf, math.inf
+    elif not planned:
+        # A locked joint may have an empty range: its value is clamped into it.
+        lower, upper = values['lower'], max(values['upper'], values['lower'])
+    else:
+        if 'lower' not in values or 'upper' not in values:
+            raise ArmError(f'joint {joint.name!r} has no lower/upper position limit: give '
+                           'them in limits')
+        lower, upper = values['lower'], values['upper']
+        if not math.isfinite(lower) or not math.isfinite(upper):
+            raise ArmError(f'joint {joint.name!r}: position limits must be finite, got '
+                           f'[{lower}, {upper}]')
+        if lower >= upper:
+            raise ArmError(f'joint {joint.name!r}: lower limit {lower} is not below the upper '
+                           f'limit {upper} (lock a joint that must not move)')
+    return values.get('effort', 0.0), values.get('velocity', 0.0), lower, upper, continuous
+
+
+def _check_overrides(limits, joints):
+    if limits is None:
+        return {}
+    if not isinstance(limits, dict):
+        raise ArmError(f"limits must map joint names to {{'effort': .., 'velocity': .., "
+                       f"'lower': .., 'upper': ..}}, got {limits!r}")
+    checked = {}
+    for name, entry in limits.items():
+        if name not in joints:
+            raise ArmError(f'limits name unknown joint {name!r}')
+        if not isinstance(entry, dict):
+            raise ArmError(f'limits of joint {name!r} must be a mapping, got {entry!r}')
+        unknown = sorted(set(entry) - set(LIMIT_KEYS))
+        if unknown:
+            raise ArmError(f'limits of joint {name!r}: unknown key(s) {", ".join(unknown)} '
+                           f'(known: {", ".join(LIMIT_KEYS)})')
+        checked[name] = {}
+        for key, value in entry.items():
+            value = _number(value, f'limits of joint {name!r}: {key}')
+            if not math.isfinite(value):
+                raise ArmError(f'limits of joint {name!r}: {key} must be finite, got {value}')
+            if key in ('effort', 'velocity') and value <= 0:
+                raise ArmError(f'limits of joint {name!r}: {key} must be positive, got {value}')
+            checked[name][key] = value
+    return checked
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ArmModel:
+    """The planned joints of a URDF arm: reduced Pinocchio model, limits and dynamics."""
+
+    model: pin.Model                # reduced: only the planned joints are free
+    data: pin.Data                  # workspace of the methods below (not thread-safe)
+    joint_names: Tuple[str, ...]    # planned joints, in the model's (kinematic) order
+    lower: np.ndarray               # position limits (rad or m); -inf for continuous joints
+    upper: np.ndarray               # +inf for continuous joints
+    velocity: np.ndarray            # |dq_i| <= velocity_i
+    effort: np.ndarray              # |tau_i| <= effort_i
+    continuous: np.ndarray          # bool mask: continuous (unbounded angle) joints
+    locked: Dict[str, float]        # locked joints and their values
+    source: Dict[str, object]       # named model / path / string, and the URDF's sha256
+    urdf: str                       # the URDF text as given
+    full_model: pin.Model           # every 1-DOF joint of the URDF free
+    links: Dict[str, Tuple[str, str, str]]  # child link -> (parent link, joint, joint type)
+
+    @property
+    def n(self):
+        """Return the number of planned joints."""
+        return len(self.joint_names)
+
+    @property
+    def nq(self):
+        """Return the configuration size (= n: revolute and prismatic joints only)."""
+        return self.model.nq
+
+    @property
+    def nv(self):
+        """Return the velocity size (= n)."""
+        return self.model.nv
+
+    @property
+    def gravity(self):
+        """Return the gravity acceleration in the base frame (m/s^2)."""
+        return np.array(self.model.gravity.linear)
+
+    @property
+    def name(self):
+        """Return the named model ('panda', 'ur5'), or None for a URDF path or string."""
+        return self.source.get('model')
+
+    def full_configuration(self, q):
+        """Return the full_model configuration: q for the planned joints, locked values else."""
+        q_full = pin.neutral(self.full_model)
+        values = dict(self.locked)
+        values.update(zip(self.joint_names, np.asarray(q, dtype=float)))
+        for name, value in values.items():
+            q_full[self.full_model.idx_qs[self.full_model.getJointId(name)]] = value
+        return q_full
+
+    def frame_id(self, link):
+        """Pinocchio frame index of a link (or any frame) name; ArmError if unknown."""
+        if not isinstance(link, str) or not self.model.existFrame(link):
+            known = [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]
+            raise ArmError(f'unknown link {link!r} (links: {", ".join(known)})')
+        return self.model.getFrameId(link)
+
+    def forward_dynamics(self, q, v, tau, data=None):
+        """Joint accelerations ddq = ABA(q, v, tau)."""
+        return pin.aba(self.model, data or self.data, q, v, tau).copy()
+
+    def inverse_dynamics(self, q, v, a, data=None):
+        """Joint torques tau = RNEA(q, v, a)."""
+        return pin.rnea(self.model, data or self.data, q, v, a).copy()
+
+    def dynamics_derivatives(self, q, v, tau, data=None):
+        """(d ddq/dq, d ddq/dv, d ddq/dtau = M^-1) of ABA, each (n, n)."""
+        ddq_dq, ddq_dv, ddq_dtau = pin.computeABADerivatives(self.model, data or self.data,
+                                                             q, v, tau)
+        return ddq_dq.copy(), ddq_dv.copy(), ddq_dtau.copy()
+
+    def dynamics_and_derivatives(self, q, v, tau, data=None):
+        """(ddq, d ddq/dq, d ddq/dv, M^-1) from one pass (ddq agrees with ABA to rounding)."""
+        data = data or self.data
+        ddq_dq, ddq_dv, ddq_dtau = pin.computeABADerivatives(self.model, data, q, v, tau)
+        return data.ddq.copy(), ddq_dq.copy(), ddq_dv.copy(), ddq_dtau.copy()
+
+    def frame_pose(self, q, link, data=None):
+        """Pose (pin.SE3) of a link frame in the base frame."""
+        data = data or self.data
+        fid = self.frame_id(link)
+        pin.forwardKinematics(self.model, data, q)
+        return pin.SE3(pin.updateFramePlacement(self.model, data, fid))
+
+    def frame_position(self, q, link, data=None):
+        """Position (3,) of a link frame's origin in the base frame."""
+        return self.frame_pose(q, link, data).translation.copy()
+
+    def frame_jacobian(self, q, link, reference=pin.LOCAL_WORLD_ALIGNED, data=None):
+        """Frame Jacobian (6, n): linear rows first, then angular (reference frame given)."""
+        return pin.computeFrameJacobian(self.model, data or self.data, q,
+                                        self.frame_id(link), reference).copy()
+
+
+def _select_joints(joints, requested, defaults, full):
+    """Planned joint names in the model's order (ArmError for unknown or misordered names)."""
+    movable = list(full.names[1:])
+    if requested is None:
+        if defaults is not None:
+            return tuple(defaults)
+        planned = tuple(name for name in movable if joints[name].mimic is None)
+        if not planned:
+            raise ArmError('the URDF has no movable joint to plan')
+        return planned
+    if isinstance(requested, str):
+        requested = [part.strip() for part in requested.split(',') if part.strip()]
+    requested = list(requested)
+    if not requested:
+        raise ArmError('joints is empty: name at least one joint to plan')
+    for name in requested:
+        if not isinstance(name, str) or name not in joints:
+            raise ArmError(f'unknown joint {name!r} (joints of the URDF: '
+                           f'{", ".join(movable)})')
+        if joints[name].type == 'fixed':
+            raise ArmError(f'joint {name!r} is fixed: it cannot be planned')
+    if len(set(requested)) != len(requested):
+        raise ArmError(f'joints names a joint twice: {", ".join(requested)}')
+    order = sorted(requested, key=movable.index)
+    if order != requested:
+        raise ArmError('joints must be listed in the URDF kinematic order: '
+                       f'{", ".join(order)}')
+    for name in requested:
+        if joints[name].mimic is not None:
+            raise ArmError(f'joint {name!r} mimics {joints[name].mimic!r}: mimic joints '
+                           'cannot be planned (lock it)')
+    return tuple(requested)
+
+
+def load_arm(source, joints=None, locked=None, limits=None):
+    """
+    Return the ArmModel of a URDF arm with the planned joints free, the others locked.
+
+    source: 'panda', 'ur5', 'urdf:PATH' or a URDF XML string; joints: planned joint names in
+    kinematic order (None: the named arm's arm joints, or every movable non-mimic joint of a
+    URDF); locked: {joint: value} for joints not planned (default 0 clamped into the joint's
+    limits); limits: {joint: {'effort', 'velocity', 'lower', 'upper'}} overrides.
+    Raises ArmError with the reason for anything that cannot be used.
+    """
+    urdf, described, defaults = _read_source(source)
+    root, urdf_joints = parse_urdf(urdf)
+    for joint in urdf_joints.values():
+        if joint.type not in ONE_DOF_TYPES + ('fixed',):
+            raise ArmError(f'joint {joint.name!r} is of type {joint.type!r}: only revolute, '
+                           'continuous, prismatic and fixed joints are supported')
+    pin_xml = _pinocchio_xml(root, urdf_joints) or urdf
+    try:
+        full = pin.buildModelFromXML(pin_xml)
+    except (RuntimeError, ValueError) as exc:
+        raise ArmError(f'Pinocchio cannot build the URDF: {exc}') from None
+    full.gravity = pin.Motion(np.array(GRAVITY), np.zeros(3))
+    planned = _select_joints(urdf_joints, joints, defaults, full)
+    overrides = _check_overrides(limits, urdf_joints)
+
+    locked = {} if locked is None else locked
+    if not isinstance(locked, dict):
+        raise ArmError(f'locked must map joint names to values, got {locked!r}')
+    for name in locked:
+        if name not in urdf_joints or urdf_joints[name].type == 'fixed':
+            raise ArmError(f'locked names unknown or fixed joint {name!r}')
+        if name in planned:
+            raise ArmError(f'joint {name!r} is both planned and locked')
+    lock_values = {}
+    for name in full.names[1:]:
+        if name in planned:
+            continue
+        _, _, lower, upper, _ = _joint_limits(urdf_joints[name], overrides.get(name, {}),
+                                              planned=False)
+        if name in locked:
+            value = _number(locked[name], f'locked value of joint {name!r}')
+            if not math.isfinite(value) or not lower <= value <= upper:
+                raise ArmError(f'locked value {value} of joint {name!r} is outside its limits '
+                               f'[{lower}, {upper}]')
+        else:
+            value = min(max(0.0, lower), upper)
+        lock_values[name] = value
+
+    rows = []
+    for name in planned:
+        effort, velocity, lower, upper, continuous = _joint_limits(
+            urdf_joints[name], overrides.get(name, {}))
+        for key, value in (('effort', effort), ('velocity', velocity)):
+            if not value > 0:
+                raise ArmError(f'joint {name!r} has no {key} limit in the URDF (0 or missing): '
+                               f'give one in limits')
+        rows.append((lower, upper, velocity, effort, continuous))
+    lower, upper, velocity, effort, continuous = (np.array(col) for col in zip(*rows))
+
+    q_ref = pin.neutral(full)
+    for name, value in lock_values.items():
+        q_ref[full.idx_qs[full.getJointId(name)]] = value
+    lock_ids = [full.getJointId(name) for name in lock_values]
+    model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full.copy()
+    # Pinocchio's own limit fields follow the overrides (continuous: left unbounded-ish).
+    model.effortLimit = effort.astype(float)
+    model.velocityLimit = velocity.astype(float)
+    model.lowerPositionLimit = np.where(continuous, model.lowerPositionLimit, lower)
+    model.upperPositionLimit = np.where(continuous, model.upperPositionLimit, upper)
+
+    links = {joint.child: (joint.parent, joint.name, joint.type)
+             for joint in urdf_joints.values()}
+    return ArmModel(model=model, data=model.createData(), joint_names=planned,
+                    lower=lower.astype(float), upper=upper.astype(float),
+                    velocity=velocity.astype(float), effort=effort.astype(float),
+                    continuous=continuous.astype(bool), locked=lock_values, source=described,
+                    urdf=urdf, full_model=full, links=links)

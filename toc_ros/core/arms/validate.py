@@ -1,0 +1,62 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Checks of an arm's start or goal state: finite, the right size, within limits, no collision."""
+
+import numpy as np
+
+from .model import ArmError
+from .spheres import worst_collision
+
+
+def joint_vector(arm, values, what):
+    """Return values as a float vector of the arm's size (ArmError: wrong size, NaN, inf)."""
+    try:
+        vector = np.array(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ArmError(f'{what} must be {arm.n} numbers, got {values!r}') from None
+    if vector.size != arm.n:
+        raise ArmError(f'{what} has {vector.size} values; the arm has {arm.n} joints '
+                       f'({", ".join(arm.joint_names)})')
+    bad = np.flatnonzero(~np.isfinite(vector))
+    if len(bad):
+        i = int(bad[0])
+        raise ArmError(f'{what}: {arm.joint_names[i]} is {vector[i]} (NaN or infinite)')
+    return vector
+
+
+def check_state(arm, q, v=None, what='start', spheres=None, obstacles=None, margin=0.0,
+                self_collision=True):
+    """
+    Return (q, v) as float vectors after checking them; ArmError with the reason otherwise.
+
+    q within [lower, upper], |v| <= velocity (v default zeros), and, with spheres, no sphere
+    closer than margin to an obstacle nor (self_collision) two non-adjacent links touching.
+    """
+    q = joint_vector(arm, q, f'{what} positions')
+    v = np.zeros(arm.n) if v is None else joint_vector(arm, v, f'{what} velocities')
+    for i, name in enumerate(arm.joint_names):
+        if not arm.lower[i] <= q[i] <= arm.upper[i]:
+            raise ArmError(f'{what}: {name} = {q[i]:.6g} is outside its limits '
+                           f'[{arm.lower[i]:.6g}, {arm.upper[i]:.6g}]')
+        if abs(v[i]) > arm.velocity[i]:
+            raise ArmError(f'{what}: {name} velocity {v[i]:.6g} exceeds its limit '
+                           f'{arm.velocity[i]:.6g}')
+    if spheres is not None:
+        collision = worst_collision(arm, spheres, q, obstacles, margin, self_collision)
+        if collision is not None:
+            raise ArmError(f'{what} in collision: {collision.text}')
+    elif obstacles is not None and len(obstacles):
+        raise ArmError(f"{what}: obstacles need the arm's collision spheres")
+    return q, v
