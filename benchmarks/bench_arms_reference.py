@@ -33,10 +33,10 @@ goal are clear.  Robot spheres: the stand-in sets in benchmarks/data/ (--spheres
 """
 
 import argparse
-import dataclasses
 import datetime
 import math
 import os
+import pickle
 import platform
 import sys
 import time
@@ -53,6 +53,8 @@ from toc_ros.bench.arm_reference import (  # noqa: E402
 
 MARGIN = 0.02
 SCENARIOS = {
+    # The arm sweeps about its base axis past the spheres: the base joint's motion sets t*,
+    # so the other joints may dodge them at little or no cost in time.
     'panda': {
         'joints': PANDA_JOINTS,
         'start': (-1.2, 0.2, 0.0, -2.0, 0.0, 2.2, 0.8),
@@ -64,23 +66,24 @@ SCENARIOS = {
                           (0.30, 0.13, 0.65, 0.05)),
         },
     },
+    # The arm swings up in front of itself; going around the spheres costs time.
     'ur5': {
         'joints': UR5_JOINTS,
-        'start': (-1.0, -1.6, 1.6, -1.5, -1.57, 0.0),
-        'goal': (1.2, -1.2, 1.3, -1.6, -1.57, 0.5),
+        'start': (0.0, -0.4, 0.4, -1.57, -1.57, 0.0),
+        'goal': (0.0, -2.0, 0.9, -1.57, -1.57, 0.0),
         'obstacles': {
             'free': (),
-            '1 sphere': ((0.55, 0.10, 0.45, 0.08),),
-            '3 spheres': ((0.53, -0.07, 0.44, 0.05), (0.45, 0.27, 0.47, 0.05),
-                          (0.27, 0.08, 0.56, 0.05)),
+            '1 sphere': ((0.60, 0.0, 0.55, 0.2),),
+            '3 spheres': ((0.60, 0.0, 0.55, 0.12), (0.42, 0.12, 0.80, 0.08),
+                          (0.72, -0.1, 0.40, 0.08)),
         },
     },
 }
-RUNS = (('euler', 50), ('euler', 100), ('euler', 200), ('rk4', 100))
+RUNS = (('euler', 50), ('euler', 100), ('rk4', 100), ('euler', 200))
 
 
 def make_spec(robot, obstacles_name, spheres):
-    """ArmSpec of a benchmark scenario."""
+    """Return the ArmSpec of a benchmark scenario."""
     sc = SCENARIOS[robot]
     return ArmSpec(urdf=example_robot_urdf(robot), joints=sc['joints'], start=sc['start'],
                    goal=sc['goal'], obstacles=sc['obstacles'][obstacles_name],
@@ -109,14 +112,16 @@ def _check(spec, out, integrator):
             'min_clearance': c['min_clearance']}
 
 
-def run_case(robot, obstacles_name, integrator, n_int, spheres, n_starts, seed):
+def run_case(robot, obstacles_name, integrator, n_int, spheres, n_starts, seed,
+             budget_s=None):
     """Solve one scenario with IPOPT (multi-start) and FATROP; return a row dict."""
     spec = make_spec(robot, obstacles_name, spheres)
     problem = ArmProblem(spec)
     line = line_clearance(problem) if problem.n_pairs else math.inf
     if problem.n_pairs and not line < 0.0:
         raise RuntimeError(f'{robot} {obstacles_name}: the straight path does not collide')
-    ipopt = solve_arm_ipopt(problem, n_int, integrator, n_starts=n_starts, seed=seed)
+    ipopt = solve_arm_ipopt(problem, n_int, integrator, n_starts=n_starts, seed=seed,
+                            budget_s=budget_s)
     fatrop = solve_arm_fatrop(problem, n_int, integrator)
     return {'robot': robot, 'obstacles': obstacles_name, 'integrator': integrator,
             'N': n_int, 'line_clearance': line, 'ipopt': ipopt, 'fatrop': fatrop,
@@ -134,10 +139,10 @@ def _fmt(value, spec):
 
 def _violations(check):
     return (f'{_fmt(check["terminal_error"], ".1e")} / {_fmt(check["limit_excess"], ".1e")} / '
-            f'{_fmt(check["min_clearance"], ".4f")}')
+            f'{_fmt(check["min_clearance"], "+.1e")}')
 
 
-HEADER = ('| robot | obstacles | integrator | N | line clearance [m] | IPOPT t* [s] | '
+HEADER = ('| robot | obstacles | integrator | N | line clearance [m] | IPOPT t* [s] | vs free | '
           'spread [s] | converged | IPOPT it (best) | IPOPT time best / all [s] | '
           'IPOPT check | FATROP t_f [s] | FATROP - t* [%] | FATROP it | FATROP time [s] | '
           'FATROP status | FATROP check |')
@@ -146,7 +151,12 @@ HEADER = ('| robot | obstacles | integrator | N | line clearance [m] | IPOPT t* 
 def table(rows):
     """Markdown table of the rows."""
     lines = [HEADER, '|' + '---|' * HEADER.count(' | ') + '---|']
+    free = {(r['robot'], r['integrator'], r['N']): r['ipopt']['t_f'] for r in rows
+            if r['obstacles'] == 'free' and r['ipopt']['success']}
     for r in rows:
+        t_free = free.get((r['robot'], r['integrator'], r['N']))
+        versus = (f'{100.0 * (r["ipopt"]["t_f"] / t_free - 1.0):+.2f} %'
+                  if t_free and r['obstacles'] != 'free' else '-')
         ip, fa = r['ipopt'], r['fatrop']
         conv = sum(a['success'] for a in ip['attempts'])
         gap = 100.0 * (fa['t_f'] - ip['t_f']) / ip['t_f'] if fa['success'] else math.nan
@@ -154,7 +164,8 @@ def table(rows):
                 else _fmt(r['line_clearance'], '.3f'))
         lines.append(
             f'| {r["robot"]} | {r["obstacles"]} | {r["integrator"]} | {r["N"]} | {line} | '
-            f'{ip["t_f"]:.6f} | {_fmt(ip["t_spread"], ".1e")} | {conv}/{len(ip["attempts"])} | '
+            f'{ip["t_f"]:.6f} | {versus} | {_fmt(ip["t_spread"], ".1e")} | '
+            f'{conv}/{len(ip["attempts"])} | '
             f'{ip["best_iterations"]} | {ip["best_solve_time_s"]:.2f} / '
             f'{ip["solve_time_s"]:.2f} | {_violations(r["ipopt_check"])} | '
             f'{fa["t_f"]:.6f} | {_fmt(gap, "+.2e")} | {fa["iterations"]} | '
@@ -167,9 +178,14 @@ def _parse(argv):
     p.add_argument('--robots', default='panda,ur5')
     p.add_argument('--obstacles', default='free,1 sphere,3 spheres')
     p.add_argument('--quick', action='store_true', help='Euler N = 50 only')
-    p.add_argument('--starts', type=int, default=3, help='IPOPT starts for N <= 100')
-    p.add_argument('--starts-large', type=int, default=2, help='IPOPT starts for N > 100')
+    p.add_argument('--starts', type=int, default=3, help='IPOPT starts for N = 50')
+    p.add_argument('--starts-large', type=int, default=2, help='IPOPT starts for N >= 100')
+    p.add_argument('--starts-rk4', type=int, default=2, help='IPOPT starts with RK4')
     p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--budget', type=float, default=60.0,
+                   help='no further IPOPT start once a scenario has used this many seconds')
+    p.add_argument('--save', help='also pickle the rows to this file')
+    p.add_argument('--merge', nargs='+', help='only tabulate rows pickled by --save runs')
     p.add_argument('--spheres-panda', default=os.path.join(HERE, 'data',
                                                            'arm_spheres_panda.yaml'))
     p.add_argument('--spheres-ur5', default=os.path.join(HERE, 'data', 'arm_spheres_ur5.yaml'))
@@ -186,20 +202,38 @@ def main(argv=None):
     load0 = os.getloadavg()[0]
     started = time.perf_counter()
     rows = []
-    for robot in args.robots.split(','):
-        for obstacles_name in args.obstacles.split(','):
-            for integrator, n_int in runs:
-                starts = args.starts if n_int <= 100 else args.starts_large
-                row = run_case(robot, obstacles_name, integrator, n_int, spheres[robot],
-                               starts, args.seed)
-                rows.append(row)
-                ip, fa = row['ipopt'], row['fatrop']
-                print(f'{robot} {obstacles_name} {integrator} N={n_int}: IPOPT t* = '
-                      f'{ip["t_f"]:.6f} ({ip["solve_time_s"]:.1f} s, '
-                      f'{[round(a["t_f"], 6) for a in ip["attempts"]]}), FATROP '
-                      f'{fa["t_f"]:.6f} {fa["status"]} ({fa["solve_time_s"]:.1f} s)', flush=True)
+    merged = []
+    for path in args.merge or ():
+        with open(path, 'rb') as stream:
+            merged.append(pickle.load(stream))
+        rows += merged[-1]['rows']
+    if merged:
+        runs = ()
+    # Cheapest discretisations first over all scenarios: a run cut short keeps the most rows.
+    cases = [(robot, obstacles_name, integrator, n_int) for integrator, n_int in runs
+             for robot in args.robots.split(',') for obstacles_name in args.obstacles.split(',')]
+    for robot, obstacles_name, integrator, n_int in cases:
+        starts = args.starts if n_int <= 50 else args.starts_large
+        if integrator == 'rk4':
+            starts = args.starts_rk4
+        row = run_case(robot, obstacles_name, integrator, n_int, spheres[robot],
+                       starts, args.seed, args.budget)
+        rows.append(row)
+        ip, fa = row['ipopt'], row['fatrop']
+        print(f'{robot} {obstacles_name} {integrator} N={n_int}: IPOPT t* = '
+              f'{ip["t_f"]:.6f} ({ip["solve_time_s"]:.1f} s, '
+              f'{[round(a["t_f"], 6) for a in ip["attempts"]]}), FATROP '
+              f'{fa["t_f"]:.6f} {fa["status"]} ({fa["solve_time_s"]:.1f} s)', flush=True)
+        if args.save:       # after every row: a run cut short keeps what it did
+            _save(args.save, rows, time.perf_counter() - started, load0)
     total = time.perf_counter() - started
     load1 = os.getloadavg()[0]
+    if merged:      # runs in parallel processes: the longest one, the highest loads
+        total = max(m['total'] for m in merged)
+        load0 = max(m['loads'][0] for m in merged)
+        load1 = max(m['loads'][1] for m in merged)
+    if args.save:
+        _save(args.save, rows, total, load0)
     text = table(rows)
     print(text)
     print(f'total {total:.0f} s, load average {load0:.1f} -> {load1:.1f}')
@@ -208,9 +242,17 @@ def main(argv=None):
     return 0 if all(r['ipopt']['success'] for r in rows) else 1
 
 
+def _save(path, rows, total, load0):
+    with open(path, 'wb') as stream:
+        pickle.dump({'rows': rows, 'total': total, 'loads': (load0, os.getloadavg()[0])},
+                    stream)
+
+
 def _append_results(text, rows, args, total, loads):
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
-    starts = f'{args.starts} starts (N <= 100), {args.starts_large} (N = 200), seed {args.seed}'
+    starts = (f'{args.starts} starts at N = 50, {args.starts_large} at N = 100 and 200, '
+              f'{args.starts_rk4} with RK4 (no further start once a scenario has spent '
+              f'{args.budget:.0f} s), seed {args.seed}')
     section = f"""
 ## Arms: reference minimum times by CasADi + IPOPT and FATROP (Panda, UR5)
 

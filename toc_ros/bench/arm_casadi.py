@@ -101,7 +101,7 @@ class RigidInertia:
     rot: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((3, 3)))
 
     def moved(self, rotation, position):
-        """The same body's inertia expressed in a parent frame (x_parent = R x + p)."""
+        """Return the same inertia expressed in a parent frame (x_parent = R x + p)."""
         return RigidInertia(self.mass, rotation @ self.com + position,
                             rotation @ self.rot @ rotation.T)
 
@@ -179,7 +179,7 @@ class ArmTree:
 
     @property
     def nq(self):
-        """Number of planned joints."""
+        """Return the number of planned joints."""
         return len(self.joints)
 
     def limits(self):
@@ -412,7 +412,7 @@ def _skew(ca, v):
 
 
 def _dm(ca, array):
-    """A numeric matrix as a sparse DM: exact zeros become structural (no work in SX)."""
+    """Return a numeric matrix as a sparse DM: exact zeros become structural (no work in SX)."""
     out = ca.DM(np.asarray(array, dtype=float))
     return ca.sparsify(out)
 
@@ -603,7 +603,7 @@ class ArmCasadi:
 
     def point_positions(self, points):
         """
-        Function q -> (3, P): base-frame positions of link points [(link, (x, y, z)), ...].
+        Return a Function q -> (3, P): base-frame positions of points [(link, (x, y, z))].
 
         The points are given in their link's frame (collision sphere centres).
         """
@@ -625,7 +625,7 @@ class ArmCasadi:
         return ca.Function('points', [self.q], [ca.horzcat(*cols)], ['q'], ['p'])
 
     def state_derivative(self, dynamics='aba'):
-        """Function (x, u) -> dx/dt with x = (q, qd), positions first, u = joint torques."""
+        """Return the Function (x, u) -> dx/dt, x = (q, qd) positions first, u = torques."""
         ca = self.ca
         n = self.tree.nq
         x, u = ca.SX.sym('x', 2 * n), ca.SX.sym('u', n)

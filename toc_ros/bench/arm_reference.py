@@ -227,8 +227,10 @@ class ArmProblem:
 
     def line_time(self, n_intervals=50):
         """
-        A final time for the cubic line start: the shortest on a 5 % grid whose peak velocity
-        and inverse-dynamics torques stay within the limits (at most 60 s).
+        Return a final time for the cubic line start.
+
+        The shortest on a 5 % grid whose peak velocity and inverse-dynamics torques stay
+        within the limits (at most 60 s).
         """
         n = self.n
         dq = np.abs(self.xg[:n] - self.x0[:n])
@@ -251,7 +253,7 @@ class ArmProblem:
 
 def _stage_function(ca, problem, integrator, formulation):
     """
-    Function (x, v, a, h) -> (x_next, residual) of one interval, u = effort v.
+    Return the Function (x, v, a, h) -> (x_next, residual) of one interval, u = effort v.
 
     'explicit': x_next = Phi(x, u, h) with the ABA inside, no a, no residual.
     'lifted': the accelerations of the integrator's stages are variables a (n per stage:
@@ -359,8 +361,8 @@ class ArmTranscription:
         col = ca.MX.sym('col', nx + nu + na, n)     # columns [x(k); v(k); a(k)], k = 0..N-1
         x_end = ca.MX.sym('xN', nx)
         xs = ca.horzcat(col[:nx, :], x_end)
-        x_next, residual = self.stage.map(n)(xs[:, :-1], col[nx:nx + nu, :], col[nx + nu:, :],
-                                              t_f / n)
+        stages = self.stage.map(n)
+        x_next, residual = stages(xs[:, :-1], col[nx:nx + nu, :], col[nx + nu:, :], t_f / n)
         parts = [ca.vec(xs[:, 1:] - x_next)]
         lbg, ubg = [np.zeros(nx * n)], [np.zeros(nx * n)]
         if na:
@@ -389,8 +391,9 @@ class ArmTranscription:
         x_end, t_end = ca.MX.sym('xN', nx), ca.MX.sym('TN')
         xs = ca.horzcat(z[:nx, :], x_end)
         ts = ca.horzcat(z[nx, :], t_end)
-        x_next, residual = self.stage.map(n)(xs[:, :-1], z[nx + 1:nx + 1 + nu, :],
-                                              z[nx + 1 + nu:, :], ts[:, :-1] / n)
+        stages = self.stage.map(n)
+        x_next, residual = stages(xs[:, :-1], z[nx + 1:nx + 1 + nu, :], z[nx + 1 + nu:, :],
+                                  ts[:, :-1] / n)
         gap = xs[:, 1:] - x_next
         gap_t = ts[:, 1:] - ts[:, :-1]
         obs = self.clear.map(n)(xs[:, :-1]) if self.clear is not None else None
