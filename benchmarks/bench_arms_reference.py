@@ -242,6 +242,17 @@ def main(argv=None):
     return 0 if all(r['ipopt']['success'] for r in rows) else 1
 
 
+def _missing(rows, args):
+    done = {(r['robot'], r['obstacles'], r['integrator'], r['N']) for r in rows}
+    missing = [f'{robot} {obs} {integ} N = {n}' for integ, n in RUNS
+               for robot in args.robots.split(',') for obs in args.obstacles.split(',')
+               if (robot, obs, integ, n) not in done]
+    if not missing:
+        return ''
+    return ('\nNot run (the machine time ran out before the deadline): ' + '; '.join(missing)
+            + '.\n')
+
+
 def _save(path, rows, total, load0):
     with open(path, 'wb') as stream:
         pickle.dump({'rows': rows, 'total': total, 'loads': (load0, os.getloadavg()[0])},
@@ -280,7 +291,7 @@ limit excess (position, velocity, effort; 0 = within) / minimum clearance over a
 sphere pairs [m].
 
 {text}
-"""
+{_missing(rows, args)}"""
     with open(os.path.join(HERE, 'RESULTS.md'), 'a', encoding='utf-8') as stream:
         stream.write(section)
     del rows

@@ -45,7 +45,7 @@ constraints ordered stage by stage and flagged in 'equality', structure_detectio
 import dataclasses
 import math
 import time
-from typing import Mapping, Optional, Tuple, Union
+from typing import Mapping, Tuple, Union
 
 import numpy as np
 import yaml
@@ -143,8 +143,11 @@ class ArmProblem:
         self.radii = radii
         self.n = n = self.tree.nq
         self.lower, self.upper, self.effort, self.velocity = self.tree.limits()
-        obstacles = np.asarray(spec.obstacles, dtype=float).reshape(-1, 4) if len(
-            spec.obstacles) else np.zeros((0, 4))
+        try:
+            obstacles = np.asarray(spec.obstacles, dtype=float).reshape(-1, 4) if len(
+                spec.obstacles) else np.zeros((0, 4))
+        except (TypeError, ValueError):
+            obstacles = np.full((1, 4), np.nan)
         if not np.all(np.isfinite(obstacles)) or np.any(obstacles[:, 3] < 0.0):
             raise SpecError('obstacles must be rows (cx, cy, cz, R) of finite numbers, R >= 0')
         if not (math.isfinite(spec.margin) and spec.margin >= 0.0):
@@ -606,8 +609,3 @@ def solve_arm_fatrop(spec_or_problem, N, integrator='euler', guess=None,  # noqa
                      options=None):
     """FATROP from the line start (or guess), the same discretisation as solve_arm_ipopt."""
     return solve_arm(spec_or_problem, N, integrator, 'fatrop', guess, options)
-
-
-def problem_for(spec: ArmSpec, dynamics: Optional[str] = 'aba'):
-    """Return the checked ArmProblem of a spec (SpecError with the reason otherwise)."""
-    return ArmProblem(spec, dynamics or 'aba')
