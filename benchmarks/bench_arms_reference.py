@@ -267,8 +267,9 @@ def _append_results(text, rows, args, total, loads):
     section = f"""
 ## Arms: reference minimum times by CasADi + IPOPT and FATROP (Panda, UR5)
 
-`python benchmarks/bench_arms_reference.py --write` ({stamp}, {platform.machine()}, 2 shared
-cores, load average {loads[0]:.1f} -> {loads[1]:.1f} during the run, {total:.0f} s in all).
+`python benchmarks/bench_arms_reference.py` ({stamp}, {platform.machine()}, 2 cores shared
+with other jobs, load average {loads[0]:.1f} -> {loads[1]:.1f}, {total:.0f} s; with --merge:
+one process per robot run side by side, then tabulated together).
 The problem and its transcription: toc_ros/bench/arm_reference.py (rigid-body recursions in
 CasADi from the URDF, toc_ros/bench/arm_casadi.py, equal to Pinocchio's ABA/RNEA/CRBA and
 frame placements to 1e-10, test/test_arm_casadi.py). x = (q, qd), u = torques constant on N
@@ -276,8 +277,8 @@ intervals, h = t_f / N, minimise t_f; limits at every node (efforts on every int
 sphere clearance (|p_s - c_o|^2 - R^2) / (2 R) >= 0 with R = r_s + R_o + margin, margin
 {MARGIN} m; start and goal at rest. Accelerations of the integrator stages are lifted into
 variables tied to the torques by RNEA equalities (the same discrete problem as the ABA inside
-the step; the two formulations reach the same t* to 1e-8 in the tests, the lifted one's
-derivatives are ~3x (Euler) to ~40x (RK4) cheaper). IPOPT: tol 1e-8, constr_viol_tol 1e-10,
+the step; the two formulations reach the same t* to 1e-8 in the tests; the Hessian of the
+lifted stage has ~3x (Euler) and ~10x (RK4) fewer operations). IPOPT: tol 1e-8, constr_viol_tol 1e-10,
 bound_relax_factor 0, MUMPS, exact Hessian; {starts}: the cubic line at 1.0 and 1.5 x a
 feasible-looking final time, then cubics bent through a random midpoint offset
 (0.5 rad standard deviation); best converged t* kept. FATROP (structure detection 'auto',
