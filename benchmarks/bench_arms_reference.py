@@ -278,8 +278,9 @@ sphere clearance (|p_s - c_o|^2 - R^2) / (2 R) >= 0 with R = r_s + R_o + margin,
 {MARGIN} m; start and goal at rest. Accelerations of the integrator stages are lifted into
 variables tied to the torques by RNEA equalities (the same discrete problem as the ABA inside
 the step; the two formulations reach the same t* to 1e-8 in the tests; the Hessian of the
-lifted stage has ~3x (Euler) and ~10x (RK4) fewer operations). IPOPT: tol 1e-8, constr_viol_tol 1e-10,
-bound_relax_factor 0, MUMPS, exact Hessian; {starts}: the cubic line at 1.0 and 1.5 x a
+lifted stage has ~3x (Euler) and ~10x (RK4) fewer operations). IPOPT: tol 1e-8,
+constr_viol_tol 1e-10, bound_relax_factor 0, MUMPS, exact Hessian; {starts}: the cubic line
+at 1.0 and 1.5 x a
 feasible-looking final time, then cubics bent through a random midpoint offset
 (0.5 rad standard deviation); best converged t* kept. FATROP (structure detection 'auto',
 tol 1e-8, constr_viol_tol 1e-10) from the line start. Times are solver calls only (the NLP's
