@@ -178,6 +178,7 @@ def _parse(argv):
     p.add_argument('--robots', default='panda,ur5')
     p.add_argument('--obstacles', default='free,1 sphere,3 spheres')
     p.add_argument('--quick', action='store_true', help='Euler N = 50 only')
+    p.add_argument('--runs', help="discretisations, e.g. 'euler:200,rk4:100' (default all)")
     p.add_argument('--starts', type=int, default=3, help='IPOPT starts for N = 50')
     p.add_argument('--starts-large', type=int, default=2, help='IPOPT starts for N >= 100')
     p.add_argument('--starts-rk4', type=int, default=2, help='IPOPT starts with RK4')
@@ -198,6 +199,9 @@ def main(argv=None):
     """Run the benchmark, print the table, optionally append it to RESULTS.md."""
     args = _parse(argv)
     runs = (('euler', 50),) if args.quick else RUNS
+    if args.runs:
+        runs = tuple((item.split(':')[0], int(item.split(':')[1]))
+                     for item in args.runs.split(','))
     spheres = {'panda': args.spheres_panda, 'ur5': args.spheres_ur5}
     load0 = os.getloadavg()[0]
     started = time.perf_counter()
