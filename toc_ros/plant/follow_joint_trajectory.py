@@ -427,6 +427,11 @@ class TrajectoryFollower:
                                              and not self._holding)
 
     @property
+    def trajectory(self):
+        """The trajectory being followed or held (None before the first goal)."""
+        return self._trajectory
+
+    @property
     def goal(self):
         """The goal being executed or pending, or None."""
         return self._pending[2] if self._pending is not None else self._goal
