@@ -195,7 +195,7 @@ def _pinocchio_rk4(model, q, v, torques, dt, substeps):
 
 def open_loop_drift(arm, timestep=1e-3, duration=1.0, substeps=10):
     """
-    MuJoCo's RK4 against an independent Pinocchio RK4 over an open-loop torque sequence.
+    Compare MuJoCo's RK4 with an independent Pinocchio RK4 over an open-loop torque sequence.
 
     Returns (max |q| difference against Pinocchio at the same step, the same against
     Pinocchio at timestep / substeps) after `duration` seconds from rest at mid-range.

@@ -68,7 +68,7 @@ def _current(plant):
 
 
 def _trajectory(points, names=JOINTS):
-    """JointTrajectory of (t, positions, velocities) rows, stamp zero (now)."""
+    """Build the JointTrajectory of (t, positions, velocities) rows, stamp zero (now)."""
     msg = JointTrajectory()
     msg.joint_names = list(names)
     for t, q, dq in points:

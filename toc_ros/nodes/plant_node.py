@@ -154,7 +154,7 @@ def follow_joint_trajectory_action():
 
 
 def trajectory_point(positions, velocities, accelerations=None, effort=None):
-    """JointTrajectoryPoint of arrays (absent fields stay empty)."""
+    """Build a JointTrajectoryPoint of arrays (absent fields stay empty)."""
     point = JointTrajectoryPoint()
     point.positions = [float(v) for v in positions]
     point.velocities = [float(v) for v in velocities]
@@ -526,7 +526,7 @@ class PlantNode(Node):
         return np.clip(u, -self._u_max, self._u_max)
 
     def _follow_step(self):
-        """The follower's reference at this step (it checks the tolerances and starts goals)."""
+        """Return the follower's reference at this step (it checks tolerances, starts goals)."""
         before = None
         if self._following:
             sample = self._follower.reference(self._sim_ns)
@@ -642,7 +642,6 @@ class PlantNode(Node):
         self._tracking_pub.publish(conversions.diagnostic_msg(
             self.get_fully_qualified_name(), DiagnosticStatus.OK,
             f'{phase}: |position error| {worst:.3g}', values))
-
 
     # -- FollowJointTrajectory ------------------------------------------------------------------
 

@@ -168,7 +168,7 @@ def validate(msg, joint_names, now_ns, allow_nonzero_velocity_at_end=False):
 
 def interpolate(t, duration, a, b):
     """
-    JTC's interpolate_between_points: (positions, velocities, accelerations, effort) at t [s].
+    Interpolate as JTC's interpolate_between_points: (q, dq, ddq, effort) at t [s].
 
     t is the time since point a, duration the time from a to b.  Linear / cubic / quintic as
     the two points' fields allow; t is clamped to [0, duration], and a clamped sample is
@@ -307,7 +307,8 @@ class Tolerances:
     @classmethod
     def defaults(cls, n, path_position=0.0, goal_position=0.0,
                  stopped_velocity=STOPPED_VELOCITY_TOLERANCE, goal_time=0.0):
-        """JTC's defaults from its constraints.* parameters (scalars or one per joint)."""
+        """Build JTC's defaults from its constraints.* parameters (scalar or per joint)."""
+
         def per_joint(value):
             return np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy()
         zero = np.zeros(n)
@@ -321,7 +322,7 @@ class Tolerances:
 
 
 def _resolve(default, value):
-    """JTC's resolve_tolerance_source: > 0 overrides, -1 erases, 0 keeps the default."""
+    """Resolve as JTC's resolve_tolerance_source: > 0 overrides, -1 erases, 0 default."""
     if value > 0.0:
         return float(value)
     if abs(value - ERASE) < FLOAT32_EPSILON:
@@ -422,18 +423,18 @@ class TrajectoryFollower:
 
     @property
     def active(self):
-        """True while a trajectory (not a hold) is followed or pending."""
+        """Return True while a trajectory (not a hold) is followed or pending."""
         return self._pending is not None or (self._trajectory is not None
                                              and not self._holding)
 
     @property
     def trajectory(self):
-        """The trajectory being followed or held (None before the first goal)."""
+        """Return the trajectory being followed or held (None before the first goal)."""
         return self._trajectory
 
     @property
     def goal(self):
-        """The goal being executed or pending, or None."""
+        """Return the goal being executed or pending, or None."""
         return self._pending[2] if self._pending is not None else self._goal
 
     def follow(self, trajectory, tolerances, goal):
@@ -472,7 +473,7 @@ class TrajectoryFollower:
         return outcomes
 
     def reference(self, t_ns):
-        """The reference at t_ns without checks (None when nothing was followed yet)."""
+        """Return the reference at t_ns without checks (None before the first goal)."""
         if self._trajectory is None:
             return None
         return self._trajectory.sample(t_ns)

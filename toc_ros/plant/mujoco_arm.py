@@ -211,12 +211,12 @@ class MujocoArm:
 
     @property
     def n_joints(self):
-        """Number of planned (moving) joints."""
+        """Return the number of planned (moving) joints."""
         return len(self.joint_names)
 
     @property
     def time(self):
-        """Simulated time [s] since the last set_state."""
+        """Return the simulated time [s] since the last set_state."""
         return float(self.data.time)
 
     def state(self):
@@ -238,7 +238,7 @@ class MujocoArm:
         mujoco.mj_forward(self.model, self.data)
 
     def clamp(self, tau):
-        """The torques the motors apply for a command tau: clipped to the effort limits."""
+        """Return the torques the motors apply for a command tau (clipped to the limits)."""
         return np.clip(np.asarray(tau, dtype=float), -self.effort_limits, self.effort_limits)
 
     def acceleration(self, tau):
