@@ -165,14 +165,63 @@ def trajectory_point(positions, velocities, accelerations=None, effort=None):
     return point
 
 
+class MujocoEngine:
+    """
+    The plant's dynamics on MuJoCo (engine mujoco): the URDF of robot_description.
+
+    toc_ros.plant.mujoco_arm.MujocoArm with the plant's mismatch knobs (payload_mass_offset on
+    robot.tip_link, inertia_scale), stepped at 1 / integration_rate; presents what plant_node
+    uses of a RobotModel (n_joints, nx, u_max = the URDF effort limits, check) and a step of
+    the interleaved state [q1, dq1, q2, dq2, ...].  mujoco is imported here only.
+    """
+
+    name = 'urdf (mujoco)'
+
+    def __init__(self, params):
+        try:
+            from toc_ros.plant.mujoco_arm import MujocoArm
+        except ImportError as exc:
+            raise ProblemError(f'engine mujoco needs the mujoco package: {exc}') from None
+        if not params['robot_description']:
+            raise ProblemError('engine mujoco needs the URDF in robot_description')
+        self.arm = MujocoArm(
+            params['robot_description'], params['joint_names'],
+            tip_link=params.get('robot.tip_link') or None,
+            payload_mass_offset=float(params['payload_mass_offset']),
+            inertia_scale=float(params['inertia_scale']),
+            timestep=1.0 / float(params['integration_rate']))
+        self.n_joints = self.arm.n_joints
+        self.nx = 2 * self.n_joints
+        self.u_max = self.arm.effort_limits.copy()
+
+    def check(self):
+        """Return the model's errors: none once MuJoCo compiled it."""
+        return []
+
+    def step(self, x, u):
+        """Return the interleaved state one time step after x under torque u (clamped)."""
+        q, v = self.arm.state()
+        if not (np.array_equal(q, x[0::2]) and np.array_equal(v, x[1::2])):
+            self.arm.set_state(x[0::2], x[1::2])
+        self.arm.step(u)
+        q, v = self.arm.state()
+        out = np.empty(self.nx)
+        out[0::2], out[1::2] = q, v
+        return out
+
+
 def plant_model(params):
     """
     Return the plant's RobotModel: the solver's model with the mismatch knobs applied.
+
+    With engine mujoco: a MujocoEngine of robot_description (robot.model is not used).
 
     The joints' model: the plant's own actuator_lag and control_delay simulate the drives
     (robot.actuator_lag is what the planner assumes of them).  Raises ProblemError for a bad
     model, or for mismatch knobs on a model without a mapping.
     """
+    if params['engine'] == 'mujoco':
+        return MujocoEngine(params)
     model = model_from_parameters(params).joint_model
     offset, scale = float(params['payload_mass_offset']), float(params['inertia_scale'])
     if isinstance(model, CylindricalRobot):
@@ -347,7 +396,7 @@ class PlantNode(Node):
         model = plant_model(params)
         self._model = model
         self._n = model.n_joints
-        self._p = model.packed()
+        self._p = None if isinstance(model, MujocoEngine) else model.packed()
         self._u_max = np.asarray(model.u_max, dtype=float)
         self._states = np.empty((2, model.nx))
         self._kp = np.asarray(params['kp'], dtype=float)
@@ -420,6 +469,8 @@ class PlantNode(Node):
 
     def _step(self, u):
         """Return the state after one RK4 step of 1 / integration_rate under control u."""
+        if isinstance(self._model, MujocoEngine):
+            return self._model.step(self._x, np.asarray(u, dtype=float))
         self._model.kernels.rollout(np.ascontiguousarray(self._x, dtype=float),
                                     np.ascontiguousarray(u, dtype=float).reshape(1, -1),
                                     self._dt, self._p, RK4, self._states)
