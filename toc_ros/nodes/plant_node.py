@@ -77,6 +77,14 @@ q_ref, velocity = dq_ref, effort = u_ff at the stamp.  ``~/tracking`` (Diagnosti
 10 Hz) reports the tracking error and the trajectory's start stamp; ``~/reset``
 (std_srvs/Trigger) returns to ``initial_state`` and drops the trajectories.
 
+*Engines* (``engine``): ``builtin`` integrates robot.model as above; ``mujoco`` simulates the
+URDF in ``robot_description`` with MuJoCo (toc_ros.plant.mujoco_arm: ``joint_names`` planned,
+the other joints locked at 0, torque motors clamped to the URDF effort limits, no damping or
+friction, joint ranges as end stops, RK4 at 1 / integration_rate; payload_mass_offset is a
+point mass at ``robot.tip_link``, inertia_scale scales every link).  robot.model is then not
+used; joint_names, initial_state, kp and kd size the arm.  The rest (PD + feed-forward,
+actuator lag and delay, time base, trajectories, the action) is the same for both.
+
 *FollowJointTrajectory* (``~/follow_joint_trajectory``, control_msgs/action): served with
 ros2_controllers JointTrajectoryController's semantics, as implemented (ROS-free) in
 toc_ros.plant.follow_joint_trajectory: the goal names every joint (else INVALID_JOINTS),
