@@ -313,7 +313,7 @@ def test_new_goal_preempts_and_joins_the_reference_without_a_jump():
     # JTC's default instead starts from the measured state: the reference jumps by the
     # tracking error.
     measured = fjt.TrajectoryFollower(JOINTS, interpolate_from_desired_state=False)
-    measured.follow(fjt.validate(replan and _msg([_point(0.2, [0.8, -0.2], [0, 0])]), JOINTS,
+    measured.follow(fjt.validate(_msg([_point(0.2, [0.8, -0.2], [0, 0])]), JOINTS,
                                  switch), fjt.Tolerances.defaults(2), 'x')
     jumped = measured.update(switch, before.positions - offset, before.velocities,
                              (before.positions, before.velocities, None, None))
