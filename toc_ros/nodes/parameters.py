@@ -129,6 +129,13 @@ class PlantSettings:
         0.0, 'pure delay of the commanded control in the simulated plant, rounded to the '
         'integration step (model mismatch); 0: off', unit='s', low=0.0, high=MAX_CONTROL_DELAY_S)
     publish_clock: bool = setting(False, 'publish the simulated time on /clock')
+    engine: str = setting(
+        'builtin', "the plant's dynamics: builtin (the planner's model, robot.*), or mujoco (the "
+        'URDF in robot_description simulated by MuJoCo: joint_names planned, the others '
+        'locked; needs the mujoco package)', choices=('builtin', 'mujoco'))
+    robot_description: str = setting(
+        '', 'URDF of the arm for engine mujoco (the robot_state_publisher parameter of the '
+        'same name)')
 
 
 # Every flat parameter of the nodes: name -> settings.Parameter (default, type, range, text).

@@ -77,6 +77,31 @@ q_ref, velocity = dq_ref, effort = u_ff at the stamp.  ``~/tracking`` (Diagnosti
 10 Hz) reports the tracking error and the trajectory's start stamp; ``~/reset``
 (std_srvs/Trigger) returns to ``initial_state`` and drops the trajectories.
 
+*Engines* (``engine``): ``builtin`` integrates robot.model as above; ``mujoco`` simulates the
+URDF in ``robot_description`` with MuJoCo (toc_ros.plant.mujoco_arm: ``joint_names`` planned,
+the other joints locked at 0, torque motors clamped to the URDF effort limits, no damping or
+friction, joint ranges as end stops, RK4 at 1 / integration_rate; payload_mass_offset is a
+point mass at ``robot.tip_link``, inertia_scale scales every link).  robot.model is then not
+used; joint_names, initial_state, kp and kd size the arm.  The rest (PD + feed-forward,
+actuator lag and delay, time base, trajectories, the action) is the same for both.
+
+*FollowJointTrajectory* (``~/follow_joint_trajectory``, control_msgs/action): served with
+ros2_controllers JointTrajectoryController's semantics, as implemented (ROS-free) in
+toc_ros.plant.follow_joint_trajectory: the goal names every joint (else INVALID_JOINTS),
+header.stamp = start (zero: now), splines (linear / cubic / quintic, effort linear), path and
+goal tolerances from the goal over JTC's defaults (not enforced, stopped velocity 0.01,
+goal_time 0), the result's error_code, feedback (desired, actual, error) every
+FEEDBACK_PERIOD_S.  A goal starts at the next integration step from the reference being
+followed then (JTC's ``interpolate_from_desired_state``: no jump in the commanded reference
+when a replan preempts a goal).  The command is u_ff (the sampled effort) + PD on the sampled
+position and velocity, as above.  Either path replaces the other, the newest wins: a valid
+goal aborts the active goal (INVALID_GOAL, "Current goal preempted by new incoming action.",
+as JTC) and drops a topic trajectory (active or pending); a topic trajectory aborts the active
+goal (INVALID_GOAL, "preempted by a trajectory on the trajectory topic") when it starts, so
+that the client learns that its goal no longer runs.  Invalid goals are accepted and at once
+aborted with their code (JTC rejects them, but a rejection carries no error code in ROS 2).
+control_msgs is imported lazily: without it the node runs without the action and says why.
+
 Run: ``ros2 run toc_ros plant_node --ros-args --params-file config/toc_ros.yaml``
 """
 
@@ -92,6 +117,7 @@ import numpy as np
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -102,10 +128,14 @@ from toc_ros.core.horizon import integrator_id
 from toc_ros.core.models import CylindricalRobot, Planar2R
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node, survives_shutdown
-from trajectory_msgs.msg import JointTrajectory
+from toc_ros.plant import follow_joint_trajectory as fjt
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 PARAMETER_NAMES = parameters.PLANT_NODE_NAMES
 TRACKING_PERIOD_S = 0.1
+FEEDBACK_PERIOD_S = 0.05
+ACTION_NAME = '~/follow_joint_trajectory'
+TOPIC_PREEMPTED = 'preempted by a trajectory on the trajectory topic'
 # Longer stalls of the timer (suspended process, overloaded machine) are skipped, not replayed.
 MAX_CATCH_UP_S = 0.5
 # Without publish_clock: a ROS clock this far from _sim_time + offset re-takes the offset.
@@ -121,14 +151,85 @@ MISMATCH = {'cylindrical': 'robot.hand_mass + payload_mass_offset, robot.inertia
             'planar_2r': 'm_p + payload_mass_offset, m1 and m2 * inertia_scale'}
 
 
+def follow_joint_trajectory_action():
+    """Return (the FollowJointTrajectory action type, None), or (None, why it is missing)."""
+    try:
+        from control_msgs.action import FollowJointTrajectory
+    except ImportError as exc:
+        return None, (f'control_msgs is not installed ({exc}); a ROS install has it '
+                      '(ros-jazzy-control-msgs)')
+    return FollowJointTrajectory, None
+
+
+def trajectory_point(positions, velocities, accelerations=None, effort=None):
+    """Build a JointTrajectoryPoint of arrays (absent fields stay empty)."""
+    point = JointTrajectoryPoint()
+    point.positions = [float(v) for v in positions]
+    point.velocities = [float(v) for v in velocities]
+    if accelerations is not None:
+        point.accelerations = [float(v) for v in accelerations]
+    if effort is not None:
+        point.effort = [float(v) for v in effort]
+    return point
+
+
+class MujocoEngine:
+    """
+    The plant's dynamics on MuJoCo (engine mujoco): the URDF of robot_description.
+
+    toc_ros.plant.mujoco_arm.MujocoArm with the plant's mismatch knobs (payload_mass_offset on
+    robot.tip_link, inertia_scale), stepped at 1 / integration_rate; presents what plant_node
+    uses of a RobotModel (n_joints, nx, u_max = the URDF effort limits, check) and a step of
+    the interleaved state [q1, dq1, q2, dq2, ...].  mujoco is imported here only.
+    """
+
+    name = 'urdf (mujoco)'
+
+    def __init__(self, params):
+        try:
+            from toc_ros.plant.mujoco_arm import MujocoArm
+        except ImportError as exc:
+            raise ProblemError(f'engine mujoco needs the mujoco package: {exc}') from None
+        if not params['robot_description']:
+            raise ProblemError('engine mujoco needs the URDF in robot_description')
+        self.arm = MujocoArm(
+            params['robot_description'], params['joint_names'],
+            tip_link=params.get('robot.tip_link') or None,
+            payload_mass_offset=float(params['payload_mass_offset']),
+            inertia_scale=float(params['inertia_scale']),
+            timestep=1.0 / float(params['integration_rate']))
+        self.n_joints = self.arm.n_joints
+        self.nx = 2 * self.n_joints
+        self.u_max = self.arm.effort_limits.copy()
+
+    def check(self):
+        """Return the model's errors: none once MuJoCo compiled it."""
+        return []
+
+    def step(self, x, u):
+        """Return the interleaved state one time step after x under torque u (clamped)."""
+        q, v = self.arm.state()
+        if not (np.array_equal(q, x[0::2]) and np.array_equal(v, x[1::2])):
+            self.arm.set_state(x[0::2], x[1::2])
+        self.arm.step(u)
+        q, v = self.arm.state()
+        out = np.empty(self.nx)
+        out[0::2], out[1::2] = q, v
+        return out
+
+
 def plant_model(params):
     """
     Return the plant's RobotModel: the solver's model with the mismatch knobs applied.
+
+    With engine mujoco: a MujocoEngine of robot_description (robot.model is not used).
 
     The joints' model: the plant's own actuator_lag and control_delay simulate the drives
     (robot.actuator_lag is what the planner assumes of them).  Raises ProblemError for a bad
     model, or for mismatch knobs on a model without a mapping.
     """
+    if params['engine'] == 'mujoco':
+        return MujocoEngine(params)
     model = model_from_parameters(params).joint_model
     offset, scale = float(params['payload_mass_offset']), float(params['inertia_scale'])
     if isinstance(model, CylindricalRobot):
@@ -272,6 +373,8 @@ class PlantNode(Node):
         self._tracking_pub = self.create_publisher(DiagnosticStatus, '~/tracking', 10)
         self.create_subscription(JointTrajectory, 'trajectory', self._on_trajectory, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
+        self._follower = None
+        self._goal_futures = {}
         self._sim_ns = 0
         self._sim_time = 0.0
         self._wall_start = time.monotonic()
@@ -280,6 +383,16 @@ class PlantNode(Node):
         self._step(np.zeros(self._n))   # compile/load the model kernels before the timer
         self._timer = self.create_timer(1.0 / float(self._params['rate']), self._tick)
         self.create_timer(TRACKING_PERIOD_S, self._publish_tracking)
+        self._action_type, reason = follow_joint_trajectory_action()
+        if self._action_type is None:
+            self.get_logger().warning(f'{ACTION_NAME} is not served: {reason}; the trajectory '
+                                      'topic works as usual')
+        else:
+            from rclpy.action import ActionServer, CancelResponse
+            self._action_server = ActionServer(
+                self, self._action_type, ACTION_NAME, self._execute_goal,
+                cancel_callback=lambda _goal: CancelResponse.ACCEPT)
+            self.create_timer(FEEDBACK_PERIOD_S, self._publish_feedback)
         self.get_logger().info(
             f'ready: state {np.round(self._x, 6).tolist()}, RK4 at '
             f"{self._params['integration_rate']} Hz, joint_states at {self._params['rate']} Hz")
@@ -291,7 +404,7 @@ class PlantNode(Node):
         model = plant_model(params)
         self._model = model
         self._n = model.n_joints
-        self._p = model.packed()
+        self._p = None if isinstance(model, MujocoEngine) else model.packed()
         self._u_max = np.asarray(model.u_max, dtype=float)
         self._states = np.empty((2, model.nx))
         self._kp = np.asarray(params['kp'], dtype=float)
@@ -328,6 +441,8 @@ class PlantNode(Node):
         self._apply_parameters()
         if self._u_lag is None or self._x.shape[0] != self._model.nx:
             self._reset_state()               # another model: its own state size
+        elif list(self._params['joint_names']) != self._follower.joint_names:
+            self._new_follower('joint_names changed')
         if self._params['publish_clock'] != clock:
             self._sync_clock()
         if self._params['rate'] != rate:
@@ -362,6 +477,8 @@ class PlantNode(Node):
 
     def _step(self, u):
         """Return the state after one RK4 step of 1 / integration_rate under control u."""
+        if isinstance(self._model, MujocoEngine):
+            return self._model.step(self._x, np.asarray(u, dtype=float))
         self._model.kernels.rollout(np.ascontiguousarray(self._x, dtype=float),
                                     np.ascontiguousarray(u, dtype=float).reshape(1, -1),
                                     self._dt, self._p, RK4, self._states)
@@ -377,6 +494,20 @@ class PlantNode(Node):
         self._pending = None                 # a Scheduled trajectory with a future stamp
         self._hold = x0[0::2].copy()
         self._max_error = np.zeros(self._n)
+        self._new_follower('the plant was reset')
+
+    def _new_follower(self, reason):
+        """Abort the action goals (reason) and start a follower for the current joints."""
+        if self._follower is not None:
+            self._end_goals(reason)
+        self._follower = fjt.TrajectoryFollower(self._params['joint_names'],
+                                                interpolate_from_desired_state=True)
+        self._following = False     # the follower (an action goal) drives the reference
+
+    def _end_goals(self, reason, hold=None):
+        """Abort the active and pending action goals; the follower holds `hold` if given."""
+        self._follower.stop(fjt.INVALID_GOAL, reason, hold)
+        self._deliver_outcomes()
 
     def _on_reset(self, _request, response):
         self._reset_state()
@@ -392,6 +523,9 @@ class PlantNode(Node):
             self.get_logger().error(f'ignoring trajectory: {exc}')
             return
         if len(arrays.times) == 0:
+            if self._following or self._follower.active:
+                self._end_goals('stopped by an empty trajectory on the trajectory topic')
+            self._following = False
             self._active = self._pending = None
             self._hold = self._x[0::2].copy()
             self._max_error = np.zeros(self._n)
@@ -425,21 +559,46 @@ class PlantNode(Node):
         q, dq, _ = self._target(pending.activate_ns)
         pending.reference = pending.reference.starting_from(
             (pending.activate_ns - pending.start_ns) / NS, q, dq)
+        if self._following or self._follower.active:
+            self._end_goals(TOPIC_PREEMPTED)
+            self._following = False
         self._active, self._pending = pending, None
         self._max_error = np.zeros(self._n)
 
     def _target(self, sim_ns):
         """(q_ref, dq_ref, u_ff) at simulated time sim_ns [ns]."""
+        if self._following:
+            sample = self._follower.reference(sim_ns)
+            return sample.positions, sample.velocities, sample.effort
         if self._active is None:
             return self._hold, np.zeros(self._n), np.zeros(self._n)
         return self._active.reference.at((sim_ns - self._active.start_ns) / NS)
 
     def _command(self):
         """Saturated PD + feed-forward command at the current step."""
-        q_ref, dq_ref, u_ff = self._target(self._sim_ns)
         x = self._x
+        if self._following or self._follower.active:
+            q_ref, dq_ref, u_ff = self._follow_step()
+        else:
+            q_ref, dq_ref, u_ff = self._target(self._sim_ns)
         u = (u_ff + self._kp * (q_ref - x[0::2]) + self._kd * (dq_ref - x[1::2]))
         return np.clip(u, -self._u_max, self._u_max)
+
+    def _follow_step(self):
+        """Return the follower's reference at this step (it checks tolerances, starts goals)."""
+        before = None
+        if self._following:
+            sample = self._follower.reference(self._sim_ns)
+            before = (sample.positions, sample.velocities, sample.accelerations, sample.effort)
+        else:
+            q, dq, u_ff = self._target(self._sim_ns)
+            before = (q, dq, None, u_ff)
+            # The goal starts now: the topic's trajectories (active or pending) are dropped.
+            self._active = self._pending = None
+            self._following = True
+            self._max_error = np.zeros(self._n)
+        sample = self._follower.update(self._sim_ns, self._x[0::2], self._x[1::2], before)
+        return sample.positions, sample.velocities, sample.effort
 
     def _actuate(self, u_cmd):
         """Return the u applied over this step: u_cmd delayed, then through the lag."""
@@ -473,7 +632,11 @@ class PlantNode(Node):
             self.get_logger().error('state diverged (non-finite); resetting to initial_state')
             self._reset_state()
         self._activate_due()
-        if self._active is not None:
+        goal = self._follower.goal
+        if goal is not None and goal.is_cancel_requested:
+            self._follower.cancel(goal, self._x[0::2])
+        self._deliver_outcomes()
+        if self._active is not None or self._following:
             q_ref = self._target(self._sim_ns)[0]
             self._max_error = np.maximum(self._max_error, np.abs(q_ref - self._x[0::2]))
         self._publish_state()
@@ -507,7 +670,15 @@ class PlantNode(Node):
         error = q_ref - self._x[0::2]
         velocity_error = dq_ref - self._x[1::2]
         start = ''
-        if self._active is None:
+        trajectory = self._follower.trajectory if self._following else None
+        if trajectory is not None:
+            elapsed = (self._sim_ns - trajectory.start_ns) / NS
+            duration = trajectory.times_ns[-1] / NS
+            phase = ('goal ' if self._follower.goal is not None else '') + (
+                'tracking' if elapsed < duration else 'holding')
+            start = trajectory.start_ns + self._offset_ns
+            start = f'{start // NS}.{start % NS:09d}'
+        elif self._active is None:
             phase, elapsed, duration = 'idle', 0.0, 0.0
         else:
             elapsed = (self._sim_ns - self._active.start_ns) / NS
@@ -530,6 +701,72 @@ class PlantNode(Node):
         self._tracking_pub.publish(conversions.diagnostic_msg(
             self.get_fully_qualified_name(), DiagnosticStatus.OK,
             f'{phase}: |position error| {worst:.3g}', values))
+
+    # -- FollowJointTrajectory ------------------------------------------------------------------
+
+    async def _execute_goal(self, goal_handle):
+        """Run one goal to its end: validate, follow (possibly preempted), return the result."""
+        request = goal_handle.request
+        names = list(self._params['joint_names'])
+        try:
+            trajectory = fjt.validate(request.trajectory, names, self._sim_ns + self._offset_ns)
+        except fjt.GoalError as exc:
+            self.get_logger().error(f'goal refused, error_code {exc.code}: {exc.text}')
+            goal_handle.abort()
+            return self._action_type.Result(error_code=exc.code, error_string=exc.text)
+        if trajectory.start_ns is not None:
+            trajectory.start_ns -= self._offset_ns          # stamp -> simulated time
+        defaults = fjt.Tolerances.defaults(len(names))
+        tolerances, warning = fjt.goal_tolerances(defaults, request, names)
+        if warning:
+            self.get_logger().warning(warning)
+        future = Future()
+        self._goal_futures[id(goal_handle)] = future   # goal handles are not hashable
+        self._pending = None        # the newest trajectory wins: a pending topic one is dropped
+        self._follower.follow(trajectory, tolerances, goal_handle)
+        self._deliver_outcomes()
+        self.get_logger().info(
+            f'executing a goal of {len(trajectory.points)} points, '
+            f'{trajectory.times_ns[-1] / NS:.4f} s, '
+            + ('now' if trajectory.start_ns is None
+               else f'start {(trajectory.start_ns + self._offset_ns) / NS:.9f}'))
+        outcome = await future
+        result = self._action_type.Result(error_code=outcome.code or 0,
+                                          error_string=outcome.text)
+        if outcome.code is fjt.CANCELED:
+            goal_handle.canceled()
+        elif outcome.code == fjt.SUCCESSFUL:
+            goal_handle.succeed()
+        else:
+            goal_handle.abort()
+        # rclpy refuses different severities from one call site: two calls.
+        if outcome.code == fjt.SUCCESSFUL:
+            self.get_logger().info(f'goal ended: error_code 0: {outcome.text}')
+        else:
+            self.get_logger().warning(f'goal ended: error_code {outcome.code}: {outcome.text}')
+        return result
+
+    def _deliver_outcomes(self):
+        """Wake the execute callbacks of the goals that ended."""
+        for outcome in self._follower.take_outcomes():
+            future = self._goal_futures.pop(id(outcome.goal), None)
+            if future is not None and not future.done():
+                future.set_result(outcome)
+
+    @survives_shutdown
+    def _publish_feedback(self):
+        goal, feedback = self._follower.goal, self._follower.feedback
+        if goal is None or feedback is None or not self._following:
+            return
+        msg = self._action_type.Feedback()
+        msg.header.stamp = time_of_ns(feedback.time_ns + self._offset_ns)
+        msg.joint_names = list(self._follower.joint_names)
+        desired = feedback.desired
+        msg.desired = trajectory_point(desired.positions, desired.velocities,
+                                       desired.accelerations, desired.effort)
+        msg.actual = trajectory_point(feedback.actual_positions, feedback.actual_velocities)
+        msg.error = trajectory_point(feedback.error_positions, feedback.error_velocities)
+        goal.publish_feedback(msg)
 
 
 def main(args=None):
