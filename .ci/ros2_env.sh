@@ -16,8 +16,8 @@
 # ros2_env.sh [DIR] - build the real ROS 2 Jazzy user environment (ros2 CLI, launch, colcon)
 # with ../shared/ros2-jazzy-env/make_env.sh into DIR (default: <repo>/.ros2env), plus the
 # Python packages toc_ros needs at run time that are not ROS packages (numba, mcap,
-# matplotlib, sympy for model files: what `rosdep install` + `pip install numba mcap` give a ROS
-# user).
+# matplotlib, sympy for model files; pin, example-robot-data and mujoco for URDF arms: what
+# `rosdep install` + `pip install numba mcap pin mujoco` give a ROS user).
 #
 # Idempotent: a marker file makes a second run a no-op. Without the kit (e.g. a clone with no
 # ../shared beside it) it prints why and exits 0; the ROS-CLI tests then skip.
@@ -30,7 +30,8 @@ DIR=${1:-$REPO/.ros2env}
 MARKER=$DIR/.toc_ros_env_ready
 # Runtime deps of toc_ros outside ROS, pinned to the project venv's tested versions; numpy is
 # left to make_env.sh's constraints (the ROS wheels' numpy).
-EXTRA_DEPS=(numba==0.68.1 mcap==1.6.0 matplotlib==3.11.2 sympy==1.14.0)
+EXTRA_DEPS=(numba==0.68.1 mcap==1.6.0 matplotlib==3.11.2 sympy==1.14.0 pin==4.1.0
+            example-robot-data==6.0.0 mujoco==4.0.0)
 
 say() { printf '[ros2_env.sh] %s\n' "$*" >&2; }
 

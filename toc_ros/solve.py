@@ -371,7 +371,7 @@ def main(argv=None):
 
 
 def _run(args):
-    from toc_ros.core import ProblemError, SolveResult, Status
+    from toc_ros.core import ProblemError, SolveResult, Status, warm_up_for
     try:
         problem, options = build_problem(args)
     except ArgumentError as exc:
@@ -386,6 +386,8 @@ def _run(args):
         show_progress = not args.quiet and sys.stderr.isatty()
         line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
         try:
+            # --timeout limits the solve, not the one-time compile of a model's kernels.
+            warm_up_for(problem, options)
             result = _solve_interruptible(problem, options, line if show_progress else None,
                                           getattr(args, 'guess', None))
         finally:

@@ -25,10 +25,11 @@ from .models import CylindricalRobot, load_model, ModelError, MODELS, RobotModel
 from .obstacles import arm_clearance  # noqa: E402
 from .problem import measure_violations, PaperOptions, Problem, ProblemError, SolverOptions  # noqa: E402, E501
 from .result import Progress, SolveResult, Status, Violations  # noqa: E402
-from .solver import solve, warm_up  # noqa: E402
+from .solver import solve, warm_up, warm_up_for  # noqa: E402
 
 __all__ = [
     'arm_clearance', 'CylindricalRobot', 'hand_position', 'load_model', 'measure_violations',
     'ModelError', 'MODELS', 'PaperOptions', 'Problem', 'ProblemError', 'Progress', 'RobotModel',
     'RobotParams', 'SolveResult', 'SolverOptions', 'solve', 'Status', 'Violations', 'warm_up',
+    'warm_up_for',
 ]

@@ -190,6 +190,18 @@ def _solve_fast(problem, options, clock, initial_guess, start_point=None):
     return FastSolve(problem, options, clock, initial_guess, start_point).solve()
 
 
+def warm_up_for(problem, options):
+    """
+    Compile (or load from the cache) the kernels that solving this problem uses.
+
+    A model file's kernels compile on their first solve; calling this first keeps that compile
+    out of the solve's time limit (a cold cache costs minutes of CPU on a busy machine).
+    """
+    tiny = replace(problem, n_intervals=min(problem.n_intervals, 20))
+    budget = 2 if options.mode == 'paper' else 3
+    solve(tiny, replace(options, max_iterations=budget, timeout=None))
+
+
 def warm_up(models=None):
     """Compile (or load from cache) every numba kernel, so no user request pays for it."""
     homotopy.warm_up()
