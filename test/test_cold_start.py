@@ -25,7 +25,6 @@ Cold starts that fit the problem (start_points.fitted_final_time, FastSolve._fit
 * The paper scenario keeps its single start and its result.
 """
 
-import importlib.util
 import math
 from pathlib import Path
 
@@ -100,7 +99,7 @@ def test_joint_accelerations_are_the_bounds_through_the_inverse_mass_matrix():
 
 
 def test_the_paper_scenario_keeps_its_single_start():
-    problem = Problem()
+    problem = Problem.paper()
     solver = fast_solver.FastSolve(problem, SolverOptions(mode='fast'), None)
     assert solver._fitted_times() == []
     result = solve(problem, SolverOptions(mode='fast'))
@@ -109,10 +108,7 @@ def test_the_paper_scenario_keeps_its_single_start():
 
 
 def _casadi_states(problem, controls, t_f):
-    spec = importlib.util.spec_from_file_location('casadi_models',
-                                                  ROOT / 'benchmarks' / 'casadi_models.py')
-    cm = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(cm)
+    from benchmarks import casadi_models as cm
     f, _, u_max = cm.casadi_model(str(MODEL_FILE))
     tau = t_f / controls.shape[0]
     states = [np.asarray(problem.x0, dtype=float)]

@@ -272,3 +272,65 @@ def test_topic_trajectory_aborts_the_active_goal(plant):
     result = _wait(plant, holder)
     assert result.error_code == FollowJointTrajectory.Result.INVALID_GOAL, plant.node.tail(30)
     assert 'trajectory topic' in result.error_string
+
+
+def _outcomes_of(plant, action_name):
+    from toc_ros.execution import Tolerances, TrajectoryExecutor
+    outcomes, arrived = [], threading.Condition()
+
+    def record(outcome):
+        with arrived:
+            outcomes.append(outcome)
+            arrived.notify_all()
+
+    executor = TrajectoryExecutor(plant.client.node, plant.client.name(action_name), JOINTS,
+                                  Tolerances(goal_position=0.01, goal_time=3.0), record)
+
+    def wait(kinds, timeout=RESULT_TIMEOUT):
+        """Wait until the outcomes' (goal id, kind) pairs include every one of kinds."""
+        with arrived:
+            arrived.wait_for(lambda: set(kinds) <= {(o.goal_id, o.kind) for o in outcomes},
+                             timeout)
+            return list(outcomes)
+    return executor, outcomes, wait
+
+
+@needs_control_msgs
+def test_executor_reports_preemption_success_and_invalid_joints(plant):
+    from toc_ros import execution as ex
+    executor, outcomes, wait = _outcomes_of(plant, 'plant_node/follow_joint_trajectory')
+    try:
+        assert executor.wait_for_server(30.0)
+        q0 = _current(plant)
+        first = _trajectory(_smooth(q0, np.array([0.2, 0.1]), 0.0, 2.0, np.arange(21) * 0.1))
+        assert executor.send(first) == 1
+        time.sleep(0.5)
+        second = _trajectory(_smooth(_current(plant), np.array([-0.1, 0.05]), 0.0, 1.0,
+                                     np.arange(11) * 0.1))
+        assert executor.send(second) == 2
+        seen = wait({(1, ex.PREEMPTED), (2, ex.SUCCEEDED)})
+        kinds = [(o.goal_id, o.kind) for o in seen]
+        assert (1, ex.PREEMPTED) in kinds and (2, ex.SUCCEEDED) in kinds, \
+            f'{[o.describe() for o in seen]}\n{plant.node.tail(20)}'
+        assert not any(o.failed for o in seen)
+        np.testing.assert_allclose(_current(plant), second.points[-1].positions, atol=0.01)
+        wrong = _trajectory([(0.5, _current(plant), [0.0, 0.0])], ['rotation_joint', 'x'])
+        assert executor.send(wrong) == 3
+        seen = wait({(3, ex.ABORTED)})
+        last = [o for o in seen if o.goal_id == 3][-1]
+        assert last.failed and last.code == FollowJointTrajectory.Result.INVALID_JOINTS, \
+            last.describe()
+    finally:
+        executor.destroy()
+
+
+@needs_control_msgs
+def test_executor_without_a_server_reports_unavailable(plant):
+    from toc_ros import execution as ex
+    executor, outcomes, _ = _outcomes_of(plant, 'no_such_controller/follow_joint_trajectory')
+    try:
+        executor.send(_trajectory([(0.5, _current(plant), [0.0, 0.0])]))
+        assert [(o.goal_id, o.kind) for o in outcomes] == [(1, ex.UNAVAILABLE)]
+        assert outcomes[0].failed and 'no action server' in outcomes[0].text
+    finally:
+        executor.destroy()

@@ -18,9 +18,9 @@ solver_node with the millisecond fast mode, as a real process.
 * The node answers get_parameters while fast mode solves 100 circles at N = 8000 (the kernels
   release the GIL, so the executor keeps running).
 * Goal -> trajectory: the time from publishing a goal to receiving its trajectory exceeds the
-  solve's own wall time (reported on ~/progress) by little (the issue's target: 20 ms, measured
-  numbers in the README's "Latency" paragraph; the assertion leaves room for a loaded shared
-  machine, the measured numbers are printed).
+  solve's own wall time (reported on ~/progress) by little (target 20 ms; measured numbers in
+  benchmarks/RESULTS.md; the assertion leaves room for a loaded shared machine, the measured
+  numbers are printed).
 """
 
 import math

@@ -1,0 +1,220 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Executing plans through ros2_control: a control_msgs/action/FollowJointTrajectory client.
+
+What MoveIt does to execute: every plan (and every replan cycle's plan) is sent as a goal to a
+JointTrajectoryController's action, with the trajectory's header.stamp as its start time.  A
+newer goal preempts the older one at the controller (which aborts it with "Current goal
+preempted by new incoming action."): that is the normal course of replanning, reported as
+``preempted``, not as a failure.  Every other end of the newest goal is an Outcome that the
+node reports on ``~/progress``; a rejected or aborted goal is a failed execution, which the node
+treats like a failed plan.
+
+control_msgs is not a wheel: it is imported lazily (``follow_joint_trajectory_action``), and
+without it execution through the action is refused with that reason.
+"""
+
+from dataclasses import dataclass
+import threading
+from typing import Callable, Optional, Sequence
+
+# control_msgs/action/FollowJointTrajectory result codes (control_msgs 5.8.0).
+ERROR_NAMES = {0: 'SUCCESSFUL', -1: 'INVALID_GOAL', -2: 'INVALID_JOINTS',
+               -3: 'OLD_HEADER_TIMESTAMP', -4: 'PATH_TOLERANCE_VIOLATED',
+               -5: 'GOAL_TOLERANCE_VIOLATED'}
+PREEMPTED_TEXT = 'Current goal preempted by new incoming action.'
+
+# Outcome kinds.
+ACCEPTED = 'accepted'
+SUCCEEDED = 'succeeded'
+PREEMPTED = 'preempted'          # replaced by a newer goal of ours: the normal replan course
+CANCELED = 'canceled'
+REJECTED = 'rejected'            # the server refused the goal (JTC: invalid joints, old stamp)
+ABORTED = 'aborted'              # the server ended it with an error code
+UNAVAILABLE = 'unavailable'      # no server answered in time
+FAILED = (REJECTED, ABORTED, UNAVAILABLE)
+
+
+def follow_joint_trajectory_action():
+    """Return (the FollowJointTrajectory action type, None), or (None, why it is missing)."""
+    try:
+        from control_msgs.action import FollowJointTrajectory
+    except ImportError as exc:
+        return None, (f'control_msgs is not installed ({exc}); a ROS install has it '
+                      '(ros-jazzy-control-msgs)')
+    return FollowJointTrajectory, None
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Goal tolerances sent with every goal (0: the controller's own default)."""
+
+    path_position: float = 0.0     # [rad or m] per joint, while the trajectory runs
+    goal_position: float = 0.0     # [rad or m] per joint, at the end
+    goal_time: float = 0.0         # [s] allowed after the end to get within goal_position
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What became of one goal."""
+
+    kind: str
+    goal_id: int                   # our counter of sent goals (1, 2, ...)
+    code: Optional[int] = None     # FollowJointTrajectory result error_code, when there is one
+    text: str = ''
+
+    @property
+    def failed(self):
+        """Tell whether the execution failed (the node then stops or replans)."""
+        return self.kind in FAILED
+
+    def describe(self):
+        """Return a one-line description for logs and ~/progress."""
+        code = '' if self.code is None else \
+            f' error_code {self.code} {ERROR_NAMES.get(self.code, "UNKNOWN")}'
+        return f'FollowJointTrajectory goal {self.goal_id} {self.kind}{code}' + \
+            (f': {self.text}' if self.text else '')
+
+
+def classify_result(goal_id, newest_id, status_name, code, text):
+    """
+    Return the Outcome of a goal's result.
+
+    status_name: the action status ('SUCCEEDED', 'ABORTED', 'CANCELED'); a goal that is not
+    the newest and was aborted as preempted (or for any reason after a newer one was sent) is
+    PREEMPTED: a newer plan took over.
+    """
+    if status_name == 'SUCCEEDED' and code in (0, None):
+        return Outcome(SUCCEEDED, goal_id, 0, text)
+    if status_name == 'CANCELED':
+        return Outcome(CANCELED, goal_id, code, text)
+    if goal_id != newest_id or text == PREEMPTED_TEXT:
+        return Outcome(PREEMPTED, goal_id, code, text)
+    return Outcome(ABORTED, goal_id, code, text)
+
+
+def build_goal(action_type, trajectory, joint_names: Sequence[str], tolerances: Tolerances):
+    """Return the FollowJointTrajectory goal of a trajectory_msgs/JointTrajectory message."""
+    from builtin_interfaces.msg import Duration
+    from control_msgs.msg import JointTolerance
+    goal = action_type.Goal()
+    goal.trajectory = trajectory
+    if tolerances.path_position > 0.0:
+        goal.path_tolerance = [JointTolerance(name=name, position=tolerances.path_position)
+                               for name in joint_names]
+    if tolerances.goal_position > 0.0:
+        goal.goal_tolerance = [JointTolerance(name=name, position=tolerances.goal_position)
+                               for name in joint_names]
+    ns = int(round(tolerances.goal_time * 1e9))
+    goal.goal_time_tolerance = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    return goal
+
+
+class TrajectoryExecutor:
+    """
+    Send plans as FollowJointTrajectory goals; report every goal's Outcome through a callback.
+
+    on_outcome(Outcome) is called from the node's executor thread.  send() never blocks: when
+    the server is not (yet) there, the goal's outcome is UNAVAILABLE.
+    """
+
+    def __init__(self, node, action_name, joint_names, tolerances: Tolerances,
+                 on_outcome: Callable[[Outcome], None], action_type=None):
+        from rclpy.action import ActionClient
+        if action_type is None:
+            action_type, reason = follow_joint_trajectory_action()
+            if action_type is None:
+                raise RuntimeError(reason)
+        self._action_type = action_type
+        self._client = ActionClient(node, action_type, action_name)
+        self._action_name = action_name
+        self._joint_names = list(joint_names)
+        self._tolerances = tolerances
+        self._on_outcome = on_outcome
+        self._lock = threading.Lock()
+        self._sent = 0
+        self._handles = {}          # goal id -> accepted goal handle, until its result
+
+    @property
+    def action_name(self):
+        """Return the action's name as resolved by the client."""
+        return self._action_name
+
+    @property
+    def newest(self):
+        """Return the id of the newest goal sent (0: none)."""
+        return self._sent
+
+    def wait_for_server(self, timeout):
+        """Wait up to timeout [s] for the action server; tell whether it is there."""
+        return self._client.wait_for_server(timeout_sec=timeout)
+
+    def send(self, trajectory):
+        """Send a trajectory as the newest goal; return its goal id."""
+        with self._lock:
+            self._sent += 1
+            goal_id = self._sent
+        if not self._client.server_is_ready():
+            self._on_outcome(Outcome(UNAVAILABLE, goal_id,
+                                     text=f'no action server {self.action_name}'))
+            return goal_id
+        goal = build_goal(self._action_type, trajectory, self._joint_names, self._tolerances)
+        future = self._client.send_goal_async(goal)
+        future.add_done_callback(lambda done: self._on_response(goal_id, done))
+        return goal_id
+
+    def cancel(self):
+        """Ask the server to cancel every goal of ours that is still running."""
+        with self._lock:
+            handles = list(self._handles.values())
+        for handle in handles:
+            handle.cancel_goal_async()
+
+    def destroy(self):
+        """Destroy the action client."""
+        self._client.destroy()
+
+    def _on_response(self, goal_id, future):
+        try:
+            handle = future.result()
+        except Exception as exc:   # noqa: B902 - a transport error is an outcome, not a crash
+            self._on_outcome(Outcome(REJECTED, goal_id, text=f'no goal response: {exc}'))
+            return
+        if not handle.accepted:
+            self._on_outcome(Outcome(REJECTED, goal_id,
+                                     text='the server rejected the goal'))
+            return
+        with self._lock:
+            self._handles[goal_id] = handle
+        self._on_outcome(Outcome(ACCEPTED, goal_id))
+        handle.get_result_async().add_done_callback(
+            lambda done: self._on_result(goal_id, done))
+
+    def _on_result(self, goal_id, future):
+        from action_msgs.msg import GoalStatus
+        with self._lock:
+            self._handles.pop(goal_id, None)
+        try:
+            response = future.result()
+        except Exception as exc:   # noqa: B902
+            self._on_outcome(Outcome(ABORTED, goal_id, text=f'no result: {exc}'))
+            return
+        names = {GoalStatus.STATUS_SUCCEEDED: 'SUCCEEDED', GoalStatus.STATUS_ABORTED: 'ABORTED',
+                 GoalStatus.STATUS_CANCELED: 'CANCELED'}
+        status = names.get(response.status, str(response.status))
+        result = response.result
+        self._on_outcome(classify_result(goal_id, self.newest, status, result.error_code,
+                                         result.error_string))
