@@ -31,24 +31,30 @@ def test_error_names_are_the_plant_servers_codes():
 
 
 @pytest.mark.parametrize('goal, newest, status, code, text, kind', [
-    (3, 3, 'SUCCEEDED', 0, '', ex.SUCCEEDED),
-    (3, 3, 'CANCELED', 0, '', ex.CANCELED),
+    (3, 3, ex.GOAL_SUCCEEDED, 0, '', ex.SUCCEEDED),
+    (3, 3, ex.GOAL_CANCELED, 0, '', ex.CANCELED),
     # The controller preempts an older goal of ours when the newer one arrives.
-    (2, 3, 'ABORTED', -1, ex.PREEMPTED_TEXT, ex.PREEMPTED),
+    (2, 3, ex.GOAL_ABORTED, -1, ex.PREEMPTED_TEXT, ex.PREEMPTED),
     # Any end of an older goal after a newer one was sent: the newer plan has taken over.
-    (2, 3, 'ABORTED', -4, 'path tolerance', ex.PREEMPTED),
-    (3, 3, 'ABORTED', -4, 'path tolerance', ex.ABORTED),
-    (3, 3, 'ABORTED', -2, 'joints', ex.ABORTED),
+    (2, 3, ex.GOAL_ABORTED, -4, 'path tolerance', ex.PREEMPTED),
+    (3, 3, ex.GOAL_ABORTED, -4, 'path tolerance', ex.ABORTED),
+    (3, 3, ex.GOAL_ABORTED, -2, 'joints', ex.ABORTED),
     # A preemption by someone else's goal (another client) ends ours too.
-    (3, 3, 'ABORTED', -1, ex.PREEMPTED_TEXT, ex.PREEMPTED),
+    (3, 3, ex.GOAL_ABORTED, -1, ex.PREEMPTED_TEXT, ex.PREEMPTED),
     # SUCCEEDED with an error code is not a success.
-    (3, 3, 'SUCCEEDED', -5, 'goal tolerance', ex.ABORTED),
+    (3, 3, ex.GOAL_SUCCEEDED, -5, 'goal tolerance', ex.ABORTED),
 ])
 def test_classify_result(goal, newest, status, code, text, kind):
     outcome = ex.classify_result(goal, newest, status, code, text)
     assert outcome.kind == kind
     assert outcome.goal_id == goal
     assert outcome.failed == (kind in (ex.ABORTED, ex.REJECTED, ex.UNAVAILABLE))
+
+
+def test_goal_status_values_are_action_msgs():
+    from action_msgs.msg import GoalStatus
+    assert (ex.GOAL_SUCCEEDED, ex.GOAL_CANCELED, ex.GOAL_ABORTED) == (
+        GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED)
 
 
 def test_describe_names_the_code():

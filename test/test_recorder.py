@@ -402,7 +402,13 @@ def test_flush_period_bounds_what_is_only_in_memory(tmp_path):
     writer.add_topic('/t', 'std_msgs/msg/String')
     for k in range(20):
         writer.write('/t', serialize_message(String(data=f'm{k}')), 1_000 + k)
+    # Six periods; on a loaded machine the flusher thread (and its fsync) may need longer:
+    # wait for its first flush, then one more period for a flush that began mid-writes.
     time.sleep(0.3)
+    deadline = time.monotonic() + 10.0
+    while writer.flush_count == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.1)
     before = writer.flush_count
     with Recording(tmp_path / 'bag') as recording:  # the file as a crash would leave it
         assert [deserialize_message(r.data, String).data for r in recording.messages()] == [

@@ -46,6 +46,10 @@ REJECTED = 'rejected'            # the server refused the goal (JTC: invalid joi
 ABORTED = 'aborted'              # the server ended it with an error code
 UNAVAILABLE = 'unavailable'      # no server answered in time
 FAILED = (REJECTED, ABORTED, UNAVAILABLE)
+# action_msgs/msg/GoalStatus values of a finished goal.
+GOAL_SUCCEEDED = 4
+GOAL_CANCELED = 5
+GOAL_ABORTED = 6
 
 
 def follow_joint_trajectory_action():
@@ -89,17 +93,17 @@ class Outcome:
             (f': {self.text}' if self.text else '')
 
 
-def classify_result(goal_id, newest_id, status_name, code, text):
+def classify_result(goal_id, newest_id, goal_status, code, text):
     """
     Return the Outcome of a goal's result.
 
-    status_name: the action status ('SUCCEEDED', 'ABORTED', 'CANCELED'); a goal that is not
+    goal_status: the action_msgs GoalStatus of the finished goal (GOAL_*).  A goal that is not
     the newest and was aborted as preempted (or for any reason after a newer one was sent) is
     PREEMPTED: a newer plan took over.
     """
-    if status_name == 'SUCCEEDED' and code in (0, None):
+    if goal_status == GOAL_SUCCEEDED and code in (0, None):
         return Outcome(SUCCEEDED, goal_id, 0, text)
-    if status_name == 'CANCELED':
+    if goal_status == GOAL_CANCELED:
         return Outcome(CANCELED, goal_id, code, text)
     if goal_id != newest_id or text == PREEMPTED_TEXT:
         return Outcome(PREEMPTED, goal_id, code, text)
@@ -204,7 +208,6 @@ class TrajectoryExecutor:
             lambda done: self._on_result(goal_id, done))
 
     def _on_result(self, goal_id, future):
-        from action_msgs.msg import GoalStatus
         with self._lock:
             self._handles.pop(goal_id, None)
         try:
@@ -212,9 +215,6 @@ class TrajectoryExecutor:
         except Exception as exc:   # noqa: B902
             self._on_outcome(Outcome(ABORTED, goal_id, text=f'no result: {exc}'))
             return
-        names = {GoalStatus.STATUS_SUCCEEDED: 'SUCCEEDED', GoalStatus.STATUS_ABORTED: 'ABORTED',
-                 GoalStatus.STATUS_CANCELED: 'CANCELED'}
-        status = names.get(response.status, str(response.status))
         result = response.result
-        self._on_outcome(classify_result(goal_id, self.newest, status, result.error_code,
-                                         result.error_string))
+        self._on_outcome(classify_result(goal_id, self.newest, response.status,
+                                         result.error_code, result.error_string))
