@@ -48,6 +48,7 @@ from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXP
     EXPLORE_TIME, FIT_BAND, FIT_FACTORS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, \
     MU_WARM, REFINE_BAND, WARM_BUDGET, WARM_EXACT, WARM_PUSH
 from .ip_run import BOUND_PUSH, Cancelled, InteriorPointRun, Stop
+from .ipm_workspace import F_THETA, H_DELTA
 from .result import SolveResult, Status
 from .start_points import actuator_states, fitted_final_time, has_actuators, \
     interpolation_start, interpolation_states, ladder, resample, resample_duals, start_along, \
@@ -97,7 +98,7 @@ class FastSolve(ClassStarts):
         fs = run.ws.fscal
         self.clock.report(lambda: Progress(
             self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
-            f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
+            f'fast N={run.n}', None, float(fs[F_THETA])))
 
     def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
                   push=BOUND_PUSH, elastic=None, relaxed=None):
@@ -513,7 +514,7 @@ class FastSolve(ClassStarts):
                 its = self.done + sum(run.iterations for run in runs)
                 self.clock.report(lambda: Progress(
                     its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
-                    f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
+                    f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[F_THETA])))
         return poll
 
     def _refine(self, run, n, full=False):
@@ -564,7 +565,7 @@ class FastSolve(ClassStarts):
         if not self._may_explore():
             return False
         run, code = first
-        shifted = np.count_nonzero(run.ws.hist[:run.iterations, ipm.H_DELTA] > 0.0)
+        shifted = np.count_nonzero(run.ws.hist[:run.iterations, H_DELTA] > 0.0)
         return code != ipm.CONVERGED or shifted > EXPLORE_NONCONVEX
 
     def _history(self):
