@@ -17,8 +17,9 @@ Recording of ROS 2 topics into rosbag2 bag directories with MCAP storage.
 
 ``bag_writer`` writes a bag (rosbag2's QoS and YAML formats in ``bag_metadata``), ``bag_reader``
 reads one back (also a cut-off one); neither they nor ``msg_definitions`` need rclpy (only
-``Recording.decode`` does); ``bag_tool`` is the ``toc-bag`` command (info, recover). The recorder node lives in
-``toc_ros.nodes.recorder_node`` and ``process`` starts and stops it as a separate process.
+``Recording.decode`` does); ``bag_tool`` is the ``toc-bag`` command (info, recover). The
+recorder node lives in ``toc_ros.nodes.recorder_node`` and ``process`` starts and stops it as a
+separate process.
 """
 
 from .bag_metadata import qos_profile_to_dict
