@@ -164,7 +164,7 @@ class FastSolve(ClassStarts, RunExecution):
         found = []
         states = interpolation_states(problem, grid)
         # Class starts on a coarser grid still (their candidates are carried up by _finish like
-        # the others); not when the coarse grid is the N grid (short horizons, a few ms).
+        # the others); not when the coarse grid is the N grid (short horizons, cheap already).
         explore = min(grid, EXPLORE_INTERVALS)
         crosses = grid < n and self._crosses(states)
         allowance, prefetched = None, None
