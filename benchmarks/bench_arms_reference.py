@@ -48,8 +48,8 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from toc_ros.bench.arm_check import (  # noqa: E402, I100
     check_trajectory, example_robot_urdf, PANDA_JOINTS, UR5_JOINTS)
-from toc_ros.bench.arm_reference import (  # noqa: E402
-    ArmProblem, ArmSpec, solve_arm_fatrop, solve_arm_ipopt)
+from toc_ros.bench.arm_problem import ArmProblem, ArmSpec  # noqa: E402
+from toc_ros.bench.arm_reference import solve_arm_fatrop, solve_arm_ipopt  # noqa: E402
 
 MARGIN = 0.02
 SCENARIOS = {
@@ -274,10 +274,11 @@ def _append_results(text, rows, args, total, loads):
 `python benchmarks/bench_arms_reference.py` ({stamp}, {platform.machine()}, 2 cores shared
 with other jobs, load average {loads[0]:.1f} -> {loads[1]:.1f}, {total:.0f} s; with --merge:
 one process per robot run side by side, then tabulated together).
-The problem and its transcription: toc_ros/bench/arm_reference.py (rigid-body recursions in
-CasADi from the URDF, toc_ros/bench/arm_casadi.py, equal to Pinocchio's ABA/RNEA/CRBA and
-frame placements to 1e-10, test/test_arm_casadi.py). x = (q, qd), u = torques constant on N
-intervals, h = t_f / N, minimise t_f; limits at every node (efforts on every interval),
+The problem and its transcription: toc_ros/bench/arm_problem.py and arm_reference.py
+(rigid-body recursions in CasADi from the URDF, toc_ros/bench/arm_casadi.py, equal to
+Pinocchio's ABA/RNEA/CRBA and frame placements to 1e-10, test/test_arm_casadi.py).
+x = (q, qd), u = torques constant on N intervals, h = t_f / N, minimise t_f; limits at every
+node (efforts on every interval),
 sphere clearance (|p_s - c_o|^2 - R^2) / (2 R) >= 0 with R = r_s + R_o + margin, margin
 {MARGIN} m; start and goal at rest. Accelerations of the integrator stages are lifted into
 variables tied to the torques by RNEA equalities (the same discrete problem as the ABA inside

@@ -32,7 +32,9 @@ ca = pytest.importorskip('casadi')
 pin = pytest.importorskip('pinocchio')
 
 from toc_ros.bench import arm_casadi as ac  # noqa: E402
+from toc_ros.bench import arm_problem as ap  # noqa: E402
 from toc_ros.bench import arm_reference as ar  # noqa: E402
+from toc_ros.bench import urdf_tree as ut  # noqa: E402
 from toc_ros.bench.arm_check import (  # noqa: E402
     check_trajectory, example_robot_urdf, PANDA_JOINTS, UR5_JOINTS)
 
@@ -134,7 +136,7 @@ def test_locked_fingers_at_other_values_match_pinocchio():
         np.testing.assert_allclose(np.asarray(model.forward_dynamics(q, qd, tau)).ravel(),
                                    pin.aba(pmodel, data, q, qd, tau), rtol=0, atol=TOL)
     # The default lock is 0 clamped into the limits, like a value given explicitly.
-    assert ac.parse_urdf(path, PANDA_JOINTS).locked == {FINGERS[0]: 0.0, FINGERS[1]: 0.0}
+    assert ut.parse_urdf(path, PANDA_JOINTS).locked == {FINGERS[0]: 0.0, FINGERS[1]: 0.0}
 
 
 def test_joint_order_is_the_callers():
@@ -144,7 +146,7 @@ def test_joint_order_is_the_callers():
     pmodel = _pinocchio(path, UR5_JOINTS)
     data = pmodel.createData()
     rng = np.random.default_rng(14)
-    for q, qd, tau, _ in _random_states(ac.parse_urdf(path, UR5_JOINTS), rng, 5):
+    for q, qd, tau, _ in _random_states(ut.parse_urdf(path, UR5_JOINTS), rng, 5):
         got = np.asarray(model.forward_dynamics(q[::-1], qd[::-1], tau[::-1])).ravel()
         np.testing.assert_allclose(got[::-1], pin.aba(pmodel, data, q, qd, tau), rtol=0,
                                    atol=TOL)
@@ -152,42 +154,42 @@ def test_joint_order_is_the_callers():
 
 def test_bad_input_is_refused_with_the_reason():
     path = _urdf('panda')
-    with pytest.raises(ac.UrdfError, match='unknown planned joint'):
-        ac.parse_urdf(path, PANDA_JOINTS[:6] + ('elbow',))
-    with pytest.raises(ac.UrdfError, match="type 'fixed' cannot be planned"):
-        ac.parse_urdf(path, ('panda_joint8',))
-    with pytest.raises(ac.UrdfError, match='does not parse'):
-        ac.parse_urdf('<robot><link name="a"></robot>', ('j',))
-    with pytest.raises(ac.UrdfError, match='neither XML text nor an existing file'):
-        ac.parse_urdf('/nonexistent/robot.urdf', ('j',))
-    with pytest.raises(ac.UrdfError, match='both planned and locked'):
-        ac.parse_urdf(path, PANDA_JOINTS, locked={'panda_joint1': 0.0})
+    with pytest.raises(ut.UrdfError, match='unknown planned joint'):
+        ut.parse_urdf(path, PANDA_JOINTS[:6] + ('elbow',))
+    with pytest.raises(ut.UrdfError, match="type 'fixed' cannot be planned"):
+        ut.parse_urdf(path, ('panda_joint8',))
+    with pytest.raises(ut.UrdfError, match='does not parse'):
+        ut.parse_urdf('<robot><link name="a"></robot>', ('j',))
+    with pytest.raises(ut.UrdfError, match='neither XML text nor an existing file'):
+        ut.parse_urdf('/nonexistent/robot.urdf', ('j',))
+    with pytest.raises(ut.UrdfError, match='both planned and locked'):
+        ut.parse_urdf(path, PANDA_JOINTS, locked={'panda_joint1': 0.0})
     text = Path(path).read_text(encoding='utf-8').replace('effort="87.0"', 'effort="0"', 1)
-    with pytest.raises(ac.UrdfError, match='panda_joint1 has no positive effort'):
-        ac.parse_urdf(text, PANDA_JOINTS)
+    with pytest.raises(ut.UrdfError, match='panda_joint1 has no positive effort'):
+        ut.parse_urdf(text, PANDA_JOINTS)
     # ... unless overridden (the joint_limits.yaml way).
-    tree = ac.parse_urdf(text, PANDA_JOINTS, limits={'panda_joint1': {'effort': 50.0}})
+    tree = ut.parse_urdf(text, PANDA_JOINTS, limits={'panda_joint1': {'effort': 50.0}})
     assert tree.limits()[2][0] == 50.0
     q0 = (0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8)
-    spec = ar.ArmSpec(urdf=path, joints=PANDA_JOINTS, start=q0, goal=q0,
+    spec = ap.ArmSpec(urdf=path, joints=PANDA_JOINTS, start=q0, goal=q0,
                       robot_spheres=str(DATA / 'arm_spheres_panda.yaml'))
-    with pytest.raises(ar.SpecError, match='negative radius'):
-        ar.ArmProblem(replace(spec, robot_spheres={'panda_hand': [[0, 0, 0, -0.1]]}))
-    with pytest.raises(ar.SpecError, match="unknown link 'no_link'"):
-        ar.ArmProblem(replace(spec, robot_spheres={'no_link': [[0, 0, 0, 0.1]]}))
-    with pytest.raises(ar.SpecError, match=r'start state: panda_joint4 = 0.5 outside'):
-        ar.ArmProblem(replace(spec, start=q0[:3] + (0.5,) + q0[4:]))
-    with pytest.raises(ar.SpecError, match=r'goal must be 7 joint positions or 14'):
-        ar.ArmProblem(replace(spec, goal=q0[:6]))
-    with pytest.raises(ar.SpecError, match=r'goal must be .* finite'):
-        ar.ArmProblem(replace(spec, goal=q0[:6] + (np.nan,)))
+    with pytest.raises(ap.SpecError, match='negative radius'):
+        ap.ArmProblem(replace(spec, robot_spheres={'panda_hand': [[0, 0, 0, -0.1]]}))
+    with pytest.raises(ap.SpecError, match="unknown link 'no_link'"):
+        ap.ArmProblem(replace(spec, robot_spheres={'no_link': [[0, 0, 0, 0.1]]}))
+    with pytest.raises(ap.SpecError, match=r'start state: panda_joint4 = 0.5 outside'):
+        ap.ArmProblem(replace(spec, start=q0[:3] + (0.5,) + q0[4:]))
+    with pytest.raises(ap.SpecError, match=r'goal must be 7 joint positions or 14'):
+        ap.ArmProblem(replace(spec, goal=q0[:6]))
+    with pytest.raises(ap.SpecError, match=r'goal must be .* finite'):
+        ap.ArmProblem(replace(spec, goal=q0[:6] + (np.nan,)))
     # An obstacle at the hand sphere's centre: the pair and the depth in the message.
-    hand = np.asarray(ar.ArmProblem(spec).points(np.array(q0)))[:, 1]
-    with pytest.raises(ar.SpecError, match=r'start state: sphere panda_hand\[0\] inside '
+    hand = np.asarray(ap.ArmProblem(spec).points(np.array(q0)))[:, 1]
+    with pytest.raises(ap.SpecError, match=r'start state: sphere panda_hand\[0\] inside '
                                            r'obstacle 0 .* by 0.13 m'):
-        ar.ArmProblem(replace(spec, obstacles=(tuple(hand) + (0.05,),)))
-    with pytest.raises(ar.SpecError, match='integrator must be one of'):
-        ar.ArmTranscription(ar.ArmProblem(spec), 10, 'midpoint')
+        ap.ArmProblem(replace(spec, obstacles=(tuple(hand) + (0.05,),)))
+    with pytest.raises(ap.SpecError, match='integrator must be one of'):
+        ar.ArmTranscription(ap.ArmProblem(spec), 10, 'midpoint')
 
 
 # ----------------------------------------------------------------------------------------
@@ -247,7 +249,7 @@ def _clearance(pmodel, states, spheres, obstacles, margin):
 
 def test_ipopt_free_ur5_is_a_minimum_time_solution_pinocchio_agrees_with():
     path = _urdf('ur5')
-    spec = ar.ArmSpec(urdf=path, joints=UR5_JOINTS, start=UR5_START, goal=UR5_GOAL)
+    spec = ap.ArmSpec(urdf=path, joints=UR5_JOINTS, start=UR5_START, goal=UR5_GOAL)
     out = ar.solve_arm_ipopt(spec, 20, 'euler', n_starts=2)
     assert out['success'], out['attempts']
     pmodel = _pinocchio(path, UR5_JOINTS)
@@ -270,10 +272,10 @@ def test_ipopt_free_ur5_is_a_minimum_time_solution_pinocchio_agrees_with():
 def test_ipopt_one_sphere_keeps_the_clearance():
     # The UR5 swings its arm up through a sphere; going around it costs a little time.
     path = _urdf('ur5')
-    spheres = ar.load_spheres(str(DATA / 'arm_spheres_ur5.yaml'))
+    spheres = ap.load_spheres(str(DATA / 'arm_spheres_ur5.yaml'))
     start, goal = (0.0, -0.4, 0.4, -1.57, -1.57, 0.0), (0.0, -2.0, 0.9, -1.57, -1.57, 0.0)
     obstacles, margin = ((0.60, 0.0, 0.55, 0.2),), 0.02
-    spec = ar.ArmSpec(urdf=path, joints=UR5_JOINTS, start=start, goal=goal,
+    spec = ap.ArmSpec(urdf=path, joints=UR5_JOINTS, start=start, goal=goal,
                       obstacles=obstacles, robot_spheres=spheres, margin=margin)
     pmodel = _pinocchio(path, UR5_JOINTS)
     # The straight joint path goes through the obstacle; the start and goal are clear.
@@ -297,7 +299,7 @@ def test_ipopt_one_sphere_keeps_the_clearance():
 
 def test_lifted_and_explicit_transcriptions_have_the_same_optimum():
     path = _urdf('ur5')
-    problem = ar.ArmProblem(ar.ArmSpec(urdf=path, joints=UR5_JOINTS, start=UR5_START,
+    problem = ap.ArmProblem(ap.ArmSpec(urdf=path, joints=UR5_JOINTS, start=UR5_START,
                                        goal=UR5_GOAL))
     t_f = {}
     for form in ar.FORMULATIONS:
@@ -314,7 +316,7 @@ def test_lifted_and_explicit_transcriptions_have_the_same_optimum():
 @pytest.mark.slow
 def test_fatrop_reaches_ipopts_optimum_and_rk4_reintegrates():
     path = _urdf('panda')
-    spec = ar.ArmSpec(urdf=path, joints=PANDA_JOINTS,
+    spec = ap.ArmSpec(urdf=path, joints=PANDA_JOINTS,
                       start=(-1.2, 0.2, 0.0, -2.0, 0.0, 2.2, 0.8),
                       goal=(1.2, 0.1, 0.3, -1.8, 0.2, 2.0, 0.3),
                       robot_spheres=str(DATA / 'arm_spheres_panda.yaml'),
@@ -324,7 +326,7 @@ def test_fatrop_reaches_ipopts_optimum_and_rk4_reintegrates():
     assert ipopt['success'] and fatrop['success'], (ipopt['attempts'], fatrop['status'])
     assert fatrop['t_f'] >= ipopt['t_f'] * (1.0 - 1e-6)
     pmodel = _pinocchio(path, PANDA_JOINTS)
-    spheres = ar.load_spheres(spec.robot_spheres)
+    spheres = ap.load_spheres(spec.robot_spheres)
     for out in (ipopt, fatrop):
         x0 = np.concatenate([spec.start, np.zeros(7)])
         states = _reintegrate(pmodel, x0, out['controls'], out['t_f'], 'rk4')

@@ -34,8 +34,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import get_typestore, Stores
 from std_msgs.msg import String
+from toc_ros.recording.bag_metadata import qos_profile_to_dict
 from toc_ros.recording.bag_reader import Recording
-from toc_ros.recording.bag_writer import BagWriter, qos_profile_to_dict, RecordingError
+from toc_ros.recording.bag_writer import BagWriter, RecordingError
 from toc_ros.recording.msg_definitions import (
     full_definition, MessageDefinitionError, MessageDefinitionSource, type_description_hash)
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Tests of the interior-point engine of fast mode (toc_ros/core/ipm.py).
+Tests of the interior-point engine of fast mode (toc_ros/core/ipm.py and the modules it drives).
 
 The engine is checked against derivatives and residuals computed here independently.
 
@@ -35,31 +35,33 @@ import numpy as np
 import numpy_model as nm
 import pytest
 
-from toc_ros.core import CylindricalRobot, horizon, ip_run, ipm, ipm_obstacles, Problem, \
+from toc_ros.core import CylindricalRobot, horizon, ip_run, ipm_obstacles, Problem, riccati, \
     RobotParams, solve, SolverOptions, start_points, Status
+from toc_ros.core.ipm_workspace import F_ELASTIC, F_MU, F_T, F_T_HIGH, F_T_LOW, F_T_REF, \
+    F_ZT_HIGH, F_ZT_LOW, I_N
 from toc_ros.core.models import cylindrical, load_model
 
 
 def _residual(run, ws):
     """Compute the KKT residual vector of the barrier problem at the point held in ws."""
     run.kernels.ipm_evaluate(ws)
-    n = ws.iscal[ipm.I_N]
+    n = ws.iscal[I_N]
     fs = ws.fscal
-    mu = fs[ipm.F_MU]
-    rho = fs[ipm.F_ELASTIC]
+    mu = fs[F_MU]
+    rho = fs[F_ELASTIC]
     parts = [np.einsum('irc,ir->ic', ws.jac_v, ws.lam[1:]) - ws.zl + ws.zu]
     rx = -ws.lam[1:].copy()
     rx[:-1] += np.einsum('irc,ir->ic', ws.jac_x[1:], ws.lam[2:])
     rx[-1] += ws.nu
     if ws.s.shape[1]:
         rx[:, 0::2] -= np.einsum('ija,ij->ia', ws.cons_q[1:], ws.z[1:])
-    parts += [rx, [fs[ipm.F_T] / fs[ipm.F_T_REF] + np.sum(ws.jac_t * ws.lam[1:])
-                   - fs[ipm.F_ZT_LOW] + fs[ipm.F_ZT_HIGH]],
+    parts += [rx, [fs[F_T] / fs[F_T_REF] + np.sum(ws.jac_t * ws.lam[1:])
+                   - fs[F_ZT_LOW] + fs[F_ZT_HIGH]],
               ws.defect, ws.x[n] - ws.x_goal, ws.cons[1:] + ws.e[1:] - ws.s[1:],
               ws.s[1:] * ws.z[1:] - mu, ws.e[1:] * (rho - ws.z[1:]) - mu,
               (1.0 + ws.v) * ws.zl - mu, (1.0 - ws.v) * ws.zu - mu,
-              [(fs[ipm.F_T] - fs[ipm.F_T_LOW]) * fs[ipm.F_ZT_LOW] - mu,
-               (fs[ipm.F_T_HIGH] - fs[ipm.F_T]) * fs[ipm.F_ZT_HIGH] - mu]]
+              [(fs[F_T] - fs[F_T_LOW]) * fs[F_ZT_LOW] - mu,
+               (fs[F_T_HIGH] - fs[F_T]) * fs[F_ZT_HIGH] - mu]]
     return np.concatenate([np.ravel(np.asarray(p, dtype=float)) for p in parts])
 
 
@@ -76,9 +78,9 @@ def _moved(ws, eps, dt, dzt):
     w.z[1:] += eps * ws.dz[1:]
     w.zl[:] += eps * ws.dzl
     w.zu[:] += eps * ws.dzu
-    w.fscal[ipm.F_T] += eps * dt
-    w.fscal[ipm.F_ZT_LOW] += eps * dzt[0]
-    w.fscal[ipm.F_ZT_HIGH] += eps * dzt[1]
+    w.fscal[F_T] += eps * dt
+    w.fscal[F_ZT_LOW] += eps * dzt[0]
+    w.fscal[F_ZT_HIGH] += eps * dzt[1]
     return w
 
 
@@ -112,13 +114,13 @@ def test_newton_step_solves_the_linearised_kkt_system(name):
     ws.v[:] = rng.uniform(-0.9, 0.9, size=ws.v.shape)
     assert ws.s.shape[1] > 0
     f0 = _residual(run, ws)
-    dt = ipm.newton_direction(ws, 0.0)
+    dt = riccati.newton_direction(ws, 0.0)
     assert np.isfinite(dt)
     fs = ws.fscal
-    mu = fs[ipm.F_MU]
-    s_low, s_high = fs[ipm.F_T] - fs[ipm.F_T_LOW], fs[ipm.F_T_HIGH] - fs[ipm.F_T]
-    dzt = (mu / s_low - fs[ipm.F_ZT_LOW] - fs[ipm.F_ZT_LOW] / s_low * dt,
-           mu / s_high - fs[ipm.F_ZT_HIGH] + fs[ipm.F_ZT_HIGH] / s_high * dt)
+    mu = fs[F_MU]
+    s_low, s_high = fs[F_T] - fs[F_T_LOW], fs[F_T_HIGH] - fs[F_T]
+    dzt = (mu / s_low - fs[F_ZT_LOW] - fs[F_ZT_LOW] / s_low * dt,
+           mu / s_high - fs[F_ZT_HIGH] + fs[F_ZT_HIGH] / s_high * dt)
     errors = []
     for eps in (1e-3, 1e-4):
         f = _residual(run, _moved(ws, eps, dt, dzt))

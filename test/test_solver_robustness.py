@@ -556,7 +556,7 @@ def test_bounded_classes_are_bit_identical_with_one_or_two_workers(monkeypatch):
 
 
 def test_widened_duals_put_each_kept_circle_in_its_column_and_zero_elsewhere():
-    # Columns link * K + k (ipm.py): 2 links, circles 1 and 3 of 4 kept.
+    # Columns link * K + k (ipm_obstacles.py): 2 links, circles 1 and 3 of 4 kept.
     z = np.arange(12.0).reshape(3, 4) + 1.0            # (nodes, 2 links x 2 kept)
     duals = {'z': z, 'lam': np.ones((4, 4)), 'rho': 10.0}
     wide = start_points.widen_duals(duals, (1, 3), 4, 2)

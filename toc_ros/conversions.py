@@ -134,8 +134,8 @@ def trajectory_msg(result, joint_names, robot, stamp):
     msg = JointTrajectory()
     msg.header.stamp = stamp
     msg.joint_names = list(joint_names)
-    # Whole columns to Python lists at once (per-element numpy indexing and float() calls were
-    # most of the cost: ~3x faster at N = 300); times rounded as in _sec_nanosec.
+    # Whole columns to Python lists at once: per-element numpy indexing and float() calls would
+    # be most of the cost on long plans.  Times rounded as in _sec_nanosec.
     last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
     total = np.round(np.asarray(result.time_grid, dtype=float) * 1e9).astype(np.int64)
     rows = zip(model.positions(states).tolist(), model.velocities(states).tolist(),

@@ -31,7 +31,7 @@ from toc_ros.core.obstacles import scheduled_clearance
 # The robot has arrived once every joint stays within this of the goal [rad or m] (1 cm of
 # extension, 0.01 rad): the tracking PD settles the last millimetres slowly.
 ARRIVAL_TOL = 1e-2
-# The final error is taken this long after the end of the last plan [s] (issue 12).
+# The final error is taken this long after the end of the last plan [s].
 FINAL_ERROR_DELAY_S = 0.2
 
 

@@ -115,7 +115,7 @@ def check_trajectory(spec, t_f, controls, integrator='euler', states=None):
     |p_s - c_o| - (r_s + R_o + margin); inf without obstacles), states (re-integrated).
     """
     import pinocchio as pin
-    from .arm_reference import load_spheres
+    from .arm_problem import load_spheres
     model, idx, vdx = pinocchio_model(spec.urdf, spec.joints, spec.locked)
     data = model.createData()
     n = len(spec.joints)

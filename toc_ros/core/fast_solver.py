@@ -31,24 +31,26 @@ per homotopy class (homotopy.py) is solved instead, on EXPLORE_INTERVALS, side b
 threads (workers.py); a candidate's climb up the ladder starts as soon as its attempt converges
 (prefetch.py), with the same result as after all attempts.  With several circles they are
 added lazily: first none, then the classes of the circles that solution hits (class_starts.py).
-The run on one grid is ip_run.py's, its starting points and resampling start_points.py's.
+The run on one grid is ip_run.py's, its starting points and resampling start_points.py's,
+how runs execute on the threads and are recorded run_execution.py's.
 A warm start (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of
 the plan being executed) skips the coarse grid.
 """
 
 import dataclasses
 import math
-import threading
 
 import numpy as np
 
-from . import homotopy, ipm, workers
+from . import homotopy, ipm
 from .class_starts import ClassStarts, relaxation
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
     EXPLORE_TIME, FIT_BAND, FIT_FACTORS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, \
     MU_WARM, REFINE_BAND, WARM_BUDGET, WARM_EXACT, WARM_PUSH
-from .ip_run import BOUND_PUSH, Cancelled, InteriorPointRun, Stop
+from .ip_run import BOUND_PUSH, Stop
+from .ipm_workspace import H_DELTA
 from .result import SolveResult, Status
+from .run_execution import RunExecution
 from .start_points import actuator_states, fitted_final_time, has_actuators, \
     interpolation_start, interpolation_states, ladder, resample, resample_duals, start_along, \
     warm_start_point
@@ -71,7 +73,7 @@ def _guess_intervals(guess):
     return int(np.shape(controls)[0])
 
 
-class FastSolve(ClassStarts):
+class FastSolve(ClassStarts, RunExecution):
     """Fast mode on one problem: coarse-to-fine cold start or warm start, then the result."""
 
     def __init__(self, problem, options, clock, initial_guess=None, start_point=None):
@@ -88,40 +90,6 @@ class FastSolve(ClassStarts):
         self.run = None
         self.best = None         # the shortest converged run on the N grid so far
         self.narrow = False      # climbs without the far circles (_narrowed; lazy solves)
-
-    def _check(self, run):
-        reason = self.clock.stop_reason()
-        if reason is not None:
-            raise Stop(reason)
-        from .result import Progress
-        fs = run.ws.fscal
-        self.clock.report(lambda: Progress(
-            self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
-            f'fast N={run.n}', None, float(fs[ipm.F_THETA])))
-
-    def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
-                  push=BOUND_PUSH, elastic=None, relaxed=None):
-        left = max(1, self.limit - self.done)
-        problem, kept = relaxed or (self.problem, None)
-        run = InteriorPointRun(problem, n, left if budget is None else min(budget, left),
-                               elastic, kept)
-        run.start(states, controls, t_f, mu, duals, push)
-        self.run = run
-        try:
-            code = run.run(self._check, lambda: self.clock.stop_reason() is not None)
-        finally:
-            self._record(run)
-        if code == ipm.STOPPED:
-            raise Stop(self.clock.stop_reason() or Status.CANCELED)
-        return run, code
-
-    def _record(self, run):
-        rows = run.history()
-        if rows.shape[0]:
-            first = sum(block.shape[0] for block in self.history)
-            self.history.append(np.column_stack([np.arange(first, first + rows.shape[0]),
-                                                 rows[:, 0], rows[:, 0], rows[:, 1]]))
-        self.done += run.iterations
 
     def solve(self):
         problem = self.problem
@@ -196,7 +164,7 @@ class FastSolve(ClassStarts):
         found = []
         states = interpolation_states(problem, grid)
         # Class starts on a coarser grid still (their candidates are carried up by _finish like
-        # the others); not when the coarse grid is the N grid (short horizons, a few ms).
+        # the others); not when the coarse grid is the N grid (short horizons, cheap already).
         explore = min(grid, EXPLORE_INTERVALS)
         crosses = grid < n and self._crosses(states)
         allowance, prefetched = None, None
@@ -443,79 +411,6 @@ class FastSolve(ClassStarts):
             return run, code
         return climb
 
-    def _parallel(self, tasks, done=None):
-        """
-        Run tasks (callables solve -> value) on the worker threads; return their values.
-
-        solve(n, states, controls, t_f, mu, duals, budget, elastic[, relaxed]) is a worker's
-        _solve_on:
-        it neither records its run nor reports progress (this thread does, meanwhile and, in
-        task order, afterwards), and only the fixed budget caps it, so a task's result does not
-        depend on the others' timing (workers.py).  done: {index: (value, runs)} of tasks
-        already run (_class_attempts); their runs are recorded in their place.
-        """
-        done = done or {}
-        logs = [list(done[k][1]) if k in done else [] for k in range(len(tasks))]
-        todo = [k for k in range(len(tasks)) if k not in done]
-        poll = self._poller(logs)
-        values = {k: value for k, (value, _) in done.items()}
-        try:
-            out = workers.run_tasks([self._bind(tasks[k], logs[k], poll) for k in todo], poll)
-            values.update(zip(todo, out))
-            return [values[k] for k in range(len(tasks))]
-        finally:
-            for run in (run for log in logs for run in log):
-                self._record(run)
-                self.run = run
-
-    def _bind(self, task, log, poll, cancelled=None, caller=None):
-        """
-        Return a worker's callable: task(solve), its runs appended to log.
-
-        poll() runs between iteration chunks when this is the caller's thread (default: the
-        current one).  cancelled(): a prefetch no longer wanted; its kernel stops within one
-        phase and Cancelled is raised.
-        """
-        caller = caller or threading.current_thread()
-
-        def stop_requested():
-            return self.clock.stop_reason() is not None or (cancelled is not None and
-                                                            cancelled())
-
-        def check(run):
-            if cancelled is not None and cancelled():
-                raise Cancelled()
-            reason = self.clock.stop_reason()
-            if reason is not None:
-                raise Stop(reason)
-            if threading.current_thread() is caller:
-                poll()
-
-        def solve(n, states, controls, t_f, mu, duals, budget, elastic, relaxed=None):
-            problem, kept = relaxed or (self.problem, None)
-            run = InteriorPointRun(problem, n, budget, elastic, kept)
-            run.start(states, controls, t_f, mu, duals)
-            log.append(run)
-            code = run.run(check, stop_requested)
-            if code == ipm.STOPPED:
-                if cancelled is not None and cancelled():
-                    raise Cancelled()
-                raise Stop(self.clock.stop_reason() or Status.CANCELED)
-            return run, code
-        return lambda: task(solve)
-
-    def _poller(self, logs):
-        """Return poll(): a progress report on the newest run of logs (lists of runs)."""
-        def poll():
-            runs = [run for log in logs for run in log]
-            if runs:
-                from .result import Progress
-                its = self.done + sum(run.iterations for run in runs)
-                self.clock.report(lambda: Progress(
-                    its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
-                    f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[ipm.F_THETA])))
-        return poll
-
     def _refine(self, run, n, full=False):
         """
         Carry a converged run's primal-dual solution to n intervals and solve there.
@@ -564,11 +459,8 @@ class FastSolve(ClassStarts):
         if not self._may_explore():
             return False
         run, code = first
-        shifted = np.count_nonzero(run.ws.hist[:run.iterations, ipm.H_DELTA] > 0.0)
+        shifted = np.count_nonzero(run.ws.hist[:run.iterations, H_DELTA] > 0.0)
         return code != ipm.CONVERGED or shifted > EXPLORE_NONCONVEX
-
-    def _history(self):
-        return np.concatenate(self.history) if self.history else np.zeros((0, 4))
 
     def _result(self, run, status, message):
         from .problem import measure_violations

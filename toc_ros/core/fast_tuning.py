@@ -65,7 +65,7 @@ REFINE_BAND = 0.02
 MAX_REFINE = 3
 # Grid of the cold attempts from the class starts (when the coarse grid is not the N grid):
 # half the cost per iteration and fewer iterations than on COARSE_INTERVALS, the same optima
-# after refinement on planar_2r (with mu0 = 0.01 on 100 intervals two of them were missed).
+# after refinement on planar_2r (where a finer grid with a large initial mu can miss some).
 EXPLORE_INTERVALS = 50
 # A lazy solve's candidates (_lazy_classes) climb without the circles they stay this far [m]
 # from (segment clearance, at every node of the coarse run): fewer constraints per node on the

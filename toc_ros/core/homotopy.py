@@ -24,8 +24,8 @@ by the parities of their crossings of one ray from each hole to the border of th
 homotopy signature of Bhattacharya, Likhachev and Kumar, "Topological constraints in
 search-based robot path planning", Autonomous Robots 33, 2012).  A Dijkstra search over
 (grid cell, crossing parities) finds the shortest collision-free path of each class on a
-CELLS x CELLS grid in 2-4 ms; each path (timed by start_points.path_start) is a start already
-on one side of every obstacle.
+CELLS x CELLS grid, coarse enough to cost little next to the solves; each path (timed by
+start_points.path_start) is a start already on one side of every obstacle.
 
 The model's link_segments and obstacles.segment_clearance, a numba search; the results are
 joint paths, and nothing here knows the model beyond that interface, nor the solver.  Models

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-One interior-point solve on one grid (ipm.py's workspace and kernels) and how it is driven.
+One interior-point solve on one grid (ipm_workspace.py, ipm.py's kernels) and how it is driven.
 
 InteriorPointRun holds a Workspace, sets its primal-dual starting point and runs the kernel
 in chunks between which the caller checks progress, cancel and timeout; a shared watcher
@@ -28,6 +28,10 @@ import time
 import numpy as np
 
 from . import ipm
+from .ipm_workspace import F_CONSTR_TOL, F_DELTA, F_ELASTIC, F_MU, F_MU_MIN, F_RHO, F_T, \
+    F_T_HIGH, F_T_LOW, F_T_REF, F_THETA_MAX, F_TOL, F_ZT_HIGH, F_ZT_LOW, H_T, H_THETA, \
+    I_ACCEPTABLE, I_ITER, I_LS_FAILS, I_MAX_ITER, I_METHOD, I_N, I_N_FILTER, I_STOP, \
+    make_workspace
 from .obstacles import segment_clearance
 
 # Tolerances: IPOPT's scaled optimality error, and the unscaled constraint violation (well
@@ -37,7 +41,7 @@ CONSTR_TOL = 1e-10
 MU_MIN = 1e-11
 # Interior push of the initial controls and slacks (IPOPT's bound_push).
 BOUND_PUSH = 1e-2
-# Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (see ipm.py).
+# Weight of the terminal augmentation 1/2 rho |dx(N) + x(N) - x_goal|^2 (ipm_evaluation.py).
 RHO_TERMINAL = 1e2
 # Initial l1 weight of the obstacle constraints' elastic variables.  The kernel raises it
 # (x10) when a multiplier nears it at a solution of the barrier problem, so it ends above every
@@ -74,21 +78,21 @@ class InteriorPointRun:
         self.n = n
         self.u_max = np.asarray(model.u_max, dtype=float)
         self.circles = np.ascontiguousarray(problem.circles())
-        self.ws = ipm.make_workspace(n, model.nx, model.nu, model.n_links, self.circles,
-                                     model.packed(), problem.x0, problem.x_goal, self.u_max,
-                                     max_iter, nq=model.n_joints)
+        self.ws = make_workspace(n, model.nx, model.nu, model.n_links, self.circles,
+                                 model.packed(), problem.x0, problem.x_goal, self.u_max,
+                                 max_iter, nq=model.n_joints)
         fs, it = self.ws.fscal, self.ws.iscal
-        it[ipm.I_N] = n
-        it[ipm.I_METHOD] = problem.integrator_id
-        it[ipm.I_MAX_ITER] = max_iter
-        fs[ipm.F_TOL] = TOL
-        fs[ipm.F_CONSTR_TOL] = CONSTR_TOL
-        fs[ipm.F_MU_MIN] = MU_MIN
-        fs[ipm.F_RHO] = RHO_TERMINAL
-        fs[ipm.F_T_LOW] = T_LOW
-        fs[ipm.F_T_REF] = max(problem.t_f0, 1e-3)
-        fs[ipm.F_ELASTIC] = ELASTIC_WEIGHT if elastic is None else elastic
-        fs[ipm.F_T_HIGH] = T_HIGH_FACTOR * max(problem.t_f0, 1.0)
+        it[I_N] = n
+        it[I_METHOD] = problem.integrator_id
+        it[I_MAX_ITER] = max_iter
+        fs[F_TOL] = TOL
+        fs[F_CONSTR_TOL] = CONSTR_TOL
+        fs[F_MU_MIN] = MU_MIN
+        fs[F_RHO] = RHO_TERMINAL
+        fs[F_T_LOW] = T_LOW
+        fs[F_T_REF] = max(problem.t_f0, 1e-3)
+        fs[F_ELASTIC] = ELASTIC_WEIGHT if elastic is None else elastic
+        fs[F_T_HIGH] = T_HIGH_FACTOR * max(problem.t_f0, 1.0)
 
     # Starting points ---------------------------------------------------------------------
     def start(self, states, controls, t_f, mu, duals=None, push=BOUND_PUSH):
@@ -101,14 +105,14 @@ class InteriorPointRun:
         """
         ws = self.ws
         fs = ws.fscal
-        t_f = float(np.clip(t_f, fs[ipm.F_T_LOW] * 10.0, fs[ipm.F_T_HIGH] / 10.0))
+        t_f = float(np.clip(t_f, fs[F_T_LOW] * 10.0, fs[F_T_HIGH] / 10.0))
         ws.x[:] = states
         ws.x[0] = ws.x0
         ws.v[:] = np.clip(np.asarray(controls) / self.u_max, -1.0 + push, 1.0 - push)
-        fs[ipm.F_T] = t_f
-        fs[ipm.F_MU] = mu
+        fs[F_T] = t_f
+        fs[F_MU] = mu
         cons = self.constraint_values(ws.x)
-        rho = fs[ipm.F_ELASTIC]
+        rho = fs[F_ELASTIC]
         # Obstacle constraints in elastic form c + e - s = 0: e absorbs what the start lacks.
         ws.s[0] = ws.e[0] = 1.0
         ws.z[0] = 0.5 * rho
@@ -132,14 +136,14 @@ class InteriorPointRun:
             # Bound duals of the guess: they carry which controls sit on a bound.
             ws.zl[:] = np.maximum(duals['zl'], ws.zl)
             ws.zu[:] = np.maximum(duals['zu'], ws.zu)
-        fs[ipm.F_ZT_LOW] = mu / (t_f - fs[ipm.F_T_LOW])
-        fs[ipm.F_ZT_HIGH] = mu / (fs[ipm.F_T_HIGH] - t_f)
-        fs[ipm.F_DELTA] = 0.0
-        fs[ipm.F_THETA_MAX] = 0.0
-        ws.iscal[ipm.I_N_FILTER] = 0
-        ws.iscal[ipm.I_LS_FAILS] = 0
-        ws.iscal[ipm.I_ACCEPTABLE] = 0
-        ws.iscal[ipm.I_ITER] = 0
+        fs[F_ZT_LOW] = mu / (t_f - fs[F_T_LOW])
+        fs[F_ZT_HIGH] = mu / (fs[F_T_HIGH] - t_f)
+        fs[F_DELTA] = 0.0
+        fs[F_THETA_MAX] = 0.0
+        ws.iscal[I_N_FILTER] = 0
+        ws.iscal[I_LS_FAILS] = 0
+        ws.iscal[I_ACCEPTABLE] = 0
+        ws.iscal[I_ITER] = 0
 
     def constraint_values(self, states):
         """Obstacle constraints c = (d^2 - R^2) / (2 R) at nodes 1..N, (N, L K)."""
@@ -153,18 +157,18 @@ class InteriorPointRun:
         ws = self.ws
         return {'lam': ws.lam.copy(), 'nu': ws.nu.copy(), 'z': ws.z[1:].copy(),
                 'zl': ws.zl.copy(), 'zu': ws.zu.copy(),
-                'rho': float(ws.fscal[ipm.F_ELASTIC])}
+                'rho': float(ws.fscal[F_ELASTIC])}
 
     # Results -----------------------------------------------------------------------------
     @property
     def t_f(self):
         """Return the current final time [s]."""
-        return float(self.ws.fscal[ipm.F_T])
+        return float(self.ws.fscal[F_T])
 
     @property
     def iterations(self):
         """Return the number of iterations done on this grid."""
-        return int(self.ws.iscal[ipm.I_ITER])
+        return int(self.ws.iscal[I_ITER])
 
     def controls(self):
         """Return the controls u (N, nu) of the current point."""
@@ -173,7 +177,7 @@ class InteriorPointRun:
     def history(self):
         """Rows (t_f, constraint violation) per iteration."""
         k = min(self.iterations + 1, self.ws.hist.shape[0])
-        return self.ws.hist[:k, [ipm.H_T, ipm.H_THETA]]
+        return self.ws.hist[:k, [H_T, H_THETA]]
 
     # Driving -----------------------------------------------------------------------------
     def run(self, check, stop_requested=None):
@@ -244,7 +248,7 @@ class _StopWatcher:
                     continue
                 for key, (ws, stop_requested) in list(self._active.items()):
                     if stop_requested():
-                        ws.iscal[ipm.I_STOP] = 1
+                        ws.iscal[I_STOP] = 1
                         del self._active[key]
                 self._cond.wait(STOP_POLL)
 

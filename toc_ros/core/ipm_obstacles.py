@@ -13,11 +13,12 @@
 # limitations under the License.
 
 """
-The obstacle constraints of ipm.py at one node: c = (d^2 - R^2) / (2 R) per link and circle.
+The interior-point obstacle constraints at one node: c = (d^2 - R^2) / (2 R) per link and circle.
 
 d is the distance from a link segment (the model's segments kernel) to a circle's centre;
 obstacle_terms also gives the constraint's joint gradient and its block of the condensed
-Newton system, obstacle_values the values only (line search).  Inlined into ipm.py's kernels.
+Newton system, obstacle_values the values only (line search).  Inlined into the kernels of
+ipm_evaluation.py and ipm_linesearch.py.
 """
 
 from numba import njit

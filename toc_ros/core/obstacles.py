@@ -148,7 +148,7 @@ def segment_clearance_rows(seg, circles, squared, out):
     segment_clearance for segments (M, L, 4) into out (M, L K), compiled.
 
     Compiled because the fast mode's starts and the class search call it on every node of a
-    grid, where numpy's temporaries cost ~0.4 ms per call at N = 1000.
+    grid, where numpy's temporaries would cost more than the arithmetic.
     """
     n_circles = circles.shape[0]
     for m in range(seg.shape[0]):

@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-# Feasibility tolerances of a SOLVED result (issue #3): controls within bounds exactly,
+# Feasibility tolerances of a SOLVED result: controls within bounds exactly,
 # terminal state error (Euclidean norm) and clearance deficit at most 1e-6.
 TERMINAL_TOL = 1e-6
 CLEARANCE_TOL = 1e-6

@@ -67,7 +67,7 @@ PAPER_OBSTACLES = ((1.0, 1.0, 0.2),)
 _BEARING = (math.cos(0.98), math.sin(0.98))
 MOVING_OBSTACLES = PAPER_OBSTACLES + ((1.8 * _BEARING[0], 1.8 * _BEARING[1], 0.1),)
 MOVING = MovingObstacle(index=1, velocity=(-_BEARING[0], -_BEARING[1]), start=0.2, stop=0.7)
-# The plant's mismatch of issue 12: payload +20 % (hand_mass 50 -> 60 kg), inertia x 1.2;
+# The plant's model mismatch: payload +20 % (hand_mass 50 -> 60 kg), inertia x 1.2;
 # TRUE_ROBOT is the same change as solver parameters (for the true plant's t_min).
 MISMATCH = {'payload_mass_offset': 10.0, 'inertia_scale': 1.2}
 TRUE_ROBOT = {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}

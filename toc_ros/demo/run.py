@@ -51,8 +51,8 @@ STAGES = (
     Stage('replan', (math.pi / 12.0, 0.8), ((0.9, 1.2, 0.2), (1.5, 0.6, 0.15))),
 )
 # The planar two-link arm (config/toc_ros_planar_2r.yaml): circles beyond the reach of link 1,
-# near the free optimum's path but clear of the straight joint interpolation (fast mode is a
-# local method; these were checked to solve, t_min 0.578 s and 0.550 s).
+# near the free optimum's path but clear of the straight joint interpolation, so that fast
+# mode, a local method, starts on a side of each.
 PLANAR_2R_STAGES = (
     Stage('planar_2r goal', (0.9, 0.9), ((0.23, 1.09, 0.12),)),
     Stage('replan', (-0.4, 1.3), ((0.34, 1.26, 0.11), (1.6, -0.2, 0.1))),
@@ -66,7 +66,7 @@ SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES, True),
 CLOSED_LOOP_RUNS = (('open loop', 0.0, ()), ('replanning', 20.0, ()),
                     ('replanning + estimation', 20.0, closed_loop.ESTIMATED))
 CLOSED_LOOP_INTEGRATOR = 'rk4'
-CLOSED_LOOP_MAX_NODES = 150     # replan.max_nodes: RK4 cycles within ~10 ms at 20 Hz
+CLOSED_LOOP_MAX_NODES = 150     # replan.max_nodes: bounds an RK4 cycle's cost at 20 Hz
 
 PROGRESS_PRINT_PERIOD_S = 0.5
 REQUIRED_TOPICS = (

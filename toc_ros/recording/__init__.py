@@ -15,14 +15,16 @@
 """
 Recording of ROS 2 topics into rosbag2 bag directories with MCAP storage.
 
-``bag_writer`` writes a bag, ``bag_reader`` reads one back (also a cut-off one); neither they
-nor ``msg_definitions`` need rclpy (only ``Recording.decode`` does); ``bag_tool`` is the
-``toc-bag`` command (info, recover). The recorder node lives in
-``toc_ros.nodes.recorder_node`` and ``process`` starts and stops it as a separate process.
+``bag_writer`` writes a bag (rosbag2's QoS and YAML formats in ``bag_metadata``), ``bag_reader``
+reads one back (also a cut-off one); neither they nor ``msg_definitions`` need rclpy (only
+``Recording.decode`` does); ``bag_tool`` is the ``toc-bag`` command (info, recover). The
+recorder node lives in ``toc_ros.nodes.recorder_node`` and ``process`` starts and stops it as a
+separate process.
 """
 
+from .bag_metadata import qos_profile_to_dict
 from .bag_reader import RawMessage, Recording, TopicInfo
-from .bag_writer import BagSummary, BagWriter, qos_profile_to_dict, RecordingError
+from .bag_writer import BagSummary, BagWriter, RecordingError
 from .msg_definitions import full_definition, MessageDefinition, MessageDefinitionError
 from .process import recorder_command, RecorderProcess
 

@@ -204,10 +204,9 @@ class ActuatedModel(RobotModel):
         Largest step [s] of a plan: STEPS_PER_LAG steps per time constant.
 
         RK4 on the lag is stable up to 2.8 time constants a step (Euler 2), but the solver's
-        convergence suffers well before: on the paper scenario with T = 10 ms, steps of
-        0.69 T made a warm start from the exact optimum fail (the optimal commands are no
-        longer bang-bang between coarse nodes), 0.2 T converged in 7 iterations, and replan
-        cycles resampled to 0.6 T took 300-500 iterations where 0.45 T took 16-30.
+        convergence suffers well before: on steps that are not small against the lag the
+        optimal commands are no longer bang-bang between nodes, so warm starts and resampled
+        replan cycles need many more iterations or fail.
         """
         return self.lag / STEPS_PER_LAG
 

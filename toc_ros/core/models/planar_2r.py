@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The planar two-link arm 'planar_2r' (issue 13) behind the model interface (base.py).
+The planar two-link arm 'planar_2r' behind the model interface (base.py).
 
 Geometry: joints q1 (shoulder, absolute angle from the base x axis) and q2 (elbow, relative to
 link 1), revolute, in the base x-y plane; base at the origin; elbow p1 = l1 (cos q1, sin q1),
@@ -66,7 +66,7 @@ IK_BRANCHES = ('elbow_up', 'elbow_down')
 
 @dataclass(frozen=True)
 class Planar2RParams:
-    """Physical data of the planar two-link arm (defaults of issue 13)."""
+    """Physical data of the planar two-link arm."""
 
     l1: float = 1.0          # [m] link 1 (shoulder to elbow)
     l2: float = 0.8          # [m] link 2 (elbow to hand)
@@ -320,7 +320,7 @@ def ipm_evaluate(ws):
 
 
 class Planar2R(RobotModel):
-    """The planar two-link arm of issue 13 (shoulder q1, elbow q2 relative, both in rad)."""
+    """The planar two-link arm (shoulder q1, elbow q2 relative, both in rad)."""
 
     name = 'planar_2r'
     n_joints = N_JOINTS
