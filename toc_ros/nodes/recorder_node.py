@@ -47,8 +47,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from toc_ros.nodes.common import topic_list
-from toc_ros.recording.bag_writer import (
-    BagWriter, FLUSH_PERIOD_S, qos_profile_to_dict, RecordingError)
+from toc_ros.recording.bag_metadata import qos_profile_to_dict
+from toc_ros.recording.bag_writer import BagWriter, FLUSH_PERIOD_S, RecordingError
 from toc_ros.recording.msg_definitions import (
     full_definition, MessageDefinitionError, split_type_name, type_description_hash)
 from toc_ros.recording.process import default_output_dir

@@ -41,9 +41,7 @@ from typing import Dict, Iterable, List, Mapping, NamedTuple, Optional
 
 from mcap.writer import CompressionType, Writer
 
-# qos_profile_to_dict stays importable from here: recorder_node imports it from this module.
-from .bag_metadata import complete_qos_profile, dump_yaml, qos_profile_to_dict, \
-    qos_profiles_yaml  # noqa: F401
+from .bag_metadata import complete_qos_profile, dump_yaml, qos_profiles_yaml
 from .msg_definitions import full_definition, MessageDefinition, type_description_hash
 
 METADATA_VERSION = 9
