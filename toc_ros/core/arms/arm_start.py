@@ -81,51 +81,60 @@ def cold_start(arm, x0, x_goal, n_intervals):
     return states, torques, t_f
 
 
-def push_out_of_obstacles(arm, evaluator, states, clearance=0.01, iterations=100):
-    """
-    Positions of states moved (node by node, joints within limits) until every sphere row
-    is >= clearance [m]: repeated minimum-norm corrections along the worst row's gradient.
 
-    Returns (states with the new positions and velocities by central differences scaled to
-    the old time grid, True if every node is clear).  The end nodes are left as they are.
+def bent_path(x0, x_goal, t_f, n_intervals, offsets):
+    """cubic_path plus offsets (n,) * sin(pi s) on the positions (a detour through a shifted
+    midpoint, the reference's perturbed start), velocities to match."""
+    n = len(x0) // 2
+    states = cubic_path(x0, x_goal, t_f, n_intervals)
+    s = np.linspace(0.0, 1.0, n_intervals + 1)[:, None]
+    states[:, :n] += np.sin(np.pi * s) * offsets[None, :]
+    states[:, n:] += np.pi * np.cos(np.pi * s) * offsets[None, :] / t_f
+    return states
+
+
+def detour_offsets(arm, evaluator, x0, x_goal, n_intervals, clearance=0.02, iterations=60):
+    """
+    Offsets (n,) for bent_path whose nodes clear every obstacle by clearance [m], or None.
+
+    Repeated minimum-norm corrections at the worst node along its worst row's gradient,
+    scaled by the node's sin(pi s); positions must stay within the joint limits.
     """
     n = arm.n
-    q = states[:, :n].copy()
-    inner = q[1:-1]
-    low = np.where(np.isfinite(arm.lower), arm.lower, -np.inf)
-    high = np.where(np.isfinite(arm.upper), arm.upper, np.inf)
+    s = np.linspace(0.0, 1.0, n_intervals + 1)
+    bend = np.sin(np.pi * s)
+    offsets = np.zeros(n)
+    line = cubic_path(x0, x_goal, 1.0, n_intervals)[:, :n]
     for _ in range(iterations):
-        values, grads, _ = evaluator.clearance_terms(inner)
-        if not values.size or values.min() >= clearance:
-            break
-        worst = np.argmin(values, axis=1)
-        rows = np.arange(inner.shape[0])
-        g = values[rows, worst]
-        grad = grads[rows, worst]
-        need = np.maximum(clearance - g, 0.0) * 1.2
-        norm2 = np.maximum(np.sum(grad * grad, axis=1), 1e-12)
-        inner += (need / norm2)[:, None] * grad
-        inner[:] = np.clip(inner, low, high)
-    clear = (not evaluator.n_pairs) or evaluator.clearances(inner).min() >= 0.5 * clearance
-    out = states.copy()
-    out[1:-1, :n] = inner
-    return out, bool(clear)
+        q = line + bend[:, None] * offsets[None, :]
+        if np.any(q < arm.lower) or np.any(q > arm.upper):
+            return None
+        values, grads, _ = evaluator.clearance_terms(q)
+        worst = np.unravel_index(np.argmin(values), values.shape)
+        if values[worst] >= clearance:
+            return offsets
+        k = worst[0]
+        if bend[k] <= 0.0:
+            return None
+        grad = grads[worst] * bend[k]
+        offsets = offsets + 1.2 * (clearance - values[worst]) * grad / max(grad @ grad, 1e-12)
+    return None
 
 
-def retime(arm, states, x0, x_goal, n_intervals):
-    """(states, torques, t_f) along the positions of states, timed like line_time."""
+def detour_start(arm, evaluator, x0, x_goal, n_intervals):
+    """(states, torques, t_f) of a bent path clear of the obstacles, or None."""
+    offsets = detour_offsets(arm, evaluator, x0, x_goal, n_intervals)
+    if offsets is None:
+        return None
     n = arm.n
-    q = states[:, :n]
-    dist = np.max(np.sum(np.abs(np.diff(q, axis=0)), axis=0) / arm.velocity)
-    t_f = max(1.5 * float(dist), 0.05)
+    dq = np.abs(x_goal[:n] - x0[:n]) + np.pi * np.abs(offsets)
+    t_f = max(1.5 * float(np.max(dq / arm.velocity)), 0.05)
     for _ in range(200):
-        h = t_f / n_intervals
-        dq = np.gradient(q, h, axis=0)
-        out = np.hstack([q, dq])
-        out[0], out[-1] = x0, x_goal
-        torques = path_torques(arm, out, t_f)
-        if (np.all(np.abs(torques) <= arm.effort) and np.all(np.abs(out[:, n:])
+        states = bent_path(x0, x_goal, t_f, 50, offsets)
+        torques = path_torques(arm, states, t_f)
+        if (np.all(np.abs(torques) <= arm.effort) and np.all(np.abs(states[:, n:])
                                                               <= arm.velocity)) or t_f > 60.0:
             break
         t_f *= 1.05
-    return out, np.clip(torques, -arm.effort, arm.effort), float(t_f)
+    states = bent_path(x0, x_goal, t_f, n_intervals, offsets)
+    return states, np.clip(path_torques(arm, states, t_f), -arm.effort, arm.effort), float(t_f)
