@@ -310,12 +310,12 @@ def test_cli_solves_an_arm_and_writes_the_contract(tmp_path):
     out = tmp_path / 'r.json'
     code = main(['--model', 'ur5', '--collision-spheres', str(DATA / 'arm_spheres_ur5.yaml'),
                  '--start', *map(str, start), '--goal', *map(str, goal),
-                 '--sphere', *map(str, obs[0]), '--margin', str(MARGIN), '--N', '30',
+                 '--sphere', *map(str, obs[0]), '--margin', str(MARGIN), '--N', '50',
                  '--json', str(out), '--quiet'])
     data = json.loads(out.read_text())
     assert code == 0 and data['status'] == 'SOLVED'
     states, controls = np.array(data['states']), np.array(data['controls'])
-    assert states.shape == (31, 12) and controls.shape == (30, 6)
+    assert states.shape == (51, 12) and controls.shape == (50, 6)
     np.testing.assert_allclose(states[0], list(start) + [0.0] * 6, atol=0)
     assert np.linalg.norm(states[-1] - np.array(list(goal) + [0.0] * 6)) < 1e-6
     assert data['violations']['min_clearance'] >= -1e-6

@@ -40,7 +40,7 @@ import pinocchio as pin
 
 from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint
-from .arm_start import cold_start, detour_start
+from .arm_start import cold_start, cubic_path, detour_start, path_torques
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
@@ -50,6 +50,7 @@ from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violation
 # Positions and velocities of the re-integrated states may exceed a bound by rounding only.
 BOUND_TOL = 1e-9
 MAX_INTERVALS = 100000
+RETRY_SLOWDOWN = 1.5
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -174,6 +175,12 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
         self_clearance=self_clear)
 
 
+def slowed(arm, x0, x_goal, n_int, t_f):
+    """(states, torques) of the cubic line start over the final time t_f."""
+    states = cubic_path(x0, x_goal, t_f, n_int)
+    return states, np.clip(path_torques(arm, states, t_f), -arm.effort, arm.effort)
+
+
 def start_point(robot, evaluator, x0, x_goal, n_int):
     """(states, torques, t_f, name): the line start, or a detour when the line collides."""
     states, torques, t_f = cold_start(robot.arm, x0, x_goal, n_int)
@@ -198,9 +205,6 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
                            integrator=str(getattr(problem, 'integrator', '')))
     n_int = problem.n_intervals
     evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int)
-    ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian)
-    states, torques, t_f, start_name = start_point(robot, evaluator, x0, xg, n_int)
-    ipm.start(states, torques, t_f)
     deadline = None if options.timeout is None else started + options.timeout
     stop = {'why': None}
 
@@ -211,7 +215,24 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
             stop['why'] = Status.TIMEOUT
         return stop['why'] is not None
 
-    run = ipm.run(options.iteration_limit(), should_stop)
+    # A run that fails (line search, numerics) is restarted once from the line start slowed
+    # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start): a slower
+    # start lies further inside the torque limits.
+    states, torques, t_f, start_name = start_point(robot, evaluator, x0, xg, n_int)
+    budget = options.iteration_limit()
+    iterations, linalg_time, runs = 0, 0.0, []
+    for attempt in range(2):
+        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian)
+        ipm.start(states, torques, t_f)
+        run = ipm.run(budget - iterations, should_stop)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        runs.append(f'{start_name}: {run.status} after {run.iterations} iterations')
+        if run.status not in ('line_search_failed', 'numerical_failure') or attempt:
+            break
+        states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
+        states, torques = slowed(robot.arm, x0, xg, n_int, RETRY_SLOWDOWN * t_f)
+        t_f, start_name = RETRY_SLOWDOWN * t_f, f'line x{RETRY_SLOWDOWN:g}'
     controls = run.v * robot.arm.effort[None, :]
     states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles, problem.margin)
     converged = run.status in ('converged', 'acceptable')
@@ -225,9 +246,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         status = Status.MAX_ITERATIONS
     else:
         status = Status.STALLED
-    message = (f'{run.status} after {run.iterations} interior-point iterations from the '
-               f'{start_name} start: t_f = {run.t:.6f} s, dual infeasibility {run.dual:.2e}, '
-               f'constraint violation {run.primal:.2e}')
+    message = (f'{"; ".join(runs)} (interior-point iterations, by start): t_f = {run.t:.6f} '
+               f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}')
     history = np.zeros((run.history.shape[0], 4))
     if run.history.shape[0]:
         history[:, 0] = np.arange(1, run.history.shape[0] + 1)
@@ -236,17 +256,17 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         history[:, 3] = run.history[:, 1]
     result = SolveResult(status=status, message=message, mode='fast', integrator='euler',
                          n_intervals=n_int, final_time=float(run.t), states=states,
-                         controls=controls, iterations=run.iterations, history=history,
+                         controls=controls, iterations=iterations, history=history,
                          violations=violations, cost=float(run.t),
                          solver_state={'start': start_name, 'ipm_status': run.status,
                                        'pin_calls': evaluator.pin_calls,
                                        'pin_time_s': evaluator.pin_time,
-                                       'linalg_time_s': ipm.linalg_time})
+                                       'linalg_time_s': linalg_time})
     result.time_grid = np.linspace(0.0, run.t, n_int + 1)
     result.wall_time_s = time.monotonic() - started
     if progress is not None:
         from ..result import Progress
-        progress(Progress(run.iterations, run.t, run.t,
+        progress(Progress(iterations, run.t, run.t,
                           run.t if result.success else math.nan, result.wall_time_s, 'done',
                           violations))
     return result
