@@ -28,7 +28,7 @@ import pytest
 
 pin = pytest.importorskip('pinocchio')
 
-from toc_ros.core import Problem, SolverOptions, solve, Status  # noqa: E402
+from toc_ros.core import Problem, solve, SolverOptions, Status  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms import riccati  # noqa: E402
 from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
@@ -52,8 +52,9 @@ def _robot(name):
 
 def _problem(name, n_int=50, with_obstacles=True, **changes):
     start, goal, obs = SCENARIOS[name]
-    fields = dict(x0=start, x_goal=goal, model=_robot(name), obstacles=obs if with_obstacles else (),
-                  margin=MARGIN, n_intervals=n_int)
+    fields = {'x0': start, 'x_goal': goal, 'model': _robot(name),
+              'obstacles': obs if with_obstacles else (), 'margin': MARGIN,
+              'n_intervals': n_int}
     fields.update(changes)
     return Problem(**fields)
 

@@ -39,7 +39,7 @@ def is_arm_model_name(name):
 
 
 def requested_model(argv):
-    """The value of --model in argv (None when absent)."""
+    """Return the value of --model in argv (None when absent)."""
     for i, arg in enumerate(argv):
         if arg == '--model' and i + 1 < len(argv):
             return argv[i + 1]

@@ -66,7 +66,7 @@ class ArmEvaluator:
 
     # Dynamics ------------------------------------------------------------------------------
     def accelerations(self, states, controls):
-        """ABA accelerations (K, n) at states (K, 2n) under scaled controls (K, n)."""
+        """Return the ABA joint accelerations, (K, n), at states (K, 2n) and scaled controls."""
         n = self.n
         out = np.empty((states.shape[0], n))
         started = time.perf_counter()

@@ -106,7 +106,7 @@ class ArmInteriorPoint:
 
     # Start point ---------------------------------------------------------------------------
     def start(self, states, controls, t_f):
-        """Set the primal start (pushed strictly inside the bounds) and the duals."""
+        """Set the primal point, pushed strictly inside the bounds, and the duals."""
         x = np.array(states, dtype=float)
         x[0], x[-1] = self.x0, self.x_goal
         push = 1e-2 * np.maximum(1.0, np.abs(np.where(self.has_l, self.lx, 0.0)))
@@ -273,8 +273,9 @@ class ArmInteriorPoint:
         """
         Iterate until convergence; return an ArmIpmResult.
 
-        status: 'converged', 'acceptable' (see run), 'max_iterations', 'line_search_failed', 'numerical_failure' or
-        'stopped' (should_stop() returned True); x, v, t, iterations, history (rows: T,
+        status: 'converged', 'acceptable' (IPOPT's acceptable level, module docstring),
+        'max_iterations', 'line_search_failed', 'numerical_failure' or 'stopped'
+        (should_stop() returned True); x, v, t, iterations, history (rows: T,
         primal infeasibility, E_0, mu, alpha, delta), dual, primal, compl.
         """
         n = self.n

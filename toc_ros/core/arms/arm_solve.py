@@ -62,7 +62,7 @@ class ArmRobot:
 
     @classmethod
     def shipped(cls, arm):
-        """The arm with its shipped spheres (Panda, UR5), or without spheres."""
+        """Return the arm with its shipped spheres (Panda, UR5), or without spheres."""
         return cls(arm, default_spheres(arm, self_collision=False))
 
 
@@ -131,7 +131,7 @@ def check_arm_problem(problem, options):
         raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
     obstacles = check_obstacles(problem.obstacles)
     if len(obstacles) and robot.spheres is None:
-        raise ArmError('obstacles need the arm\'s collision spheres (give a sphere file)')
+        raise ArmError("obstacles need the arm's collision spheres (give a sphere file)")
     x0 = _state(arm, problem.x0, 'start')
     xg = _state(arm, problem.x_goal, 'goal')
     for x, what in ((x0, 'start'), (xg, 'goal')):

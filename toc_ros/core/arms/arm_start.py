@@ -66,8 +66,9 @@ def line_time(arm, x0, x_goal, n_intervals=50):
     for _ in range(200):
         states = cubic_path(x0, x_goal, t_f, n_intervals)
         torques = path_torques(arm, states, t_f)
-        if (np.all(np.abs(torques) <= arm.effort) and np.all(np.abs(states[:, n:])
-                                                              <= arm.velocity)) or t_f > 60.0:
+        within = (np.all(np.abs(torques) <= arm.effort)
+                  and np.all(np.abs(states[:, n:]) <= arm.velocity))
+        if within or t_f > 60.0:
             break
         t_f *= 1.05
     return float(t_f)
@@ -81,10 +82,12 @@ def cold_start(arm, x0, x_goal, n_intervals):
     return states, torques, t_f
 
 
-
 def bent_path(x0, x_goal, t_f, n_intervals, offsets):
-    """cubic_path plus offsets (n,) * sin(pi s) on the positions (a detour through a shifted
-    midpoint, the reference's perturbed start), velocities to match."""
+    """
+    Return cubic_path plus offsets (n,) * sin(pi s) on the positions, velocities to match.
+
+    A detour through a shifted midpoint: the reference's perturbed start.
+    """
     n = len(x0) // 2
     states = cubic_path(x0, x_goal, t_f, n_intervals)
     s = np.linspace(0.0, 1.0, n_intervals + 1)[:, None]
@@ -132,8 +135,9 @@ def detour_start(arm, evaluator, x0, x_goal, n_intervals):
     for _ in range(200):
         states = bent_path(x0, x_goal, t_f, 50, offsets)
         torques = path_torques(arm, states, t_f)
-        if (np.all(np.abs(torques) <= arm.effort) and np.all(np.abs(states[:, n:])
-                                                              <= arm.velocity)) or t_f > 60.0:
+        within = (np.all(np.abs(torques) <= arm.effort)
+                  and np.all(np.abs(states[:, n:]) <= arm.velocity))
+        if within or t_f > 60.0:
             break
         t_f *= 1.05
     states = bent_path(x0, x_goal, t_f, n_intervals, offsets)
