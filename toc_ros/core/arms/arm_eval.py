@@ -101,61 +101,62 @@ class ArmEvaluator:
         """
         n, nx, n_int = self.n, 2 * self.n, self.n_int
         h = t_f / n_int
-        eye = np.eye(nx)
-        out = {'defect': np.empty((n_int, nx)), 'a': np.empty((n_int, nx, nx)),
-               'b': np.zeros((n_int, nx, n)), 'c': np.empty((n_int, nx)),
-               'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
+        model, data = self.model, self.data
+        acc = np.empty((n_int, n))
+        d_q = np.empty((n_int, n, n))
+        d_v = np.empty((n_int, n, n))
+        minv = np.empty((n_int, n, n))
+        tau = v * self.effort[None, :]
         started = time.perf_counter()
-        calls = 0
+        # Only the Pinocchio calls in the loop; everything else is batched below.
         for k in range(n_int):
-            q, dq = x[k, :n], x[k, n:]
-            tau = self.effort * v[k]
-            lam_q, lam_v = lam[k + 1, :n], lam[k + 1, n:]
-            grad, acc, ddq_dq, ddq_dv, minv = self._gradient_of_weighted_acceleration(
-                q, dq, tau, lam_v)
-            calls += 1
-            f = np.concatenate([dq, acc])
-            out['defect'][k] = x[k] + h * f - x[k + 1]
-            a = eye.copy()
-            a[:n, n:] += h * np.eye(n)
-            a[n:, :n] += h * ddq_dq
-            a[n:, n:] += h * ddq_dv
-            out['a'][k] = a
-            out['b'][k, n:, :] = h * minv * self.effort[None, :]
-            out['c'][k] = f / n_int
-            if hessian == 'cross':
-                out['hxx'][k, :n, nx] = (lam_v @ ddq_dq) / n_int
-                out['hxx'][k, n:nx, nx] = (lam_q + lam_v @ ddq_dv) / n_int
-                out['hxx'][k, nx, :nx] = out['hxx'][k, :nx, nx]
-                out['hux'][k, :, nx] = self.effort * (minv.T @ lam_v) / n_int
-            if hessian != 'exact':
-                continue
-            # Hessian of lam_v . a(q, dq, tau) by forward differences of its gradient.
-            hess = np.zeros((3 * n, 3 * n))
-            for i in range(2 * n):
-                qp, dqp = q.copy(), dq.copy()
-                if i < n:
-                    qp[i] += FD_STEP
-                else:
-                    dqp[i - n] += FD_STEP
-                grad_p = self._gradient_of_weighted_acceleration(qp, dqp, tau, lam_v)[0]
-                hess[i] = (grad_p - grad) / FD_STEP
-            calls += 2 * n
-            # Rows of tau come from symmetry (d2 a / dtau dv = 0, d2 a / dtau2 = 0).
-            hess[2 * n:, :n] = hess[:n, 2 * n:].T
-            hess[2 * n:, n:2 * n] = 0.0
-            hess[:2 * n, 2 * n:] = hess[2 * n:, :2 * n].T
-            hess[:2 * n, :2 * n] = 0.5 * (hess[:2 * n, :2 * n] + hess[:2 * n, :2 * n].T)
-            hxx = out['hxx'][k]
-            hxx[:nx, :nx] = h * hess[:2 * n, :2 * n]
-            # d2 (lam . step) / dT dx = lam . df/dx / N.
-            hxx[:n, nx] = (lam_v @ ddq_dq) / n_int
-            hxx[n:nx, nx] = (lam_q + lam_v @ ddq_dv) / n_int
-            hxx[nx, :nx] = hxx[:nx, nx]
-            hux = out['hux'][k]
-            hux[:, :nx] = h * self.effort[:, None] * hess[2 * n:, :2 * n]
-            hux[:, nx] = self.effort * (minv.T @ lam_v) / n_int
+            d_q[k], d_v[k], minv[k] = pin.computeABADerivatives(model, data, x[k, :n],
+                                                                x[k, n:], tau[k])
+            acc[k] = data.ddq
         self.pin_time += time.perf_counter() - started
+        calls = n_int
+        f = np.concatenate([x[:-1, n:], acc], axis=1)
+        out = {'defect': x[:-1] + h * f - x[1:], 'c': f / n_int,
+               'a': np.zeros((n_int, nx, nx)), 'b': np.zeros((n_int, nx, n)),
+               'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
+        idx = np.arange(nx)
+        out['a'][:, idx, idx] = 1.0
+        out['a'][:, np.arange(n), n + np.arange(n)] += h
+        out['a'][:, n:, :n] += h * d_q
+        out['a'][:, n:, n:] += h * d_v
+        out['b'][:, n:, :] = h * minv * self.effort[None, None, :]
+        if hessian in ('cross', 'exact'):
+            lam_q, lam_v = lam[1:, :n], lam[1:, n:]
+            # d2 (lam . step) / dT d(x, v) = lam . df/d(x, v) / N.
+            hxx, hux = out['hxx'], out['hux']
+            hxx[:, :n, nx] = np.einsum('ki,kij->kj', lam_v, d_q) / n_int
+            hxx[:, n:nx, nx] = (lam_q + np.einsum('ki,kij->kj', lam_v, d_v)) / n_int
+            hxx[:, nx, :nx] = hxx[:, :nx, nx]
+            hux[:, :, nx] = self.effort * np.einsum('kji,kj->ki', minv, lam_v) / n_int
+        if hessian == 'exact':
+            started = time.perf_counter()
+            for k in range(n_int):
+                q, dq = x[k, :n], x[k, n:]
+                lam_v = lam[k + 1, n:]
+                grad = np.concatenate([lam_v @ d_q[k], lam_v @ d_v[k], lam_v @ minv[k]])
+                # Hessian of lam_v . a(q, dq, tau) by forward differences of its gradient.
+                hess = np.zeros((3 * n, 3 * n))
+                for i in range(2 * n):
+                    qp, dqp = q.copy(), dq.copy()
+                    if i < n:
+                        qp[i] += FD_STEP
+                    else:
+                        dqp[i - n] += FD_STEP
+                    grad_p = self._gradient_of_weighted_acceleration(qp, dqp, tau[k], lam_v)[0]
+                    hess[i] = (grad_p - grad) / FD_STEP
+                calls += 2 * n
+                # Rows of tau from symmetry (d2 a / dtau dv = 0, d2 a / dtau2 = 0).
+                hess[2 * n:, :n] = hess[:n, 2 * n:].T
+                hess[2 * n:, n:2 * n] = 0.0
+                hess[:2 * n, :2 * n] = 0.5 * (hess[:2 * n, :2 * n] + hess[:2 * n, :2 * n].T)
+                out['hxx'][k, :nx, :nx] = h * hess[:2 * n, :2 * n]
+                out['hux'][k, :, :nx] = h * self.effort[:, None] * hess[2 * n:, :2 * n]
+            self.pin_time += time.perf_counter() - started
         self.pin_calls += calls
         return out
 
