@@ -62,8 +62,12 @@ class ArmRobot:
 
     @classmethod
     def shipped(cls, arm):
-        """Return the arm with its shipped spheres (Panda, UR5), or without spheres."""
-        return cls(arm, default_spheres(arm, self_collision=False))
+        """
+        Return the arm with its shipped spheres (Panda, UR5), or without spheres.
+
+        Their self-collision pairs are kept for the report (self_clearance), not constrained.
+        """
+        return cls(arm, default_spheres(arm, self_collision=True))
 
 
 def is_arm_model(model):
