@@ -321,3 +321,27 @@ def test_cli_solves_an_arm_and_writes_the_contract(tmp_path):
     assert np.linalg.norm(states[-1] - np.array(list(goal) + [0.0] * 6)) < 1e-6
     assert data['violations']['min_clearance'] >= -1e-6
     assert data['joint_names'][0] == 'shoulder_pan_joint'
+
+
+@pytest.mark.parametrize('args, reason', [
+    (['--model', 'urdf:/nonexistent/robot.urdf'], 'cannot read URDF'),
+    (['--model', 'panda', '--joints', 'panda_joint1,no_such_joint'], 'unknown joint'),
+    (['--model', 'panda', '--locked', 'panda_finger_joint1=abc'], 'not a number'),
+])
+def test_cli_refuses_bad_models_with_the_reason(args, reason, capsys):
+    from toc_ros.solve import main
+    code = main(args + ['--start', '0', '0', '0', '-2', '0', '2', '0.8',
+                        '--goal', '0.1', '0', '0', '-2', '0', '2', '0.8'])
+    assert code == 4
+    assert reason in capsys.readouterr().err
+
+
+def test_cli_refuses_a_sphere_file_naming_unknown_links(tmp_path, capsys):
+    from toc_ros.solve import main
+    spheres = tmp_path / 'spheres.yaml'
+    spheres.write_text('no_such_link: [[0.0, 0.0, 0.0, 0.1]]\n')
+    code = main(['--model', 'panda', '--collision-spheres', str(spheres),
+                 '--start', '0', '0', '0', '-2', '0', '2', '0.8',
+                 '--goal', '0.1', '0', '0', '-2', '0', '2', '0.8'])
+    assert code == 4
+    assert 'unknown link' in capsys.readouterr().err
