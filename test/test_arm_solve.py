@@ -286,6 +286,13 @@ def _independent_check(name, result, obstacles):
     return spec
 
 
+def test_small_ur5_solve_is_solved_and_feasible_on_the_independent_check():
+    result = solve(_problem('ur5', 20, True))
+    assert result.status is Status.SOLVED, result.message
+    assert result.states.shape == (21, 12) and result.controls.shape == (20, 6)
+    _independent_check('ur5', result, SCENARIOS['ur5'][2])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize('name, obstacles', [('panda', False), ('panda', True),
                                              ('ur5', False), ('ur5', True)])
