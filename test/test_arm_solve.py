@@ -253,6 +253,18 @@ def test_paper_mode_and_spheres_missing_are_refused():
     assert result.status is Status.INVALID_INPUT and 'spheres' in result.message
 
 
+def test_timeout_and_cancel_stop_an_arm_solve():
+    import threading
+    result = solve(_problem('ur5', 20), SolverOptions(timeout=1e-6))
+    assert result.status is Status.TIMEOUT and result.has_trajectory
+    cancel = threading.Event()
+    cancel.set()
+    result = solve(_problem('ur5', 20), cancel=cancel)
+    assert result.status is Status.CANCELED
+    result = solve(_problem('ur5', 20), SolverOptions(max_iterations=0))
+    assert result.status is Status.INVALID_INPUT and 'max_iterations' in result.message
+
+
 def test_cli_refuses_a_goal_outside_the_limits(tmp_path, capsys):
     from toc_ros.solve import main
     out = tmp_path / 'r.json'

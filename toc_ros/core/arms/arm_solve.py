@@ -119,6 +119,7 @@ def _state(arm, values, what):
 
 def check_arm_problem(problem, options):
     """(robot, x0, x_goal, obstacles) after every check; ArmError with the reason otherwise."""
+    options.validate()
     robot = _robot(problem)
     arm = robot.arm
     if options.mode != 'fast':
