@@ -209,8 +209,23 @@ def test_step_derivatives_and_curvature_match_finite_differences(name):
     np.testing.assert_allclose(terms['hux'][0], hess[nx + 1:, :nx + 1], atol=1e-4 * scale)
     assert np.abs(hess[nx + 1:, nx + 1:]).max() < 1e-6 * scale      # ABA affine in tau
 
-    # Sphere rows: values against the spheres module, gradients and curvature by differences.
+    # Sphere rows (obstacles and, with the shipped spheres, self-collision pairs): values
+    # against the spheres module, gradients and curvature by differences.
+    from toc_ros.core.arms import default_spheres, obstacle_clearance, self_clearance
+    from toc_ros.core.arms import sphere_centres
+    shipped = default_spheres(arm, self_collision=True)
+    ev = ArmEvaluator(arm, shipped, SCENARIOS[name][2], MARGIN, 1, self_collision=True)
+    assert len(ev.pairs) > 0
     qs = np.clip(rng.uniform(-1.0, 1.0, (3, n)), arm.lower, arm.upper)
+    # The rows are (d^2 - R^2) / (2 R): zero and sign exactly where the distances say.
+    centres = sphere_centres(arm, shipped, qs[0])
+    distance_rows = np.concatenate([
+        obstacle_clearance(centres, shipped.radii, SCENARIOS[name][2], MARGIN).ravel(),
+        self_clearance(centres, shipped.radii, shipped.self_pairs)])
+    rows = ev.clearances(qs[:1])[0]
+    radius = np.concatenate([ev.radius.ravel(), ev.pair_radius])
+    np.testing.assert_allclose(rows, distance_rows * (distance_rows + 2 * radius)
+                               / (2 * radius), atol=1e-12)
     weights = rng.uniform(0.0, 1.0, (3, ev.n_pairs))
     values, grads, curvature = ev.clearance_terms(qs, weights)
     fd = np.stack([(ev.clearances(qs + eps * e) - ev.clearances(qs - eps * e)) / (2 * eps)
@@ -303,6 +318,20 @@ def test_small_ur5_solve_is_solved_and_feasible_on_the_independent_check():
     assert result.status is Status.SOLVED, result.message
     assert result.states.shape == (21, 12) and result.controls.shape == (20, 6)
     _independent_check('ur5', result, SCENARIOS['ur5'][2])
+
+
+def test_self_collision_rows_hold_at_every_node():
+    from toc_ros.core.arms import self_clearance, sphere_centres
+    start, goal, _ = SCENARIOS['ur5']
+    robot = ArmRobot.shipped(load_arm('ur5'), self_collision=True)
+    result = solve(Problem(model=robot, x0=start, x_goal=goal, n_intervals=20))
+    assert result.status is Status.SOLVED, result.message
+    assert result.violations.self_constrained
+    worst = min(np.min(self_clearance(sphere_centres(robot.arm, robot.spheres, q),
+                                      robot.spheres.radii, robot.spheres.self_pairs))
+                for q in result.states[:, :6])
+    assert worst >= -1e-6
+    assert worst == pytest.approx(result.violations.self_clearance, abs=1e-12)
 
 
 @pytest.mark.slow

@@ -17,7 +17,8 @@ toc-solve for URDF arms: --model panda | ur5 | urdf:PATH (toc_ros.solve hands th
 
     toc-solve --model panda --start Q1..Q7 [DQ1..DQ7] --goal Q1..Q7 [DQ1..DQ7]
               [--joints j1,...,jn] [--locked NAME=VALUE ...] [--collision-spheres FILE]
-              [--sphere X Y Z R ...] [--margin M] [--integrator euler|rk4] [--N N]
+              [--sphere X Y Z R ...] [--margin M] [--self-collision]
+              [--integrator euler|rk4] [--N N]
               [--max-iterations M] [--timeout S] [--json OUT] [--quiet]
 
 States are positions first, then velocities (velocities 0 when omitted).  The JSON is
@@ -72,6 +73,8 @@ def build_parser():
     p.add_argument('--sphere', type=float, nargs=4, action='append', default=[],
                    metavar=('X', 'Y', 'Z', 'R'), help='obstacle sphere in the base frame [m]; '
                    'repeat for several')
+    p.add_argument('--self-collision', action='store_true',
+                   help='also keep the spheres of non-adjacent links apart (no margin)')
     p.add_argument('--margin', type=float, default=0.0, metavar='M',
                    help='clearance margin added to every sphere pair [m] (default 0)')
     p.add_argument('--integrator', choices=('euler', 'rk4'), default='euler')
@@ -100,9 +103,10 @@ def build_arm_problem(args):
             raise ArmError(f'--locked {entry!r}: {value!r} is not a number') from None
     arm = load_arm(args.model, joints=args.joints, locked=locked)
     if args.collision_spheres:
-        robot = ArmRobot(arm, load_spheres(args.collision_spheres, arm, self_collision=False))
+        robot = ArmRobot(arm, load_spheres(args.collision_spheres, arm),
+                         args.self_collision)
     else:
-        robot = ArmRobot.shipped(arm)
+        robot = ArmRobot.shipped(arm, args.self_collision)
     problem = Problem(x0=tuple(args.start), x_goal=tuple(args.goal), model=robot,
                       obstacles=tuple(tuple(row) for row in args.sphere), margin=args.margin,
                       n_intervals=args.N, integrator=args.integrator)

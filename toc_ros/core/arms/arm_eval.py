@@ -46,7 +46,7 @@ FD_STEP = 1e-6
 class ArmEvaluator:
     """Euler step values/derivatives and sphere constraints for one arm problem."""
 
-    def __init__(self, arm, spheres, obstacles, margin, n_intervals):
+    def __init__(self, arm, spheres, obstacles, margin, n_intervals, self_collision=False):
         self.arm = arm
         self.model = arm.model
         self.data = arm.model.createData()
@@ -56,11 +56,19 @@ class ArmEvaluator:
         self.spheres = spheres
         obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
         self.obstacles = obstacles
-        if spheres is not None and len(obstacles):
+        if spheres is not None:
             self.radius = spheres.radii[:, None] + obstacles[None, :, 3] + margin   # (S, O)
         else:
             self.radius = np.zeros((0, 0))
-        self.n_pairs = self.radius.size
+        self.n_obstacle_rows = self.radius.size
+        if spheres is not None and self_collision and len(spheres.self_pairs):
+            # Self-collision rows: sphere pairs of non-adjacent links, no margin.
+            self.pairs = np.asarray(spheres.self_pairs, dtype=np.int64)
+            self.pair_radius = spheres.radii[self.pairs[:, 0]] + spheres.radii[self.pairs[:, 1]]
+        else:
+            self.pairs = np.zeros((0, 2), dtype=np.int64)
+            self.pair_radius = np.zeros(0)
+        self.n_pairs = self.n_obstacle_rows + len(self.pairs)
         self.pin_time = 0.0
         self.pin_calls = 0
 
@@ -162,35 +170,49 @@ class ArmEvaluator:
 
     # Spheres -------------------------------------------------------------------------------
     def clearances(self, qs):
-        """Constraints g (K, S * O) at configurations qs (K, n)."""
-        if not self.n_pairs:
-            return np.zeros((qs.shape[0], 0))
-        centres, _ = sphere_kinematics_batch(self.spheres, qs)
-        diff = centres[:, :, None, :] - self.obstacles[None, None, :, :3]
-        sq = np.einsum('ksoj,ksoj->kso', diff, diff)
-        return ((sq - self.radius ** 2) / (2.0 * self.radius)).reshape(qs.shape[0], -1)
+        """Constraints g (K, S * O + P) at configurations qs (K, n)."""
+        return self.clearance_terms(qs, gradients=False)[0]
 
-    def clearance_terms(self, qs, weights=None):
+    def clearance_terms(self, qs, weights=None, gradients=True):
         """
-        (g (K, P), dg/dq (K, P, n), curvature (K, n, n) of sum_p weights_p g_p or None).
+        (g (K, S * O + P), dg/dq, curvature (K, n, n) of sum_p weights_p g_p or None).
 
-        P = S * O pairs, sphere-major; the curvature by forward differences of the Jacobians.
+        Rows: sphere-obstacle pairs (sphere-major), then self-collision pairs; each row is
+        (d^2 - R^2) / (2 R).  The curvature: exact J^T J terms plus forward differences of
+        the sphere Jacobians for the second derivatives of the centres.
         """
         count, n = qs.shape
         if not self.n_pairs:
             return np.zeros((count, 0)), np.zeros((count, 0, n)), None
         centres, jac = sphere_kinematics_batch(self.spheres, qs)
+        n_obs = self.n_obstacle_rows
         diff = centres[:, :, None, :] - self.obstacles[None, None, :, :3]      # (K, S, O, 3)
         sq = np.einsum('ksoj,ksoj->kso', diff, diff)
-        values = ((sq - self.radius ** 2) / (2.0 * self.radius)).reshape(count, -1)
+        values = [((sq - self.radius ** 2) / (2.0 * self.radius)).reshape(count, -1)]
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        gap = centres[:, a] - centres[:, b]                                     # (K, P, 3)
+        values.append((np.einsum('kpj,kpj->kp', gap, gap) - self.pair_radius ** 2)
+                      / (2.0 * self.pair_radius))
+        values = np.concatenate(values, axis=1)
+        if not gradients:
+            return values, None, None
         scaled = diff / self.radius[None, :, :, None]
-        grads = np.einsum('ksoj,ksjn->kson', scaled, jac).reshape(count, -1, n)
+        gap_scaled = gap / self.pair_radius[None, :, None]
+        jac_gap = jac[:, a] - jac[:, b]                                         # (K, P, 3, n)
+        grads = np.concatenate([np.einsum('ksoj,ksjn->kson', scaled, jac).reshape(count, -1, n),
+                                np.einsum('kpj,kpjn->kpn', gap_scaled, jac_gap)], axis=1)
         if weights is None:
             return values, grads, None
-        w = weights.reshape(count, *self.radius.shape)
-        # sum_p w_p (J^T J) / R  +  sum_p w_p (p - c)/R . d2 p.
-        jtj = np.einsum('kso,ksjn,ksjm->knm', w / self.radius[None], jac, jac)
+        w = weights[:, :n_obs].reshape(count, *self.radius.shape)
+        w_pair = weights[:, n_obs:]
+        # sum_p w_p (J^T J) / R  +  sum_p w_p (p - c)/R . d2 p  (c: obstacle or other sphere).
+        jtj = (np.einsum('kso,ksjn,ksjm->knm', w / self.radius[None], jac, jac)
+               + np.einsum('kp,kpjn,kpjm->knm', w_pair / self.pair_radius[None], jac_gap,
+                           jac_gap))
         direction = np.einsum('kso,ksoj->ksj', w, scaled)                     # (K, S, 3)
+        weighted_gap = w_pair[:, :, None] * gap_scaled
+        np.add.at(direction, (slice(None), a), weighted_gap)
+        np.add.at(direction, (slice(None), b), -weighted_gap)
         base = np.einsum('ksj,ksjn->kn', direction, jac)
         shifted = np.repeat(qs, n, axis=0) + FD_STEP * np.tile(np.eye(n), (count, 1))
         _, jac_p = sphere_kinematics_batch(self.spheres, shifted)

@@ -34,10 +34,10 @@ and the bound/slack barrier terms but no curvature of the dynamics (a Gauss-Newt
 one Pinocchio derivative call per interval); 'exact' adds the dynamics' curvature by forward
 differences of Pinocchio's analytical derivatives (2 n + 1 calls per interval, see
 arm_eval.py).  On the Panda and UR5 scenarios (N = 20, 50) both took similar iteration counts
-and failed on the same cases, so the cheap model is the default.  A proximal term rho I (a trust region in
-Levenberg-Marquardt form: raised when the line search backtracks, lowered after full steps)
-bounds the steps where the model has little curvature; it changes the steps, never the
-convergence test.
+and failed on the same cases, so the cheap model is the default.  A proximal term rho I (a
+trust region in Levenberg-Marquardt form: raised when the line search backtracks, lowered
+after full steps) bounds the steps where the model has little curvature; it changes the
+steps, never the convergence test.
 
 Convergence is IPOPT's test on the original problem: scaled dual infeasibility and
 complementarity <= tol and the constraint violation (defects, sphere rows) <= constr_tol,

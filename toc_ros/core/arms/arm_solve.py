@@ -21,9 +21,9 @@ first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base f
 implemented for arms in fast mode and is refused with the reason); t_f0 is not used (the cold
 start times its own path).  Paper mode is not implemented for arms (refused).
 
-Self-collision is not constrained by this solver: start and goal are checked against the
-obstacles only, and the measured violations report the worst self-clearance of the returned
-trajectory for information (self_clearance), outside the SOLVED test.
+Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
+constrained at every node when ArmRobot.self_collision is True (start and goal are then
+checked for it too); otherwise it is only reported (self_clearance), outside the SOLVED test.
 
 The returned states are the controls re-integrated with pinocchio.aba (explicit Euler, the
 same h = t_f / N) from x0; every limit and clearance is measured on them at every node
@@ -59,15 +59,16 @@ class ArmRobot:
 
     arm: ArmModel
     spheres: Optional[Spheres] = None
+    self_collision: bool = False    # constrain the spheres' self_pairs (no margin) too
 
     @classmethod
-    def shipped(cls, arm):
+    def shipped(cls, arm, self_collision=False):
         """
         Return the arm with its shipped spheres (Panda, UR5), or without spheres.
 
-        Their self-collision pairs are kept for the report (self_clearance), not constrained.
+        Their self-collision pairs are constrained with self_collision, else only reported.
         """
-        return cls(arm, default_spheres(arm, self_collision=True))
+        return cls(arm, default_spheres(arm, self_collision=True), self_collision)
 
 
 def is_arm_model(model):
@@ -81,12 +82,14 @@ class ArmViolations(Violations):
 
     max_position_excess: float = math.inf   # max(q - upper, lower - q, 0)
     max_velocity_excess: float = math.inf   # max(|dq| - velocity, 0)
-    self_clearance: float = math.inf        # worst self-collision clearance (not constrained)
+    self_clearance: float = math.inf        # worst self-collision clearance
+    self_constrained: bool = False          # self_clearance is part of the SOLVED test
 
     def feasible(self):
         """Return True when within the SOLVED tolerances."""
         return (super().feasible() and self.max_position_excess <= BOUND_TOL
-                and self.max_velocity_excess <= BOUND_TOL)
+                and self.max_velocity_excess <= BOUND_TOL
+                and (not self.self_constrained or self.self_clearance >= -CLEARANCE_TOL))
 
     def as_dict(self):
         """Plain-float dict (JSON)."""
@@ -135,13 +138,14 @@ def check_arm_problem(problem, options):
     if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
         raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
     obstacles = check_obstacles(problem.obstacles)
-    if len(obstacles) and robot.spheres is None:
+    if (len(obstacles) or robot.self_collision) and robot.spheres is None:
         raise ArmError("obstacles need the arm's collision spheres (give a sphere file)")
     x0 = _state(arm, problem.x0, 'start')
     xg = _state(arm, problem.x_goal, 'goal')
     for x, what in ((x0, 'start'), (xg, 'goal')):
-        check_state(arm, x[:arm.n], x[arm.n:], what, robot.spheres if len(obstacles) else None,
-                    obstacles if len(obstacles) else None, margin, self_collision=False)
+        check_state(arm, x[:arm.n], x[arm.n:], what,
+                    robot.spheres if len(obstacles) or robot.self_collision else None,
+                    obstacles, margin, self_collision=robot.self_collision)
     return robot, x0, xg, obstacles
 
 
@@ -177,7 +181,7 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
         terminal_error=float(np.linalg.norm(states[-1] - x_goal)),
         min_clearance=clearance, max_position_excess=pos,
         max_velocity_excess=max(float(np.max(np.abs(dq) - arm.velocity)), 0.0),
-        self_clearance=self_clear)
+        self_clearance=self_clear, self_constrained=robot.self_collision)
 
 
 def slowed(arm, x0, x_goal, n_int, t_f):
@@ -209,7 +213,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
                            mode=str(getattr(options, 'mode', '')),
                            integrator=str(getattr(problem, 'integrator', '')))
     n_int = problem.n_intervals
-    evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int)
+    evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int,
+                             robot.self_collision)
     deadline = None if options.timeout is None else started + options.timeout
     stop = {'why': None}
 
@@ -239,7 +244,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         states, torques = slowed(robot.arm, x0, xg, n_int, RETRY_SLOWDOWN * t_f)
         t_f, start_name = RETRY_SLOWDOWN * t_f, f'line x{RETRY_SLOWDOWN:g}'
     controls = run.v * robot.arm.effort[None, :]
-    states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles, problem.margin)
+    states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles,
+                                     problem.margin)
     converged = run.status in ('converged', 'acceptable')
     if converged and violations.feasible():
         status = Status.SOLVED
