@@ -280,6 +280,16 @@ def test_timeout_and_cancel_stop_an_arm_solve():
     assert result.status is Status.INVALID_INPUT and 'max_iterations' in result.message
 
 
+def test_cli_routes_the_named_arms_and_urdf_paths_only():
+    from toc_ros.arm_cli import ARM_NAMES, is_arm_model_name, requested_model
+    from toc_ros.core.arms import NAMED_ARMS
+    assert set(ARM_NAMES) == set(NAMED_ARMS)
+    assert is_arm_model_name(requested_model(['--model', 'urdf:/x.urdf']))
+    assert is_arm_model_name(requested_model(['--model=panda']))
+    assert not is_arm_model_name(requested_model(['--model', 'planar_2r']))
+    assert not is_arm_model_name(requested_model(['--N', '10']))
+
+
 def test_cli_refuses_a_goal_outside_the_limits(tmp_path, capsys):
     from toc_ros.solve import main
     out = tmp_path / 'r.json'
