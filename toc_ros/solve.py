@@ -362,6 +362,10 @@ def _solve_interruptible(problem, options, progress, guess=None):
 
 def main(argv=None):
     """Entry point of toc-solve; returns the process exit code."""
+    from toc_ros import arm_cli
+    arm_argv = sys.argv[1:] if argv is None else list(argv)
+    if arm_cli.is_arm_model_name(arm_cli.requested_model(arm_argv)):
+        return arm_cli.main(arm_argv)       # URDF arms: their own options (arm_cli.py)
     args = parse_args(argv)
     try:
         return _run(args)

@@ -74,6 +74,10 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
     N.  A guess that does not lead to convergence falls back to a cold start.
     """
     options = SolverOptions() if options is None else options
+    if _is_arm_problem(problem) and isinstance(options, SolverOptions):
+        # URDF arms (Pinocchio): their own checks and interior point (core/arms/arm_solve.py).
+        from .arms.arm_solve import solve_arm
+        return solve_arm(problem, options, progress, cancel, initial_guess)
     start_point = None
     try:
         if not isinstance(problem, Problem):
@@ -113,6 +117,13 @@ def solve(problem, options=None, progress=None, cancel=None, initial_guess=None)
                                   result.final_time if result.success else math.nan,
                                   result.wall_time_s, 'done', result.violations), force=True)
     return result
+
+
+def _is_arm_problem(problem):
+    """Return True for a Problem whose model is a URDF arm (imported only when used)."""
+    model = getattr(problem, 'model', None)
+    return isinstance(problem, Problem) and type(model).__module__.startswith(
+        'toc_ros.core.arms')
 
 
 def _check_resolution(problem, t_f):

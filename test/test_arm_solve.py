@@ -1,0 +1,405 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Fast mode for URDF arms: Riccati step, derivatives, bad input, and solves against IPOPT.
+
+The solves are re-checked independently (toc_ros/bench/arm_check.py: Pinocchio's own URDF
+parser, controls re-integrated, every limit and clearance at every node) and compared with
+CasADi + IPOPT on the same transcription (toc_ros/bench/arm_reference.py).
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pin = pytest.importorskip('pinocchio')
+
+from toc_ros.core import Problem, solve, SolverOptions, Status  # noqa: E402
+from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
+from toc_ros.core.arms import riccati  # noqa: E402
+from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
+from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1] / 'benchmarks' / 'data'
+SCENARIOS = {
+    'panda': ((-1.2, 0.2, 0.0, -2.0, 0.0, 2.2, 0.8), (1.2, 0.1, 0.3, -1.8, 0.2, 2.0, 0.3),
+              ((0.60, 0.0, 0.42, 0.08),)),
+    'ur5': ((0.0, -0.4, 0.4, -1.57, -1.57, 0.0), (0.0, -2.0, 0.9, -1.57, -1.57, 0.0),
+            ((0.60, 0.0, 0.55, 0.2),)),
+}
+MARGIN = 0.02
+
+
+def _robot(name):
+    arm = load_arm(name)
+    spheres = load_spheres(DATA / f'arm_spheres_{name}.yaml', arm, self_collision=False)
+    return ArmRobot(arm, spheres)
+
+
+def _problem(name, n_int=50, with_obstacles=True, **changes):
+    start, goal, obs = SCENARIOS[name]
+    fields = {'x0': start, 'x_goal': goal, 'model': _robot(name),
+              'obstacles': obs if with_obstacles else (), 'margin': MARGIN,
+              'n_intervals': n_int}
+    fields.update(changes)
+    return Problem(**fields)
+
+
+# Riccati step against a dense KKT solve ---------------------------------------------------
+
+def _dense_step(a, b, c, d, hxx, hux, huu, gx, gu):
+    """Solve the stage QP of riccati.py with one dense KKT system (numpy.linalg.solve)."""
+    n_int, nx, nu = b.shape
+    # Variables: dT, dx_1..dx_{N-1}, du_0..du_{N-1}; dx_0 = dx_N = 0.
+    nvar = 1 + (n_int - 1) * nx + n_int * nu
+
+    def xi(k):
+        return (list(range(1 + (k - 1) * nx, 1 + k * nx)) if 0 < k < n_int else None)
+
+    def ui(k):
+        return list(range(1 + (n_int - 1) * nx + k * nu, 1 + (n_int - 1) * nx + (k + 1) * nu))
+
+    hess = np.zeros((nvar, nvar))
+    grad = np.zeros(nvar)
+    for k in range(n_int):
+        idx = (xi(k) or []) + [0]
+        sel = ([True] * nx if xi(k) else [False] * nx) + [True]
+        hk = hxx[k][np.ix_(sel, sel)]
+        hess[np.ix_(idx, idx)] += hk
+        grad[idx] += gx[k][sel]
+        hess[np.ix_(ui(k), idx)] += hux[k][:, sel]
+        hess[np.ix_(idx, ui(k))] += hux[k][:, sel].T
+        hess[np.ix_(ui(k), ui(k))] += huu[k]
+        grad[ui(k)] += gu[k]
+    rows = []
+    rhs = []
+    for k in range(n_int):
+        row = np.zeros((nx, nvar))
+        if xi(k):
+            row[:, xi(k)] += a[k]
+        row[:, ui(k)] += b[k]
+        row[:, 0] += c[k]
+        if xi(k + 1):
+            row[:, xi(k + 1)] -= np.eye(nx)
+        rows.append(row)
+        rhs.append(-d[k])
+    jac = np.vstack(rows)
+    kkt = np.block([[hess, jac.T], [jac, np.zeros((jac.shape[0], jac.shape[0]))]])
+    sol = np.linalg.solve(kkt, np.concatenate([-grad, np.concatenate(rhs)]))
+    step = sol[:nvar]
+    dx = np.zeros((n_int + 1, nx))
+    for k in range(1, n_int):
+        dx[k] = step[xi(k)]
+    du = np.array([step[ui(k)] for k in range(n_int)])
+    # KKT multipliers y of "A dx + B du + c dT + d - dx_{k+1} = 0" with L = f + y . g:
+    # the sign convention of riccati's lam is lam_{k+1} = -y_k... solve's sign is +: check both.
+    return step[0], dx, du, sol[nvar:].reshape(n_int, nx)
+
+
+def test_riccati_step_matches_a_dense_kkt_solve():
+    rng = np.random.default_rng(3)
+    n_int, nx, nu = 6, 4, 2
+    a = np.eye(nx)[None] + 0.1 * rng.normal(size=(n_int, nx, nx))
+    b = rng.normal(size=(n_int, nx, nu))
+    c = 0.3 * rng.normal(size=(n_int, nx))
+    d = 0.1 * rng.normal(size=(n_int, nx))
+    hxx = np.zeros((n_int, nx + 1, nx + 1))
+    for k in range(n_int):
+        m = rng.normal(size=(nx + 1, nx + 1))
+        hxx[k] = m @ m.T + np.eye(nx + 1)
+    hux = 0.1 * rng.normal(size=(n_int, nu, nx + 1))
+    huu = np.array([np.eye(nu) * 2.0 for _ in range(n_int)])
+    gx = rng.normal(size=(n_int, nx + 1))
+    gu = rng.normal(size=(n_int, nu))
+    work = (np.zeros((n_int + 1, nx + 1, nx + 1)), np.zeros((n_int + 1, nx + 1, 1 + nx)),
+            np.zeros((n_int, nu, nx + 1)), np.zeros((n_int, nu, 1 + nx)),
+            np.zeros((n_int + 1, nx + 1, 1 + nx)), np.zeros((n_int, nu, 1 + nx)))
+    dx, du = np.zeros((n_int + 1, nx)), np.zeros((n_int, nu))
+    lam, nu_out = np.zeros((n_int + 1, nx)), np.zeros(nx)
+    code, d_t = riccati.riccati_solve(a, b, c, d, hxx, hux, huu, gx, gu, 1.0, *work, dx, du,
+                                      lam, nu_out)
+    assert code == riccati.OK
+    d_t_ref, dx_ref, du_ref, y = _dense_step(a, b, c, d, hxx, hux, huu, gx, gu)
+    assert d_t == pytest.approx(d_t_ref, abs=1e-10)
+    np.testing.assert_allclose(dx[1:-1], dx_ref[1:-1], atol=1e-10)
+    np.testing.assert_allclose(du, du_ref, atol=1e-10)
+    assert np.max(np.abs(dx[-1])) < 1e-10
+    # The multipliers of the steps into x_1..x_N (the dense system's y, same sign).
+    np.testing.assert_allclose(lam[1:], y, atol=1e-8)
+    np.testing.assert_allclose(nu_out, y[-1], atol=1e-8)
+
+
+def test_riccati_reports_an_indefinite_reduced_hessian():
+    n_int, nx, nu = 3, 2, 1
+    a = np.tile(np.eye(nx), (n_int, 1, 1))
+    b = np.ones((n_int, nx, nu))
+    zeros = (np.zeros((n_int, nx)), np.zeros((n_int, nx)))
+    hxx = np.tile(np.eye(nx + 1), (n_int, 1, 1))
+    huu = -np.ones((n_int, nu, nu)) * 100.0
+    work = (np.zeros((n_int + 1, nx + 1, nx + 1)), np.zeros((n_int + 1, nx + 1, 1 + nx)),
+            np.zeros((n_int, nu, nx + 1)), np.zeros((n_int, nu, 1 + nx)),
+            np.zeros((n_int + 1, nx + 1, 1 + nx)), np.zeros((n_int, nu, 1 + nx)))
+    code, _ = riccati.riccati_solve(a, b, *zeros, hxx, np.zeros((n_int, nu, nx + 1)), huu,
+                                    np.zeros((n_int, nx + 1)), np.zeros((n_int, nu)), 1.0,
+                                    *work, np.zeros((n_int + 1, nx)), np.zeros((n_int, nu)),
+                                    np.zeros((n_int + 1, nx)), np.zeros(nx))
+    assert code == riccati.REDUCED_HESSIAN_INDEFINITE
+
+
+# Derivatives the solver uses, against finite differences ----------------------------------
+
+@pytest.mark.parametrize('name', ['panda', 'ur5'])
+def test_step_derivatives_and_curvature_match_finite_differences(name):
+    robot = _robot(name)
+    arm = robot.arm
+    n, nx = arm.n, 2 * arm.n
+    rng = np.random.default_rng(7)
+    ev = ArmEvaluator(arm, robot.spheres, SCENARIOS[name][2], MARGIN, 1)
+    q = np.clip(rng.uniform(-1.0, 1.0, n), arm.lower, arm.upper)
+    x = np.vstack([np.concatenate([q, rng.uniform(-1, 1, n)]), rng.uniform(-1, 1, nx)])
+    v = rng.uniform(-0.8, 0.8, (1, n))
+    t_f = 0.7
+    lam = rng.normal(size=(2, nx))
+    terms = ev.stage_terms(x, v, t_f, lam, hessian='exact')
+    z0 = np.concatenate([x[0], v[0], [t_f]])
+
+    def step(z):
+        return ev.defects(np.vstack([z[:nx], x[1]]), z[nx:nx + n][None], z[-1])[0] + x[1]
+
+    eps = 1e-6
+    jac = np.stack([(step(z0 + eps * e) - step(z0 - eps * e)) / (2 * eps)
+                    for e in np.eye(z0.size)], axis=1)
+    np.testing.assert_allclose(terms['a'][0], jac[:, :nx], atol=2e-6 * max(1, abs(jac).max()))
+    np.testing.assert_allclose(terms['b'][0], jac[:, nx:nx + n], atol=1e-7)
+    np.testing.assert_allclose(terms['c'][0], jac[:, -1], atol=1e-7)
+    assert np.allclose(terms['defect'][0], step(z0) - x[1], atol=1e-12)
+
+    def lagrangian_gradient(z):
+        t = ev.stage_terms(np.vstack([z[:nx], x[1]]), z[nx:nx + n][None], z[-1], lam,
+                           hessian='none')
+        return np.concatenate([t['a'][0].T @ lam[1], [t['c'][0] @ lam[1]],
+                               t['b'][0].T @ lam[1]])
+
+    order = list(range(nx)) + [z0.size - 1] + list(range(nx, nx + n))
+    zs = z0[order]
+
+    def in_z(w):
+        out = np.empty_like(w)
+        out[order] = w
+        return out
+
+    hess = np.stack([(lagrangian_gradient(in_z(zs + eps * e)) - lagrangian_gradient(
+        in_z(zs - eps * e))) / (2 * eps) for e in np.eye(z0.size)], axis=1)
+    scale = max(1.0, np.abs(hess).max())
+    np.testing.assert_allclose(terms['hxx'][0], hess[:nx + 1, :nx + 1], atol=1e-4 * scale)
+    np.testing.assert_allclose(terms['hux'][0], hess[nx + 1:, :nx + 1], atol=1e-4 * scale)
+    assert np.abs(hess[nx + 1:, nx + 1:]).max() < 1e-6 * scale      # ABA affine in tau
+
+    # Sphere rows (obstacles and, with the shipped spheres, self-collision pairs): values
+    # against the spheres module, gradients and curvature by differences.
+    from toc_ros.core.arms import default_spheres, obstacle_clearance, self_clearance
+    from toc_ros.core.arms import sphere_centres
+    shipped = default_spheres(arm, self_collision=True)
+    ev = ArmEvaluator(arm, shipped, SCENARIOS[name][2], MARGIN, 1, self_collision=True)
+    assert len(ev.pairs) > 0
+    qs = np.clip(rng.uniform(-1.0, 1.0, (3, n)), arm.lower, arm.upper)
+    # The rows are (d^2 - R^2) / (2 R): zero and sign exactly where the distances say.
+    centres = sphere_centres(arm, shipped, qs[0])
+    distance_rows = np.concatenate([
+        obstacle_clearance(centres, shipped.radii, SCENARIOS[name][2], MARGIN).ravel(),
+        self_clearance(centres, shipped.radii, shipped.self_pairs)])
+    rows = ev.clearances(qs[:1])[0]
+    radius = np.concatenate([ev.radius.ravel(), ev.pair_radius])
+    np.testing.assert_allclose(rows, distance_rows * (distance_rows + 2 * radius)
+                               / (2 * radius), atol=1e-12)
+    weights = rng.uniform(0.0, 1.0, (3, ev.n_pairs))
+    values, grads, curvature = ev.clearance_terms(qs, weights)
+    fd = np.stack([(ev.clearances(qs + eps * e) - ev.clearances(qs - eps * e)) / (2 * eps)
+                   for e in np.eye(n)], axis=-1)
+    np.testing.assert_allclose(grads, fd, atol=1e-7)
+
+    def weighted_gradient(points):
+        return np.einsum('kp,kpn->kn', weights, ev.clearance_terms(points)[1])
+
+    fd2 = np.stack([(weighted_gradient(qs + eps * e) - weighted_gradient(qs - eps * e))
+                    / (2 * eps) for e in np.eye(n)], axis=-1)
+    np.testing.assert_allclose(curvature, fd2, atol=1e-4 * max(1.0, np.abs(fd2).max()))
+
+
+# Bad input --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('changes, reason', [
+    ({'x0': (9.0, 0.2, 0.0, -2.0, 0.0, 2.2, 0.8)}, 'outside its limits'),
+    ({'x0': (float('nan'), 0.2, 0.0, -2.0, 0.0, 2.2, 0.8)}, 'NaN'),
+    ({'x_goal': (1.2, 0.1)}, 'the arm has 7 joints'),
+    ({'x_goal': (1.2, 0.1, 0.3, -1.8, 0.2, 2.0, 0.3) + (9.0,) * 7}, 'velocity'),
+    ({'integrator': 'rk4'}, 'not implemented'),
+    ({'obstacles': ((0.214, -0.551, 0.35, 0.05),)}, 'in collision'),
+    ({'obstacles': ((0.5, 0.0, 0.5, float('inf')),)}, 'NaN or infinite'),
+    ({'margin': -1.0}, 'margin'),
+    ({'n_intervals': 1}, 'N must be'),
+])
+def test_bad_arm_input_is_invalid_input_with_the_reason(changes, reason):
+    result = solve(_problem('panda', **changes))
+    assert result.status is Status.INVALID_INPUT
+    assert reason in result.message
+
+
+def test_paper_mode_and_spheres_missing_are_refused():
+    result = solve(_problem('panda'), SolverOptions(mode='paper'))
+    assert result.status is Status.INVALID_INPUT and 'fast' in result.message
+    start, goal, obs = SCENARIOS['panda']
+    bare = Problem(x0=start, x_goal=goal, model=ArmRobot(load_arm('panda')), obstacles=obs)
+    result = solve(bare)
+    assert result.status is Status.INVALID_INPUT and 'spheres' in result.message
+
+
+def test_timeout_and_cancel_stop_an_arm_solve():
+    import threading
+    result = solve(_problem('ur5', 20), SolverOptions(timeout=1e-6))
+    assert result.status is Status.TIMEOUT and result.has_trajectory
+    cancel = threading.Event()
+    cancel.set()
+    result = solve(_problem('ur5', 20), cancel=cancel)
+    assert result.status is Status.CANCELED
+    result = solve(_problem('ur5', 20), SolverOptions(max_iterations=0))
+    assert result.status is Status.INVALID_INPUT and 'max_iterations' in result.message
+
+
+def test_cli_routes_the_named_arms_and_urdf_paths_only():
+    from toc_ros.arm_cli import ARM_NAMES, is_arm_model_name, requested_model
+    from toc_ros.core.arms import NAMED_ARMS
+    assert set(ARM_NAMES) == set(NAMED_ARMS)
+    assert is_arm_model_name(requested_model(['--model', 'urdf:/x.urdf']))
+    assert is_arm_model_name(requested_model(['--model=panda']))
+    assert not is_arm_model_name(requested_model(['--model', 'planar_2r']))
+    assert not is_arm_model_name(requested_model(['--N', '10']))
+
+
+def test_cli_refuses_a_goal_outside_the_limits(tmp_path, capsys):
+    from toc_ros.solve import main
+    out = tmp_path / 'r.json'
+    code = main(['--model', 'panda', '--start', '0', '0', '0', '-2', '0', '2', '0.8',
+                 '--goal', '9', '0', '0', '-2', '0', '2', '0.8', '--N', '20', '--json',
+                 str(out)])
+    assert code == 4
+    data = json.loads(out.read_text())
+    assert data['status'] == 'INVALID_INPUT' and 'outside its limits' in data['message']
+
+
+# Solves against IPOPT, re-checked independently -------------------------------------------
+
+def _independent_check(name, result, obstacles):
+    from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
+    from toc_ros.bench.arm_reference import ArmSpec
+    start, goal, _ = SCENARIOS[name]
+    arm = load_arm(name)
+    spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
+                   goal=goal, obstacles=obstacles,
+                   robot_spheres=str(DATA / f'arm_spheres_{name}.yaml'), margin=MARGIN)
+    check = check_trajectory(spec, result.final_time, result.controls, 'euler',
+                             result.states)
+    assert check['terminal_error'] < 1e-6
+    assert check['defect'] < 1e-9
+    assert check['max_position_excess'] <= 1e-9
+    assert check['max_velocity_excess'] <= 1e-9
+    assert check['max_effort_excess'] == 0.0
+    # The solver constrains (d^2 - R^2) / (2 R) >= 0, the same set as d - R >= 0.
+    assert check['min_clearance'] >= -1e-6
+    return spec
+
+
+def test_small_ur5_solve_is_solved_and_feasible_on_the_independent_check():
+    result = solve(_problem('ur5', 20, True))
+    assert result.status is Status.SOLVED, result.message
+    assert result.states.shape == (21, 12) and result.controls.shape == (20, 6)
+    _independent_check('ur5', result, SCENARIOS['ur5'][2])
+
+
+def test_self_collision_rows_hold_at_every_node():
+    from toc_ros.core.arms import self_clearance, sphere_centres
+    start, goal, _ = SCENARIOS['ur5']
+    robot = ArmRobot.shipped(load_arm('ur5'), self_collision=True)
+    result = solve(Problem(model=robot, x0=start, x_goal=goal, n_intervals=20))
+    assert result.status is Status.SOLVED, result.message
+    assert result.violations.self_constrained
+    worst = min(np.min(self_clearance(sphere_centres(robot.arm, robot.spheres, q),
+                                      robot.spheres.radii, robot.spheres.self_pairs))
+                for q in result.states[:, :6])
+    assert worst >= -1e-6
+    assert worst == pytest.approx(result.violations.self_clearance, abs=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('name, obstacles', [('panda', False), ('panda', True),
+                                             ('ur5', False), ('ur5', True)])
+def test_fast_arm_solve_matches_ipopt_and_is_feasible(name, obstacles):
+    pytest.importorskip('casadi')
+    from toc_ros.bench.arm_reference import ArmProblem, solve_arm
+    problem = _problem(name, 50, obstacles)
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert result.violations.feasible()
+    obs = SCENARIOS[name][2] if obstacles else ()
+    spec = _independent_check(name, result, obs)
+    reference = ArmProblem(spec)
+    best = solve_arm(reference, 50, 'euler', 'ipopt')
+    assert best['success'], best['status']
+    assert result.final_time == pytest.approx(best['t_f'], rel=1e-3)
+
+
+@pytest.mark.slow
+def test_cli_solves_an_arm_and_writes_the_contract(tmp_path):
+    from toc_ros.solve import main
+    start, goal, obs = SCENARIOS['ur5']
+    out = tmp_path / 'r.json'
+    code = main(['--model', 'ur5', '--collision-spheres', str(DATA / 'arm_spheres_ur5.yaml'),
+                 '--start', *map(str, start), '--goal', *map(str, goal),
+                 '--sphere', *map(str, obs[0]), '--margin', str(MARGIN), '--N', '50',
+                 '--json', str(out), '--quiet'])
+    data = json.loads(out.read_text())
+    assert code == 0 and data['status'] == 'SOLVED'
+    states, controls = np.array(data['states']), np.array(data['controls'])
+    assert states.shape == (51, 12) and controls.shape == (50, 6)
+    np.testing.assert_allclose(states[0], list(start) + [0.0] * 6, atol=0)
+    assert np.linalg.norm(states[-1] - np.array(list(goal) + [0.0] * 6)) < 1e-6
+    assert data['violations']['min_clearance'] >= -1e-6
+    assert data['joint_names'][0] == 'shoulder_pan_joint'
+
+
+@pytest.mark.parametrize('args, reason', [
+    (['--model', 'urdf:/nonexistent/robot.urdf'], 'cannot read URDF'),
+    (['--model', 'panda', '--joints', 'panda_joint1,no_such_joint'], 'unknown joint'),
+    (['--model', 'panda', '--locked', 'panda_finger_joint1=abc'], 'not a number'),
+])
+def test_cli_refuses_bad_models_with_the_reason(args, reason, capsys):
+    from toc_ros.solve import main
+    code = main(args + ['--start', '0', '0', '0', '-2', '0', '2', '0.8',
+                        '--goal', '0.1', '0', '0', '-2', '0', '2', '0.8'])
+    assert code == 4
+    assert reason in capsys.readouterr().err
+
+
+def test_cli_refuses_a_sphere_file_naming_unknown_links(tmp_path, capsys):
+    from toc_ros.solve import main
+    spheres = tmp_path / 'spheres.yaml'
+    spheres.write_text('no_such_link: [[0.0, 0.0, 0.0, 0.1]]\n')
+    code = main(['--model', 'panda', '--collision-spheres', str(spheres),
+                 '--start', '0', '0', '0', '-2', '0', '2', '0.8',
+                 '--goal', '0.1', '0', '0', '-2', '0', '2', '0.8'])
+    assert code == 4
+    assert 'unknown link' in capsys.readouterr().err

@@ -1,0 +1,163 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+toc-solve for URDF arms: --model panda | ur5 | urdf:PATH (toc_ros.solve hands these over).
+
+    toc-solve --model panda --start Q1..Q7 [DQ1..DQ7] --goal Q1..Q7 [DQ1..DQ7]
+              [--joints j1,...,jn] [--locked NAME=VALUE ...] [--collision-spheres FILE]
+              [--sphere X Y Z R ...] [--margin M] [--self-collision]
+              [--integrator euler|rk4] [--N N]
+              [--max-iterations M] [--timeout S] [--json OUT] [--quiet]
+
+States are positions first, then velocities (velocities 0 when omitted).  The JSON is
+SolveResult.to_dict() (status, final_time, states (N + 1) x 2n, controls N x n torques, the
+measured violations) plus joint_names.  Exit codes as toc-solve: 0 only when SOLVED.
+"""
+
+import argparse
+import json
+import sys
+
+ARM_PREFIXES = ('urdf:',)
+# The keys of toc_ros.core.arms.model.NAMED_ARMS (a test keeps them equal), spelled out so that
+# toc-solve for the planar models does not import Pinocchio.
+ARM_NAMES = ('panda', 'ur5')
+
+
+def is_arm_model_name(name):
+    """Return True when --model names a URDF arm (panda, ur5, urdf:PATH)."""
+    return isinstance(name, str) and (name in ARM_NAMES or name.startswith(ARM_PREFIXES))
+
+
+def requested_model(argv):
+    """Return the value of --model in argv (None when absent)."""
+    for i, arg in enumerate(argv):
+        if arg == '--model' and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith('--model='):
+            return arg[len('--model='):]
+    return None
+
+
+def build_parser():
+    """Argument parser of toc-solve for arms."""
+    p = argparse.ArgumentParser(
+        prog='toc-solve', description='Minimum-time trajectory of a URDF arm (Pinocchio '
+        'dynamics, torque/velocity/position limits, sphere obstacles). SI units, radians.',
+        epilog='Exit codes: 0 solved, 1 solved inaccurately, 2 not converged or bad '
+               'arguments, 3 canceled or timed out, 4 invalid problem, 5 --json not writable.')
+    p.add_argument('--model', required=True, metavar='panda|ur5|urdf:PATH')
+    p.add_argument('--joints', metavar='J1,...,JN',
+                   help="planned joints in kinematic order (default: the named arm's arm "
+                        'joints, or every movable joint of the URDF)')
+    p.add_argument('--locked', action='append', metavar='NAME=VALUE', default=[],
+                   help='value of a joint that is not planned (default 0 clamped into its '
+                        'limits); repeat for several')
+    p.add_argument('--collision-spheres', metavar='FILE',
+                   help='YAML link_name: [[x, y, z, r], ...] (default: the shipped set of the '
+                        'Panda / UR5)')
+    p.add_argument('--start', type=float, nargs='+', required=True, metavar='X',
+                   help='Q1 .. Qn [DQ1 .. DQn]')
+    p.add_argument('--goal', type=float, nargs='+', required=True, metavar='X',
+                   help='Q1 .. Qn [DQ1 .. DQn]')
+    p.add_argument('--sphere', type=float, nargs=4, action='append', default=[],
+                   metavar=('X', 'Y', 'Z', 'R'), help='obstacle sphere in the base frame [m]; '
+                   'repeat for several')
+    p.add_argument('--self-collision', action='store_true',
+                   help='also keep the spheres of non-adjacent links apart (no margin)')
+    p.add_argument('--margin', type=float, default=0.0, metavar='M',
+                   help='clearance margin added to every sphere pair [m] (default 0)')
+    p.add_argument('--integrator', choices=('euler', 'rk4'), default='euler')
+    p.add_argument('--N', type=int, default=100, metavar='N', help='intervals (default 100)')
+    p.add_argument('--max-iterations', type=int, default=None, metavar='M')
+    p.add_argument('--timeout', type=float, default=None, metavar='S')
+    p.add_argument('--json', metavar='PATH', help='write the result as JSON to PATH')
+    p.add_argument('--quiet', action='store_true', help='no summary')
+    return p
+
+
+def build_arm_problem(args):
+    """(Problem, SolverOptions, arm) from the arguments; ArmError / ProblemError if unusable."""
+    from toc_ros.core import Problem, SolverOptions
+    from toc_ros.core.arms import load_arm, load_spheres
+    from toc_ros.core.arms.arm_solve import ArmRobot
+    from toc_ros.core.arms.model import ArmError
+    locked = {}
+    for entry in args.locked:
+        name, sep, value = entry.partition('=')
+        if not sep or not name.strip():
+            raise ArmError(f'--locked takes NAME=VALUE, got {entry!r}')
+        try:
+            locked[name.strip()] = float(value)
+        except ValueError:
+            raise ArmError(f'--locked {entry!r}: {value!r} is not a number') from None
+    arm = load_arm(args.model, joints=args.joints, locked=locked)
+    if args.collision_spheres:
+        robot = ArmRobot(arm, load_spheres(args.collision_spheres, arm),
+                         args.self_collision)
+    else:
+        robot = ArmRobot.shipped(arm, args.self_collision)
+    problem = Problem(x0=tuple(args.start), x_goal=tuple(args.goal), model=robot,
+                      obstacles=tuple(tuple(row) for row in args.sphere), margin=args.margin,
+                      n_intervals=args.N, integrator=args.integrator)
+    options = SolverOptions(mode='fast', max_iterations=args.max_iterations,
+                            timeout=args.timeout if args.timeout else None)
+    return problem, options, arm
+
+
+def main(argv):
+    """Run toc-solve for an arm; return the exit code."""
+    from toc_ros.core import SolveResult, Status
+    from toc_ros.solve import EXIT_WRITE_ERROR, write_json
+    args = build_parser().parse_args(argv)
+    arm = None
+    try:
+        problem, options, arm = build_arm_problem(args)
+    except ValueError as exc:      # ArmError, ProblemError
+        result = SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode='fast',
+                             integrator=args.integrator)
+    else:
+        from toc_ros.solve import _solve_interruptible
+        result = _solve_interruptible(problem, options, None)
+    if result.status is Status.INVALID_INPUT:
+        print(f'toc-solve: invalid problem: {result.message}', file=sys.stderr)
+    elif not args.quiet:
+        v = result.violations
+        print(f'status      {result.status.value}\nmessage     {result.message}\n'
+              f'model       {args.model} ({", ".join(arm.joint_names)})\n'
+              f't_min       {result.final_time:.6f} s\niterations  {result.iterations}\n'
+              f'wall time   {result.wall_time_s:.3f} s\nviolations  '
+              + json.dumps(v.as_dict()))
+    if args.json:
+        try:
+            write_json(args.json, _with_joints(result, arm))
+        except (OSError, ValueError) as exc:
+            print(f'toc-solve: cannot write {args.json}: {exc}', file=sys.stderr)
+            return EXIT_WRITE_ERROR
+    return result.status.exit_code()
+
+
+class _with_joints:   # noqa: N801 (a thin adapter, used like a function)
+    """A result whose to_dict() also names the planned joints."""
+
+    def __init__(self, result, arm):
+        self.result = result
+        self.arm = arm
+
+    def to_dict(self):
+        out = self.result.to_dict()
+        out['joint_names'] = list(self.arm.joint_names) if self.arm is not None else []
+        out['state_layout'] = 'positions then velocities'
+        return out

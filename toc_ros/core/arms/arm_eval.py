@@ -1,0 +1,223 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Model evaluations of the arm interior point: Euler steps, their derivatives, sphere clearances.
+
+Pinocchio cannot be called from compiled code, so every node's dynamics derivatives are one
+pinocchio.computeABADerivatives call from Python; the sphere kinematics of all nodes is one
+compiled batch call (kernels.py).
+
+Second-order information is exact up to a forward difference of Pinocchio's analytical
+derivatives: the Hessian of lam_v . ABA(q, v, tau) is the forward difference, along each
+coordinate of q and v, of its gradient (lam_v . da/dq, lam_v . da/dv, M^-1 lam_v); ABA is
+affine in tau, so no tau direction is needed (2 n extra derivative calls per node).  The
+sphere constraints' curvature is the same forward difference of the batched sphere Jacobians.
+The Hessian only shapes the Newton steps: the convergence test uses the exact first
+derivatives, so the accuracy of this difference cannot make a non-optimal point look optimal.
+
+Constraint of robot sphere s and obstacle o, R = r_s + R_o + margin:
+    g = (|p_s(q) - c_o|^2 - R^2) / (2 R) >= 0
+(smooth everywhere, reads as the distance d - R near the boundary; the same form as the
+CasADi reference transcription).
+"""
+
+import time
+
+import numpy as np
+import pinocchio as pin
+
+from .spheres import sphere_kinematics_batch
+
+FD_STEP = 1e-6
+
+
+class ArmEvaluator:
+    """Euler step values/derivatives and sphere constraints for one arm problem."""
+
+    def __init__(self, arm, spheres, obstacles, margin, n_intervals, self_collision=False):
+        self.arm = arm
+        self.model = arm.model
+        self.data = arm.model.createData()
+        self.n = arm.n
+        self.n_int = n_intervals
+        self.effort = arm.effort.copy()
+        self.spheres = spheres
+        obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
+        self.obstacles = obstacles
+        if spheres is not None:
+            self.radius = spheres.radii[:, None] + obstacles[None, :, 3] + margin   # (S, O)
+        else:
+            self.radius = np.zeros((0, 0))
+        self.n_obstacle_rows = self.radius.size
+        if spheres is not None and self_collision and len(spheres.self_pairs):
+            # Self-collision rows: sphere pairs of non-adjacent links, no margin.
+            self.pairs = np.asarray(spheres.self_pairs, dtype=np.int64)
+            self.pair_radius = spheres.radii[self.pairs[:, 0]] + spheres.radii[self.pairs[:, 1]]
+        else:
+            self.pairs = np.zeros((0, 2), dtype=np.int64)
+            self.pair_radius = np.zeros(0)
+        self.n_pairs = self.n_obstacle_rows + len(self.pairs)
+        self.pin_time = 0.0
+        self.pin_calls = 0
+
+    # Dynamics ------------------------------------------------------------------------------
+    def accelerations(self, states, controls):
+        """Return the ABA joint accelerations, (K, n), at states (K, 2n) and scaled controls."""
+        n = self.n
+        out = np.empty((states.shape[0], n))
+        started = time.perf_counter()
+        for k in range(states.shape[0]):
+            out[k] = pin.aba(self.model, self.data, states[k, :n], states[k, n:],
+                             self.effort * controls[k])
+        self.pin_time += time.perf_counter() - started
+        self.pin_calls += states.shape[0]
+        return out
+
+    def defects(self, x, v, t_f):
+        """Euler defects x_k + h f(x_k, u_k) - x_{k+1}, (N, 2n)."""
+        n, h = self.n, t_f / self.n_int
+        acc = self.accelerations(x[:-1], v)
+        step = np.hstack([x[:-1, n:], acc])
+        return x[:-1] + h * step - x[1:]
+
+    def _gradient_of_weighted_acceleration(self, q, dq, tau, lam_v):
+        """(lam_v . da/dq, lam_v . da/dv, M^-1 lam_v) and the derivatives at one point."""
+        ddq_dq, ddq_dv, minv = pin.computeABADerivatives(self.model, self.data, q, dq, tau)
+        return (np.concatenate([lam_v @ ddq_dq, lam_v @ ddq_dv, lam_v @ minv]),
+                self.data.ddq.copy(), ddq_dq, ddq_dv, minv)
+
+    def stage_terms(self, x, v, t_f, lam, hessian='exact'):
+        """
+        Euler step derivatives and Lagrangian curvature at every interval.
+
+        Returns a dict: defect (N, 2n), a (N, 2n, 2n), b (N, 2n, n) (scaled controls),
+        c (N, 2n) (d step / d T), and with hessian the blocks hxx (N, 2n + 1, 2n + 1),
+        hux (N, n, 2n + 1) of lam_{k+1} . step_k over (x_k, T, v_k) (huu = 0: ABA is affine in
+        the torques).
+        """
+        n, nx, n_int = self.n, 2 * self.n, self.n_int
+        h = t_f / n_int
+        model, data = self.model, self.data
+        acc = np.empty((n_int, n))
+        d_q = np.empty((n_int, n, n))
+        d_v = np.empty((n_int, n, n))
+        minv = np.empty((n_int, n, n))
+        tau = v * self.effort[None, :]
+        started = time.perf_counter()
+        # Only the Pinocchio calls in the loop; everything else is batched below.
+        for k in range(n_int):
+            d_q[k], d_v[k], minv[k] = pin.computeABADerivatives(model, data, x[k, :n],
+                                                                x[k, n:], tau[k])
+            acc[k] = data.ddq
+        self.pin_time += time.perf_counter() - started
+        calls = n_int
+        f = np.concatenate([x[:-1, n:], acc], axis=1)
+        out = {'defect': x[:-1] + h * f - x[1:], 'c': f / n_int,
+               'a': np.zeros((n_int, nx, nx)), 'b': np.zeros((n_int, nx, n)),
+               'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
+        idx = np.arange(nx)
+        out['a'][:, idx, idx] = 1.0
+        out['a'][:, np.arange(n), n + np.arange(n)] += h
+        out['a'][:, n:, :n] += h * d_q
+        out['a'][:, n:, n:] += h * d_v
+        out['b'][:, n:, :] = h * minv * self.effort[None, None, :]
+        if hessian in ('cross', 'exact'):
+            lam_q, lam_v = lam[1:, :n], lam[1:, n:]
+            # d2 (lam . step) / dT d(x, v) = lam . df/d(x, v) / N.
+            hxx, hux = out['hxx'], out['hux']
+            hxx[:, :n, nx] = np.einsum('ki,kij->kj', lam_v, d_q) / n_int
+            hxx[:, n:nx, nx] = (lam_q + np.einsum('ki,kij->kj', lam_v, d_v)) / n_int
+            hxx[:, nx, :nx] = hxx[:, :nx, nx]
+            hux[:, :, nx] = self.effort * np.einsum('kji,kj->ki', minv, lam_v) / n_int
+        if hessian == 'exact':
+            started = time.perf_counter()
+            for k in range(n_int):
+                q, dq = x[k, :n], x[k, n:]
+                lam_v = lam[k + 1, n:]
+                grad = np.concatenate([lam_v @ d_q[k], lam_v @ d_v[k], lam_v @ minv[k]])
+                # Hessian of lam_v . a(q, dq, tau) by forward differences of its gradient.
+                hess = np.zeros((3 * n, 3 * n))
+                for i in range(2 * n):
+                    qp, dqp = q.copy(), dq.copy()
+                    if i < n:
+                        qp[i] += FD_STEP
+                    else:
+                        dqp[i - n] += FD_STEP
+                    grad_p = self._gradient_of_weighted_acceleration(qp, dqp, tau[k], lam_v)[0]
+                    hess[i] = (grad_p - grad) / FD_STEP
+                calls += 2 * n
+                # Rows of tau from symmetry (d2 a / dtau dv = 0, d2 a / dtau2 = 0).
+                hess[2 * n:, :n] = hess[:n, 2 * n:].T
+                hess[2 * n:, n:2 * n] = 0.0
+                hess[:2 * n, :2 * n] = 0.5 * (hess[:2 * n, :2 * n] + hess[:2 * n, :2 * n].T)
+                out['hxx'][k, :nx, :nx] = h * hess[:2 * n, :2 * n]
+                out['hux'][k, :, :nx] = h * self.effort[:, None] * hess[2 * n:, :2 * n]
+            self.pin_time += time.perf_counter() - started
+        self.pin_calls += calls
+        return out
+
+    # Spheres -------------------------------------------------------------------------------
+    def clearances(self, qs):
+        """Constraints g (K, S * O + P) at configurations qs (K, n)."""
+        return self.clearance_terms(qs, gradients=False)[0]
+
+    def clearance_terms(self, qs, weights=None, gradients=True):
+        """
+        (g (K, S * O + P), dg/dq, curvature (K, n, n) of sum_p weights_p g_p or None).
+
+        Rows: sphere-obstacle pairs (sphere-major), then self-collision pairs; each row is
+        (d^2 - R^2) / (2 R).  The curvature: exact J^T J terms plus forward differences of
+        the sphere Jacobians for the second derivatives of the centres.
+        """
+        count, n = qs.shape
+        if not self.n_pairs:
+            return np.zeros((count, 0)), np.zeros((count, 0, n)), None
+        centres, jac = sphere_kinematics_batch(self.spheres, qs)
+        n_obs = self.n_obstacle_rows
+        diff = centres[:, :, None, :] - self.obstacles[None, None, :, :3]      # (K, S, O, 3)
+        sq = np.einsum('ksoj,ksoj->kso', diff, diff)
+        values = [((sq - self.radius ** 2) / (2.0 * self.radius)).reshape(count, -1)]
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        gap = centres[:, a] - centres[:, b]                                     # (K, P, 3)
+        values.append((np.einsum('kpj,kpj->kp', gap, gap) - self.pair_radius ** 2)
+                      / (2.0 * self.pair_radius))
+        values = np.concatenate(values, axis=1)
+        if not gradients:
+            return values, None, None
+        scaled = diff / self.radius[None, :, :, None]
+        gap_scaled = gap / self.pair_radius[None, :, None]
+        jac_gap = jac[:, a] - jac[:, b]                                         # (K, P, 3, n)
+        grads = np.concatenate([np.einsum('ksoj,ksjn->kson', scaled, jac).reshape(count, -1, n),
+                                np.einsum('kpj,kpjn->kpn', gap_scaled, jac_gap)], axis=1)
+        if weights is None:
+            return values, grads, None
+        w = weights[:, :n_obs].reshape(count, *self.radius.shape)
+        w_pair = weights[:, n_obs:]
+        # sum_p w_p (J^T J) / R  +  sum_p w_p (p - c)/R . d2 p  (c: obstacle or other sphere).
+        jtj = (np.einsum('kso,ksjn,ksjm->knm', w / self.radius[None], jac, jac)
+               + np.einsum('kp,kpjn,kpjm->knm', w_pair / self.pair_radius[None], jac_gap,
+                           jac_gap))
+        direction = np.einsum('kso,ksoj->ksj', w, scaled)                     # (K, S, 3)
+        weighted_gap = w_pair[:, :, None] * gap_scaled
+        np.add.at(direction, (slice(None), a), weighted_gap)
+        np.add.at(direction, (slice(None), b), -weighted_gap)
+        base = np.einsum('ksj,ksjn->kn', direction, jac)
+        shifted = np.repeat(qs, n, axis=0) + FD_STEP * np.tile(np.eye(n), (count, 1))
+        _, jac_p = sphere_kinematics_batch(self.spheres, shifted)
+        jac_p = jac_p.reshape(count, n, *jac_p.shape[1:])                   # (K, i, S, 3, n)
+        moved = np.einsum('ksj,kisjn->kin', direction, jac_p)
+        second = (moved - base[:, None, :]) / FD_STEP
+        second = 0.5 * (second + np.transpose(second, (0, 2, 1)))
+        return values, grads, jtj + second

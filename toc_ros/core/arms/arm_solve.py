@@ -1,0 +1,287 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+solve(Problem(model=ArmRobot(arm, spheres), ...)) for URDF arms: checks, fast mode, result.
+
+For an arm the Problem's fields mean: x0 / x_goal the states (q_1..q_n, dq_1..dq_n), positions
+first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base frame; margin
+[m] added to every sphere pair's radii; n_intervals N; integrator 'euler' (RK4 is not
+implemented for arms in fast mode and is refused with the reason); t_f0 is not used (the cold
+start times its own path).  Paper mode is not implemented for arms (refused).
+
+Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
+constrained at every node when ArmRobot.self_collision is True (start and goal are then
+checked for it too); otherwise it is only reported (self_clearance), outside the SOLVED test.
+
+The returned states are the controls re-integrated with pinocchio.aba (explicit Euler, the
+same h = t_f / N) from x0; every limit and clearance is measured on them at every node
+k = 0..N (ArmViolations).
+"""
+
+import dataclasses
+import math
+import time
+from typing import Optional
+
+import numpy as np
+import pinocchio as pin
+
+from .arm_eval import ArmEvaluator
+from .arm_ipm import ArmInteriorPoint
+from .arm_start import cold_start, cubic_path, detour_start, path_torques
+from .model import ArmError, ArmModel
+from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
+                      sphere_kinematics_batch, Spheres)
+from .validate import check_state
+from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violations
+
+# Positions and velocities of the re-integrated states may exceed a bound by rounding only.
+BOUND_TOL = 1e-9
+MAX_INTERVALS = 100000
+RETRY_SLOWDOWN = 1.5
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ArmRobot:
+    """A URDF arm (ArmModel) with its collision spheres: the model of an arm Problem."""
+
+    arm: ArmModel
+    spheres: Optional[Spheres] = None
+    self_collision: bool = False    # constrain the spheres' self_pairs (no margin) too
+
+    @classmethod
+    def shipped(cls, arm, self_collision=False):
+        """
+        Return the arm with its shipped spheres (Panda, UR5), or without spheres.
+
+        Their self-collision pairs are constrained with self_collision, else only reported.
+        """
+        return cls(arm, default_spheres(arm, self_collision=True), self_collision)
+
+
+def is_arm_model(model):
+    """Return True for an ArmRobot or a bare ArmModel."""
+    return isinstance(model, (ArmRobot, ArmModel))
+
+
+@dataclasses.dataclass
+class ArmViolations(Violations):
+    """Violations of an arm trajectory (every node k = 0..N of the re-integrated states)."""
+
+    max_position_excess: float = math.inf   # max(q - upper, lower - q, 0)
+    max_velocity_excess: float = math.inf   # max(|dq| - velocity, 0)
+    self_clearance: float = math.inf        # worst self-collision clearance
+    self_constrained: bool = False          # self_clearance is part of the SOLVED test
+
+    def feasible(self):
+        """Return True when within the SOLVED tolerances."""
+        return (super().feasible() and self.max_position_excess <= BOUND_TOL
+                and self.max_velocity_excess <= BOUND_TOL
+                and (not self.self_constrained or self.self_clearance >= -CLEARANCE_TOL))
+
+    def as_dict(self):
+        """Plain-float dict (JSON)."""
+        out = super().as_dict()
+        out.update({'max_position_excess': float(self.max_position_excess),
+                    'max_velocity_excess': float(self.max_velocity_excess),
+                    'self_clearance': float(self.self_clearance)})
+        return out
+
+
+def _robot(problem):
+    model = problem.model
+    if isinstance(model, ArmModel):
+        return ArmRobot.shipped(model)
+    return model
+
+
+def _state(arm, values, what):
+    try:
+        x = np.array(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ArmError(f'{what} must be {arm.n} or {2 * arm.n} numbers, got {values!r}') from None
+    if x.size == arm.n:
+        x = np.concatenate([x, np.zeros(arm.n)])
+    if x.size != 2 * arm.n:
+        raise ArmError(f'{what} has {x.size} values; the arm has {arm.n} joints '
+                       f'({", ".join(arm.joint_names)}): give Q1..Q{arm.n} [DQ1..DQ{arm.n}]')
+    return x
+
+
+def check_arm_problem(problem, options):
+    """(robot, x0, x_goal, obstacles) after every check; ArmError with the reason otherwise."""
+    options.validate()
+    robot = _robot(problem)
+    arm = robot.arm
+    if options.mode != 'fast':
+        raise ArmError(f'mode {options.mode!r} is not implemented for URDF arms: use fast')
+    if problem.integrator != 'euler':
+        raise ArmError(f'integrator {problem.integrator!r} is not implemented for URDF arms in '
+                       "fast mode: use 'euler'")
+    n_int = problem.n_intervals
+    if (not isinstance(n_int, (int, np.integer)) or isinstance(n_int, bool)
+            or not 2 <= n_int <= MAX_INTERVALS):
+        raise ArmError(f'N must be an integer in [2, {MAX_INTERVALS}], got {n_int!r}')
+    margin = problem.margin
+    if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+        raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
+    obstacles = check_obstacles(problem.obstacles)
+    if (len(obstacles) or robot.self_collision) and robot.spheres is None:
+        raise ArmError("obstacles need the arm's collision spheres (give a sphere file)")
+    x0 = _state(arm, problem.x0, 'start')
+    xg = _state(arm, problem.x_goal, 'goal')
+    for x, what in ((x0, 'start'), (xg, 'goal')):
+        check_state(arm, x[:arm.n], x[arm.n:], what,
+                    robot.spheres if len(obstacles) or robot.self_collision else None,
+                    obstacles, margin, self_collision=robot.self_collision)
+    return robot, x0, xg, obstacles
+
+
+def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
+    """(states (N + 1, 2n) re-integrated with pinocchio.aba, ArmViolations)."""
+    arm = robot.arm
+    n = arm.n
+    controls = np.asarray(controls, dtype=float)
+    n_int = controls.shape[0]
+    h = t_f / n_int
+    data = arm.model.createData()
+    states = np.empty((n_int + 1, 2 * n))
+    states[0] = x0
+    for k in range(n_int):
+        q, dq = states[k, :n], states[k, n:]
+        acc = pin.aba(arm.model, data, q, dq, controls[k])
+        states[k + 1] = np.concatenate([q + h * dq, dq + h * acc])
+    q, dq = states[:, :n], states[:, n:]
+    clearance = self_clear = math.inf
+    if robot.spheres is not None:
+        centres, _ = sphere_kinematics_batch(robot.spheres, q)
+        if len(obstacles):
+            clearance = float(min(np.min(obstacle_clearance(c, robot.spheres.radii, obstacles,
+                                                            margin)) for c in centres))
+        pairs = robot.spheres.self_pairs
+        if len(pairs):
+            self_clear = float(min(np.min(self_clearance(c, robot.spheres.radii, pairs))
+                                   for c in centres))
+    with np.errstate(invalid='ignore'):
+        pos = max(float(np.max(q - arm.upper)), float(np.max(arm.lower - q)), 0.0)
+    return states, ArmViolations(
+        max_control_excess=max(float(np.max(np.abs(controls) - arm.effort)), 0.0),
+        terminal_error=float(np.linalg.norm(states[-1] - x_goal)),
+        min_clearance=clearance, max_position_excess=pos,
+        max_velocity_excess=max(float(np.max(np.abs(dq) - arm.velocity)), 0.0),
+        self_clearance=self_clear, self_constrained=robot.self_collision)
+
+
+def slowed(arm, x0, x_goal, n_int, t_f):
+    """(states, torques) of the cubic line start over the final time t_f."""
+    states = cubic_path(x0, x_goal, t_f, n_int)
+    return states, np.clip(path_torques(arm, states, t_f), -arm.effort, arm.effort)
+
+
+def start_point(robot, evaluator, x0, x_goal, n_int):
+    """(states, torques, t_f, name): the line start, or a detour when the line collides."""
+    states, torques, t_f = cold_start(robot.arm, x0, x_goal, n_int)
+    if evaluator.n_pairs and evaluator.clearances(states[:, :robot.arm.n]).min() < 0.0:
+        detour = detour_start(robot.arm, evaluator, x0, x_goal, n_int)
+        if detour is not None:
+            return (*detour, 'detour')
+    return states, torques, t_f, 'line'
+
+
+def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
+              hessian='none'):
+    """Solve an arm Problem in fast mode; never raises for bad input (INVALID_INPUT)."""
+    started = time.monotonic()
+    try:
+        if initial_guess is not None:
+            raise ArmError('warm starts (initial_guess) are not implemented for URDF arms')
+        robot, x0, xg, obstacles = check_arm_problem(problem, options)
+    except (ArmError, ValueError, TypeError) as exc:
+        return SolveResult(status=Status.INVALID_INPUT, message=str(exc),
+                           mode=str(getattr(options, 'mode', '')),
+                           integrator=str(getattr(problem, 'integrator', '')))
+    n_int = problem.n_intervals
+    evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int,
+                             robot.self_collision)
+    deadline = None if options.timeout is None else started + options.timeout
+    stop = {'why': None}
+
+    def should_stop():
+        if cancel is not None and cancel.is_set():
+            stop['why'] = Status.CANCELED
+        elif deadline is not None and time.monotonic() >= deadline:
+            stop['why'] = Status.TIMEOUT
+        return stop['why'] is not None
+
+    # A run that fails (line search, numerics) is restarted once from the line start slowed
+    # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start): a slower
+    # start lies further inside the torque limits.
+    states, torques, t_f, start_name = start_point(robot, evaluator, x0, xg, n_int)
+    budget = options.iteration_limit()
+    iterations, linalg_time, runs = 0, 0.0, []
+    for attempt in range(2):
+        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian)
+        ipm.start(states, torques, t_f)
+        run = ipm.run(budget - iterations, should_stop)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        runs.append(f'{start_name}: {run.status} after {run.iterations} iterations')
+        if run.status not in ('line_search_failed', 'numerical_failure') or attempt:
+            break
+        states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
+        states, torques = slowed(robot.arm, x0, xg, n_int, RETRY_SLOWDOWN * t_f)
+        t_f, start_name = RETRY_SLOWDOWN * t_f, f'line x{RETRY_SLOWDOWN:g}'
+    controls = run.v * robot.arm.effort[None, :]
+    states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles,
+                                     problem.margin)
+    converged = run.status in ('converged', 'acceptable')
+    if converged and violations.feasible():
+        status = Status.SOLVED
+    elif converged:
+        status = Status.SOLVED_INACCURATE
+    elif run.status == 'stopped':
+        status = stop['why']
+    elif run.status == 'max_iterations':
+        status = Status.MAX_ITERATIONS
+    else:
+        status = Status.STALLED
+    message = (f'{"; ".join(runs)} (interior-point iterations, by start): t_f = {run.t:.6f} '
+               f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}')
+    history = np.zeros((run.history.shape[0], 4))
+    if run.history.shape[0]:
+        history[:, 0] = np.arange(1, run.history.shape[0] + 1)
+        history[:, 1] = run.history[:, 0]
+        history[:, 2] = run.history[:, 0]
+        history[:, 3] = run.history[:, 1]
+    result = SolveResult(status=status, message=message, mode='fast', integrator='euler',
+                         n_intervals=n_int, final_time=float(run.t), states=states,
+                         controls=controls, iterations=iterations, history=history,
+                         violations=violations, cost=float(run.t),
+                         solver_state={'start': start_name, 'ipm_status': run.status,
+                                       'pin_calls': evaluator.pin_calls,
+                                       'pin_time_s': evaluator.pin_time,
+                                       'linalg_time_s': linalg_time})
+    result.time_grid = np.linspace(0.0, run.t, n_int + 1)
+    result.wall_time_s = time.monotonic() - started
+    if progress is not None:
+        from ..result import Progress
+        progress(Progress(iterations, run.t, run.t,
+                          run.t if result.success else math.nan, result.wall_time_s, 'done',
+                          violations))
+    return result
+
+
+__all__ = ['ArmRobot', 'ArmViolations', 'check_arm_problem', 'is_arm_model', 'measure_arm',
+           'solve_arm', 'CLEARANCE_TOL', 'TERMINAL_TOL']

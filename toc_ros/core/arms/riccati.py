@@ -1,0 +1,303 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Compiled Riccati recursion for the arm interior point's Newton steps (any stage sizes).
+
+The step solves the equality-constrained QP over stages k = 0..N-1
+
+    min  sum_k 1/2 [xi_k; u_k]^T H_k [xi_k; u_k] + g_k^T [xi_k; u_k]
+    s.t. dx_{k+1} = A_k dx_k + B_k du_k + c_k dT + d_k,   dx_0 = 0,   dx_N = 0,
+
+with xi_k = (dx_k, dT): the final time is carried as a constant state, so its coupling with
+every stage stays banded.  The terminal condition dx_N = 0 enters through its multipliers nu:
+the backward sweep carries 1 + nx right-hand sides (the step is affine in nu), the forward
+sweep gives dx_N as an affine function of nu and an nx-by-nx system gives nu.
+
+Inertia: the QP has the right inertia (a minimum of a convex-on-the-constraints problem) when
+every reduced Hessian R_k + B_k^T P B_k is positive definite, the final-time curvature P_0(T, T)
+is positive and the terminal Schur complement is negative definite; otherwise the kernel
+returns the failing test's code and the caller adds a multiple of the identity to H.
+
+No numpy linear algebra inside the kernels (numba's np.dot/np.linalg need SciPy): small loops.
+"""
+
+import math
+
+from numba import njit
+import numpy as np
+
+OK = 0
+REDUCED_HESSIAN_INDEFINITE = 1
+FINAL_TIME_CURVATURE = 2
+TERMINAL_SCHUR_INDEFINITE = 3
+
+
+@njit(cache=True)
+def _cholesky(a, out, m):
+    """Lower Cholesky factor of a (m x m) into out; False when a is not positive definite."""
+    for j in range(m):
+        acc = a[j, j]
+        for k in range(j):
+            acc -= out[j, k] * out[j, k]
+        if not acc > 0.0:
+            return False
+        djj = math.sqrt(acc)
+        out[j, j] = djj
+        for i in range(j + 1, m):
+            acc = a[i, j]
+            for k in range(j):
+                acc -= out[i, k] * out[j, k]
+            out[i, j] = acc / djj
+        for i in range(j):
+            out[i, j] = 0.0
+    return True
+
+
+@njit(cache=True)
+def _chol_solve_columns(lower, b, m, ncol):
+    """Solve (L L^T) y = b in place for every column of b (m x ncol)."""
+    for c in range(ncol):
+        for i in range(m):
+            acc = b[i, c]
+            for k in range(i):
+                acc -= lower[i, k] * b[k, c]
+            b[i, c] = acc / lower[i, i]
+        for i in range(m - 1, -1, -1):
+            acc = b[i, c]
+            for k in range(i + 1, m):
+                acc -= lower[k, i] * b[k, c]
+            b[i, c] = acc / lower[i, i]
+
+
+@njit(cache=True)
+def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
+                  pp, pc, gain, ff, xi, uu, dx, du, lam, nu):
+    """
+    Solve the stage QP of the module docstring; return (code, dT).
+
+    a_mat (N, nx, nx), b_mat (N, nx, nu), c_vec, d_vec (N, nx): the linearised steps;
+    hxx (N, nx + 1, nx + 1), hux (N, nu, nx + 1), huu (N, nu, nu), gx (N, nx + 1), gu (N, nu):
+    Hessian and gradient blocks over (xi_k, u_k); rho > 0: curvature put on dx_N (dx_N = 0 is
+    imposed, so it changes only the multipliers' intermediate values, not the step).
+    Work: pp (N + 1, nx + 1, nx + 1), pc (N + 1, nx + 1, 1 + nx), gain (N, nu, nx + 1),
+    ff (N, nu, 1 + nx), xi (N + 1, nx + 1, 1 + nx), uu (N, nu, 1 + nx).
+    Out: dx (N + 1, nx), du (N, nu), lam (N + 1, nx) (multiplier of the step into x_k, the
+    derivative of the cost-to-go), nu (nx,) terminal multipliers.
+    """
+    n = a_mat.shape[0]
+    nx = a_mat.shape[1]
+    nu_ = b_mat.shape[2]
+    nxi = nx + 1
+    ncol = 1 + nx
+    pa = np.zeros((nxi, nxi))
+    pb = np.zeros((nxi, nu_))
+    qxx = np.zeros((nxi, nxi))
+    qux = np.zeros((nu_, nxi))
+    quu = np.zeros((nu_, nu_))
+    low = np.zeros((nu_, nu_))
+    r = np.zeros((nxi, ncol))
+    qx = np.zeros((nxi, ncol))
+    qu = np.zeros((nu_, ncol))
+    # Terminal value: rho |dx_N|^2 / 2 + nu . dx_N (columns 1.. are the nu directions).
+    for i in range(nxi):
+        for j in range(nxi):
+            pp[n, i, j] = 0.0
+        for c in range(ncol):
+            pc[n, i, c] = 0.0
+    for i in range(nx):
+        pp[n, i, i] = rho
+        pc[n, i, 1 + i] = 1.0
+    for k in range(n - 1, -1, -1):
+        p = pp[k + 1]
+        # pa = P Abar, Abar = [[A, c], [0, 1]]; pb = P Bbar, Bbar = [B; 0].
+        for i in range(nxi):
+            for j in range(nx):
+                acc = 0.0
+                for m in range(nx):
+                    acc += p[i, m] * a_mat[k, m, j]
+                pa[i, j] = acc
+            acc = p[i, nx]
+            for m in range(nx):
+                acc += p[i, m] * c_vec[k, m]
+            pa[i, nx] = acc
+            for j in range(nu_):
+                acc = 0.0
+                for m in range(nx):
+                    acc += p[i, m] * b_mat[k, m, j]
+                pb[i, j] = acc
+        # Qxx = H + Abar^T P Abar.
+        for i in range(nxi):
+            for j in range(nxi):
+                if i < nx:
+                    acc = 0.0
+                    for m in range(nx):
+                        acc += a_mat[k, m, i] * pa[m, j]
+                else:
+                    acc = pa[nx, j]
+                    for m in range(nx):
+                        acc += c_vec[k, m] * pa[m, j]
+                qxx[i, j] = hxx[k, i, j] + acc
+        for i in range(nu_):
+            for j in range(nxi):
+                acc = 0.0
+                for m in range(nx):
+                    acc += b_mat[k, m, i] * pa[m, j]
+                qux[i, j] = hux[k, i, j] + acc
+            for j in range(nu_):
+                acc = 0.0
+                for m in range(nx):
+                    acc += b_mat[k, m, i] * pb[m, j]
+                quu[i, j] = huu[k, i, j] + acc
+        # r = p + P dbar (first column only).
+        for i in range(nxi):
+            for c in range(ncol):
+                r[i, c] = pc[k + 1, i, c]
+            acc = 0.0
+            for m in range(nx):
+                acc += p[i, m] * d_vec[k, m]
+            r[i, 0] += acc
+        for c in range(ncol):
+            for i in range(nx):
+                acc = 0.0
+                for m in range(nx):
+                    acc += a_mat[k, m, i] * r[m, c]
+                qx[i, c] = acc
+            acc = r[nx, c]
+            for m in range(nx):
+                acc += c_vec[k, m] * r[m, c]
+            qx[nx, c] = acc
+            for i in range(nu_):
+                acc = 0.0
+                for m in range(nx):
+                    acc += b_mat[k, m, i] * r[m, c]
+                qu[i, c] = acc
+        for i in range(nxi):
+            qx[i, 0] += gx[k, i]
+        for i in range(nu_):
+            qu[i, 0] += gu[k, i]
+        if not _cholesky(quu, low, nu_):
+            return REDUCED_HESSIAN_INDEFINITE, 0.0
+        # gain = -Quu^-1 Qux, ff = -Quu^-1 qu.
+        for i in range(nu_):
+            for j in range(nxi):
+                gain[k, i, j] = -qux[i, j]
+            for c in range(ncol):
+                ff[k, i, c] = -qu[i, c]
+        _chol_solve_columns(low, gain[k], nu_, nxi)
+        _chol_solve_columns(low, ff[k], nu_, ncol)
+        for i in range(nxi):
+            for j in range(nxi):
+                acc = qxx[i, j]
+                for m in range(nu_):
+                    acc += qux[m, i] * gain[k, m, j]
+                pp[k, i, j] = acc
+            for c in range(ncol):
+                acc = qx[i, c]
+                for m in range(nu_):
+                    acc += qux[m, i] * ff[k, m, c]
+                pc[k, i, c] = acc
+        for i in range(nxi):
+            for j in range(i):
+                s = 0.5 * (pp[k, i, j] + pp[k, j, i])
+                pp[k, i, j] = s
+                pp[k, j, i] = s
+    ptt = pp[0, nx, nx]
+    if not ptt > 0.0:
+        return FINAL_TIME_CURVATURE, 0.0
+    # Forward sweep, affine in nu: xi_k = Xi_k [1; nu], u_k = U_k [1; nu].
+    for i in range(nxi):
+        for c in range(ncol):
+            xi[0, i, c] = 0.0
+    for c in range(ncol):
+        xi[0, nx, c] = -pc[0, nx, c] / ptt
+    for k in range(n):
+        for i in range(nu_):
+            for c in range(ncol):
+                acc = ff[k, i, c]
+                for j in range(nxi):
+                    acc += gain[k, i, j] * xi[k, j, c]
+                uu[k, i, c] = acc
+        for c in range(ncol):
+            for i in range(nx):
+                acc = c_vec[k, i] * xi[k, nx, c]
+                for j in range(nx):
+                    acc += a_mat[k, i, j] * xi[k, j, c]
+                for j in range(nu_):
+                    acc += b_mat[k, i, j] * uu[k, j, c]
+                xi[k + 1, i, c] = acc
+            xi[k + 1, nx, c] = xi[k, nx, c]
+        for i in range(nx):
+            xi[k + 1, i, 0] += d_vec[k, i]
+    # dx_N = Xi_N[:nx, 0] + M nu = 0, M = -(terminal Schur complement): negative definite.
+    m_mat = np.empty((nx, nx))
+    neg = np.empty((nx, nx))
+    low_t = np.zeros((nx, nx))
+    rhs = np.empty((nx, 1))
+    for i in range(nx):
+        for j in range(nx):
+            m_mat[i, j] = xi[n, i, 1 + j]
+    for i in range(nx):
+        for j in range(nx):
+            neg[i, j] = -0.5 * (m_mat[i, j] + m_mat[j, i])
+        rhs[i, 0] = xi[n, i, 0]
+    if not _cholesky(neg, low_t, nx):
+        return TERMINAL_SCHUR_INDEFINITE, 0.0
+    # M is symmetric up to rounding: solve with its symmetric part (-neg).
+    _chol_solve_columns(low_t, rhs, nx, 1)
+    for i in range(nx):
+        nu[i] = rhs[i, 0]       # (-M) nu = dx_N(nu = 0)  =>  dx_N = 0
+    coef = np.empty(ncol)
+    coef[0] = 1.0
+    for i in range(nx):
+        coef[1 + i] = nu[i]
+    # Iterative refinement: M is ill-conditioned when the problem is degenerate (e.g. every
+    # control interior on a velocity-limited arc); the affine map dx_N(nu) itself is accurate.
+    for _ in range(3):
+        for i in range(nx):
+            acc = 0.0
+            for c in range(ncol):
+                acc += xi[n, i, c] * coef[c]
+            rhs[i, 0] = acc
+        _chol_solve_columns(low_t, rhs, nx, 1)
+        for i in range(nx):
+            nu[i] += rhs[i, 0]
+            coef[1 + i] = nu[i]
+    for k in range(n + 1):
+        for i in range(nx):
+            acc = 0.0
+            for c in range(ncol):
+                acc += xi[k, i, c] * coef[c]
+            dx[k, i] = acc
+        if k < n:
+            for i in range(nu_):
+                acc = 0.0
+                for c in range(ncol):
+                    acc += uu[k, i, c] * coef[c]
+                du[k, i] = acc
+    d_t = 0.0
+    for c in range(ncol):
+        d_t += xi[0, nx, c] * coef[c]
+    # lam_k = P_k xi_k + p_k [1; nu] (x rows), k = 1..N.
+    for k in range(1, n + 1):
+        for i in range(nx):
+            acc = pp[k, i, nx] * d_t
+            for j in range(nx):
+                acc += pp[k, i, j] * dx[k, j]
+            for c in range(ncol):
+                acc += pc[k, i, c] * coef[c]
+            lam[k, i] = acc
+    for i in range(nx):
+        lam[0, i] = 0.0
+    return OK, d_t
