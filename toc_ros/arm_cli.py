@@ -30,6 +30,8 @@ import argparse
 import json
 import sys
 
+from toc_ros.cli_run import EXIT_WRITE_ERROR, solve_interruptible, write_json
+
 ARM_PREFIXES = ('urdf:',)
 # The keys of toc_ros.core.arms.model.NAMED_ARMS (a test keeps them equal), spelled out so that
 # toc-solve for the planar models does not import Pinocchio.
@@ -120,7 +122,6 @@ def build_arm_problem(args):
 def main(argv):
     """Run toc-solve for an arm; return the exit code."""
     from toc_ros.core import SolveResult, Status
-    from toc_ros.solve import EXIT_WRITE_ERROR, write_json
     args = build_parser().parse_args(argv)
     arm = None
     try:
@@ -129,8 +130,7 @@ def main(argv):
         result = SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode='fast',
                              integrator=args.integrator)
     else:
-        from toc_ros.solve import _solve_interruptible
-        result = _solve_interruptible(problem, options, None)
+        result = solve_interruptible(problem, options, None)
     if result.status is Status.INVALID_INPUT:
         print(f'toc-solve: invalid problem: {result.message}', file=sys.stderr)
     elif not args.quiet:

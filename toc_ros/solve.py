@@ -25,15 +25,14 @@ import argparse
 import json
 import math
 import os
-import signal
 import sys
-import threading
+
+from toc_ros.cli_run import EXIT_INTERRUPTED, EXIT_WRITE_ERROR, solve_interruptible, \
+    write_json
 
 # The solver (numba kernels) is imported after the arguments are parsed, so that --help and
 # argument errors answer at once; toc_ros.config only reads the settings table.
 
-EXIT_WRITE_ERROR = 5
-EXIT_INTERRUPTED = 130      # shell convention for SIGINT
 BAR_WIDTH = 24
 
 
@@ -318,57 +317,14 @@ def _seconds(value):
     return f'{value:.6f} s' if math.isfinite(value) else 'n/a (no trajectory)'
 
 
-def _strict(value):
-    """Replace NaN/inf (not JSON) by None, e.g. in the states of a diverged paper-mode run."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _strict(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_strict(v) for v in value]
-    return value
-
-
-def write_json(path, result):
-    """Write result.to_dict() to path as strict JSON (non-finite numbers become null)."""
-    tmp = f'{path}.tmp'
-    with open(tmp, 'w') as stream:
-        json.dump(_strict(result.to_dict()), stream, allow_nan=False)
-        stream.write('\n')
-    os.replace(tmp, path)
-
-
-def _solve_interruptible(problem, options, progress, guess=None):
-    """Run solve() in this thread; the first Ctrl-C cancels it, returning the best so far."""
-    from toc_ros.core import solve
-    cancel = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
-    previous = signal.getsignal(signal.SIGINT)
-    if previous is None:      # installed outside Python: restore the default instead
-        previous = signal.default_int_handler
-
-    def on_sigint(_signum, _frame):
-        cancel.set()
-        # A second Ctrl-C falls back to the previous behaviour (KeyboardInterrupt).
-        signal.signal(signal.SIGINT, previous)
-
-    signal.signal(signal.SIGINT, on_sigint)
-    try:
-        return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def main(argv=None):
     """Entry point of toc-solve; returns the process exit code."""
     from toc_ros import arm_cli
     arm_argv = sys.argv[1:] if argv is None else list(argv)
-    if arm_cli.is_arm_model_name(arm_cli.requested_model(arm_argv)):
-        return arm_cli.main(arm_argv)       # URDF arms: their own options (arm_cli.py)
-    args = parse_args(argv)
     try:
-        return _run(args)
+        if arm_cli.is_arm_model_name(arm_cli.requested_model(arm_argv)):
+            return arm_cli.main(arm_argv)       # URDF arms: their own options (arm_cli.py)
+        return _run(parse_args(argv))
     except KeyboardInterrupt:      # a second Ctrl-C, or one before the solve started
         print('toc-solve: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -392,7 +348,7 @@ def _run(args):
         try:
             # --timeout limits the solve, not the one-time compile of a model's kernels.
             warm_up_for(problem, options)
-            result = _solve_interruptible(problem, options, line if show_progress else None,
+            result = solve_interruptible(problem, options, line if show_progress else None,
                                           getattr(args, 'guess', None))
         finally:
             line.clear()
