@@ -140,19 +140,22 @@ def _compare_table(rows, configs):
             f"{m['plans']} | {m['replans_kept']} | "
             f'{1e3 * lat[0]:.1f} / {1e3 * lat[1]:.1f} / {1e3 * lat[2]:.1f} |')
     lines += ['', '| configuration | runs | arrival / true: median (min - max) | '
-              'per-run latency median [ms]: median (min - max) | per-run p99 [ms]: min - max '
-              '| pooled cycles | pooled median / p99 / max [ms] |',
-              '|---|---:|---|---|---|---:|---|']
+              'runs without a published cycle | per-run latency median [ms]: median (min - max) '
+              '| per-run p99 [ms]: min - max | pooled cycles | pooled median / p99 / max [ms] |',
+              '|---|---:|---|---:|---|---|---:|---|']
     for label, *_ in configs:
         mine = [r for r in rows if r['config'] == label]
         ratios = [r['metrics']['arrival_s'] / r['true']['arrival_s'] for r in mine]
-        medians = [1e3 * _percentiles(r['latencies_s'])[0] for r in mine]
-        p99s = [1e3 * _percentiles(r['latencies_s'])[1] for r in mine]
+        # Latencies of the runs that published cycles (a run without one has none).
+        published = [r for r in mine if r['latencies_s']]
+        medians = [1e3 * _percentiles(r['latencies_s'])[0] for r in published] or [math.nan]
+        p99s = [1e3 * _percentiles(r['latencies_s'])[1] for r in published] or [math.nan]
         pooled = [t for r in mine for t in r['latencies_s']]
         p = _percentiles(pooled)
         lines.append(
             f'| {label} | {len(mine)} | {np.median(ratios):.4f} ({min(ratios):.4f} - '
-            f'{max(ratios):.4f}) | {np.median(medians):.1f} ({min(medians):.1f} - '
+            f'{max(ratios):.4f}) | {len(mine) - len(published)} | '
+            f'{np.median(medians):.1f} ({min(medians):.1f} - '
             f'{max(medians):.1f}) | {min(p99s):.1f} - {max(p99s):.1f} | {len(pooled)} | '
             f'{1e3 * p[0]:.1f} / {1e3 * p[1]:.1f} / {1e3 * p[2]:.1f} |')
     return '\n'.join(lines)
