@@ -122,7 +122,7 @@ def upward_fixed(n):
 
 
 def suite(seed, count, n, circle_counts=(0, 1), upward=0):
-    """Return [(label, problem)] of the random suite (and `upward` vertical 2R cases)."""
+    """Return [(label, problem)] of the random cases and of `upward` vertical 2R ones."""
     rng = np.random.default_rng(seed)
     cases = []
     names = {0: 'free', 1: '1 circle', 2: '2 circles'}
@@ -198,10 +198,12 @@ def gap(t_f, best):
         else math.nan
 
 
-def run_suite(seed, count, n, circle_counts=(0, 1), upward=0):
-    """Solve every scenario of the suite; return rows."""
+def run_suite(seed, count, n, circle_counts=(0, 1), upward=0, only=None):
+    """Solve every scenario of the suite (only: those whose label contains it); return rows."""
     rows = []
     for label, problem in suite(seed, count, n, circle_counts, upward):
+        if only and only not in label:
+            continue
         new = fast(problem)
         old = fast(problem, fitted=False)
         runs = ipopt(problem, new)
@@ -302,14 +304,17 @@ def main(argv=None):
     parser.add_argument('--circles', type=int, nargs='+', default=[0, 1], choices=(0, 1, 2),
                         help='circle counts of the suite')
     parser.add_argument('--upward', type=int, default=0,
-                        help="vertical-plane 2R cases (g = 9.81, the shoulder rising, one "
-                        "circle): bench_planar_2r's and upward - 1 random ones")
+                        help='vertical-plane 2R cases (g = 9.81, the shoulder rising, one '
+                        'circle): the one of bench_planar_2r and upward - 1 random ones')
     parser.add_argument('--no-timing', action='store_true', help='skip the timing table')
+    parser.add_argument('--only', metavar='TEXT',
+                        help='run only the cases whose label contains TEXT (the same draws)')
     parser.add_argument('--markdown', metavar='FILE')
     parser.add_argument('--json', metavar='FILE')
     args = parser.parse_args(argv)
     warm_up()
-    rows = run_suite(args.seed, args.count, args.N, tuple(args.circles), args.upward)
+    rows = run_suite(args.seed, args.count, args.N, tuple(args.circles), args.upward,
+                     args.only)
     timing = [] if args.no_timing else paper_timing(args.repeat)
     text = markdown(rows, timing, args.seed, args.count, args.N)
     print(text)
