@@ -231,7 +231,7 @@ def paper_timing(repeat):
     """Cold-start times [s] (median of repeat) with and without the fitted starts."""
     model = load_model('planar_2r')
     cases = {
-        'paper scenario': Problem(),
+        'paper scenario': Problem.paper(),
         'planar_2r (bench_planar_2r, free)': Problem(
             model=model, x0=tuple(float(v) for v in model.state(np.array([0.0, 0.3]))),
             x_goal=tuple(float(v) for v in model.state(np.array([1.6, 0.3]))), obstacles=(),
