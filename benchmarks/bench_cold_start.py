@@ -16,13 +16,13 @@
 Fast mode's cold start against a multi-started IPOPT on random free and one-circle problems.
 
     PYTHONPATH=. python benchmarks/bench_cold_start.py [--seed 7] [--count 4] [--N 300]
-        [--markdown FILE] [--json FILE]
+        [--circles 0 1 2] [--upward 3] [--no-timing] [--markdown FILE] [--json FILE]
 
 The suite (seeded): planar_2r (built-in) and the three-link arm of config/models/planar_3r.yaml,
-each without gravity and with g = 9.81 m/s^2, each without obstacles and with one circle,
+each without gravity and with g = 9.81 m/s^2, each with each of --circles circles (0, 1, 2),
 --count random rest-to-rest scenarios per combination: the shoulder turns 0.8-2.5 rad either
-way, the other joints start and end anywhere in [-1.5, 1.5] rad; the circle (radius 0.1-0.2 m
-before the margin) sits near the hand's path half-way, and scenarios whose start or goal the
+way, the other joints start and end anywhere in [-1.5, 1.5] rad; the circles (radius 0.1-0.2 m
+before the margin) sit near the hand's path (draw), and scenarios whose start or goal the
 core refuses are redrawn.  Explicit Euler, N intervals, t_f0 left at the Problem's default.
 
 Per scenario:
@@ -74,20 +74,34 @@ def hand_path(model, q):
     return model.link_segments(q)[:, -1, 2:4]
 
 
-def draw(rng, model, g, circles, n):
-    """Draw one valid rest-to-rest scenario of model (one circle if circles)."""
+def draw(rng, model, g, circles, n, upward=False):
+    """
+    Draw one valid rest-to-rest scenario of model with `circles` circles (0, 1 or 2).
+
+    The circles sit near the hand's straight joint-space path at its middle (one) or at a
+    third and two thirds of it (two).  upward: the shoulder starts in [-1.2, 0.2] rad and
+    rises by 0.8-1.8 rad (against gravity along -y).
+    """
     joints = model.n_joints
     while True:
-        q0 = np.concatenate([[rng.uniform(-math.pi, math.pi)],
-                             rng.uniform(-1.5, 1.5, joints - 1)])
-        qg = np.concatenate([[q0[0] + rng.choice([-1.0, 1.0]) * rng.uniform(0.8, 2.5)],
-                             rng.uniform(-1.5, 1.5, joints - 1)])
-        obstacles = ()
-        if circles:
-            mid = hand_path(model, (0.5 * (q0 + qg))[None, :])[0]
+        if upward:
+            first = rng.uniform(-1.2, 0.2)
+            q0 = np.concatenate([[first], rng.uniform(-1.5, 1.5, joints - 1)])
+            qg = np.concatenate([[first + rng.uniform(0.8, 1.8)],
+                                 rng.uniform(-1.5, 1.5, joints - 1)])
+        else:
+            q0 = np.concatenate([[rng.uniform(-math.pi, math.pi)],
+                                 rng.uniform(-1.5, 1.5, joints - 1)])
+            qg = np.concatenate([[q0[0] + rng.choice([-1.0, 1.0]) * rng.uniform(0.8, 2.5)],
+                                 rng.uniform(-1.5, 1.5, joints - 1)])
+        obstacles = []
+        for k in range(circles):
+            s = (k + 1.0) / (circles + 1.0)
+            at = hand_path(model, ((1.0 - s) * q0 + s * qg)[None, :])[0]
             offset = rng.uniform(-0.15, 0.15, 2)
-            obstacles = ((float(mid[0] + offset[0]), float(mid[1] + offset[1]),
-                          float(rng.uniform(0.1, 0.2))),)
+            obstacles.append((float(at[0] + offset[0]), float(at[1] + offset[1]),
+                              float(rng.uniform(0.1, 0.2))))
+        obstacles = tuple(obstacles)
         problem = Problem(model=model, x0=tuple(float(v) for v in model.state(q0)),
                           x_goal=tuple(float(v) for v in model.state(qg)),
                           obstacles=obstacles, n_intervals=n)
@@ -98,17 +112,33 @@ def draw(rng, model, g, circles, n):
         return problem
 
 
-def suite(seed, count, n):
-    """Return [(label, problem)] of the random suite."""
+def upward_fixed(n):
+    """Return bench_planar_2r's vertical-plane scenario: q (0, 0.3) -> (1.6, 0.3), circle A."""
+    model = load_model('planar_2r', g=9.81)
+    circle = (1.5 * math.cos(0.35), 1.5 * math.sin(0.35), 0.12)
+    return Problem(model=model, x0=tuple(float(v) for v in model.state(np.array([0.0, 0.3]))),
+                   x_goal=tuple(float(v) for v in model.state(np.array([1.6, 0.3]))),
+                   obstacles=(circle,), n_intervals=n)
+
+
+def suite(seed, count, n, circle_counts=(0, 1), upward=0):
+    """Return [(label, problem)] of the random cases and of `upward` vertical 2R ones."""
     rng = np.random.default_rng(seed)
     cases = []
+    names = {0: 'free', 1: '1 circle', 2: '2 circles'}
     for name, source in MODELS.items():
         for g in (0.0, 9.81):
             model = load_model(source, g=g)
-            for circles in (0, 1):
+            for circles in circle_counts:
                 for k in range(count):
-                    label = f'{name} g={g:g} {"1 circle" if circles else "free"} #{k}'
+                    label = f'{name} g={g:g} {names[circles]} #{k}'
                     cases.append((label, draw(rng, model, g, circles, n)))
+    if upward:
+        cases.append(('2R g=9.81 upward 1 circle (bench_planar_2r)', upward_fixed(n)))
+        model = load_model('planar_2r', g=9.81)
+        for k in range(upward - 1):
+            cases.append((f'2R g=9.81 upward 1 circle #{k}',
+                          draw(rng, model, 9.81, 1, n, upward=True)))
     return cases
 
 
@@ -168,10 +198,12 @@ def gap(t_f, best):
         else math.nan
 
 
-def run_suite(seed, count, n):
-    """Solve every scenario of the suite; return rows."""
+def run_suite(seed, count, n, circle_counts=(0, 1), upward=0, only=None):
+    """Solve every scenario of the suite (only: those whose label contains it); return rows."""
     rows = []
-    for label, problem in suite(seed, count, n):
+    for label, problem in suite(seed, count, n, circle_counts, upward):
+        if only and only not in label:
+            continue
         new = fast(problem)
         old = fast(problem, fitted=False)
         runs = ipopt(problem, new)
@@ -269,12 +301,21 @@ def main(argv=None):
     parser.add_argument('--count', type=int, default=3, help='scenarios per combination')
     parser.add_argument('--N', type=int, default=300, help='intervals')
     parser.add_argument('--repeat', type=int, default=5, help='timed solves per timing case')
+    parser.add_argument('--circles', type=int, nargs='+', default=[0, 1], choices=(0, 1, 2),
+                        help='circle counts of the suite')
+    parser.add_argument('--upward', type=int, default=0,
+                        help='vertical-plane 2R cases (g = 9.81, the shoulder rising, one '
+                        'circle): the one of bench_planar_2r and upward - 1 random ones')
+    parser.add_argument('--no-timing', action='store_true', help='skip the timing table')
+    parser.add_argument('--only', metavar='TEXT',
+                        help='run only the cases whose label contains TEXT (the same draws)')
     parser.add_argument('--markdown', metavar='FILE')
     parser.add_argument('--json', metavar='FILE')
     args = parser.parse_args(argv)
     warm_up()
-    rows = run_suite(args.seed, args.count, args.N)
-    timing = paper_timing(args.repeat)
+    rows = run_suite(args.seed, args.count, args.N, tuple(args.circles), args.upward,
+                     args.only)
+    timing = [] if args.no_timing else paper_timing(args.repeat)
     text = markdown(rows, timing, args.seed, args.count, args.N)
     print(text)
     if args.markdown:

@@ -39,6 +39,17 @@ trajectory published, measured in solver_node) median / p99 / max over the whole
 
     PYTHONPATH=. python benchmarks/bench_replanning.py [--N 1000] [--integrator rk4]
         [--rate 20] [--scenarios mismatch lag moving] [--markdown FILE] [--json FILE]
+
+--configs compares closed-loop settings on the mismatch scenario with estimation instead:
+each CONFIG is GOAL_INTEGRATOR/CYCLE_INTEGRATOR/MAX_NODES (solver.integrator,
+replan.integrator, replan.max_nodes; 'default' for the node's default), run --repeat times
+round-robin after one unrecorded run each (the configurations see the same machine load),
+against the true plant's best RK4
+plan; reported per run and per configuration (the median and range of the runs, and the
+latency percentiles of all their published cycles pooled):
+
+    PYTHONPATH=. python benchmarks/bench_replanning.py --repeat 3
+        --configs euler/euler/300 default/default/default
 """
 
 import argparse
@@ -48,6 +59,8 @@ import os
 import sys
 import tempfile
 import time
+
+import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -93,6 +106,88 @@ def _table(rows):
     return '\n'.join(lines)
 
 
+def _config(text):
+    """Return (label, solver.integrator, replan.integrator, replan.max_nodes) of a CONFIG."""
+    parts = text.split('/')
+    if len(parts) != 3 or any(p not in ('euler', 'rk4', 'default') for p in parts[:2]) \
+            or not (parts[2] == 'default' or parts[2].isdigit()):
+        raise argparse.ArgumentTypeError(
+            f'{text!r}: expected GOAL/CYCLE/MAX_NODES, e.g. euler/rk4/150 or '
+            'default/default/default')
+    goal, cycle, nodes = (None if p == 'default' else p for p in parts)
+    return text, goal, cycle, None if nodes is None else int(nodes)
+
+
+def _percentiles(values):
+    values = np.asarray(values, dtype=float)
+    if not values.size:
+        return math.nan, math.nan, math.nan
+    return (float(np.percentile(values, 50)), float(np.percentile(values, 99)),
+            float(values.max()))
+
+
+def _compare_table(rows, configs):
+    """Per-run rows and a per-configuration summary (medians, ranges, pooled latencies)."""
+    lines = ['| configuration (goal / cycle integrator / max_nodes) | run | arrival [s] | '
+             "arrival / true plan's | final error | plans | kept | "
+             'latency median / p99 / max [ms] |', '|---|---:|---:|---:|---:|---:|---:|---|']
+    for r in rows:
+        m = r['metrics']
+        lat = _percentiles(r['latencies_s'])
+        lines.append(
+            f"| {r['config']} | {r['run']} | {m['arrival_s']:.4f} | "
+            f"{m['arrival_s'] / r['true']['arrival_s']:.4f} | {m['final_error']:.2e} | "
+            f"{m['plans']} | {m['replans_kept']} | "
+            f'{1e3 * lat[0]:.1f} / {1e3 * lat[1]:.1f} / {1e3 * lat[2]:.1f} |')
+    lines += ['', '| configuration | runs | arrival / true: median (min - max) | '
+              'runs without a published cycle | per-run latency median [ms]: median (min - max) '
+              '| per-run p99 [ms]: min - max | pooled cycles | pooled median / p99 / max [ms] |',
+              '|---|---:|---|---:|---|---|---:|---|']
+    for label, *_ in configs:
+        mine = [r for r in rows if r['config'] == label]
+        ratios = [r['metrics']['arrival_s'] / r['true']['arrival_s'] for r in mine]
+        # Latencies of the runs that published cycles (a run without one has none).
+        published = [r for r in mine if r['latencies_s']]
+        medians = [1e3 * _percentiles(r['latencies_s'])[0] for r in published] or [math.nan]
+        p99s = [1e3 * _percentiles(r['latencies_s'])[1] for r in published] or [math.nan]
+        pooled = [t for r in mine for t in r['latencies_s']]
+        p = _percentiles(pooled)
+        lines.append(
+            f'| {label} | {len(mine)} | {np.median(ratios):.4f} ({min(ratios):.4f} - '
+            f'{max(ratios):.4f}) | {len(mine) - len(published)} | '
+            f'{np.median(medians):.1f} ({min(medians):.1f} - '
+            f'{max(medians):.1f}) | {min(p99s):.1f} - {max(p99s):.1f} | {len(pooled)} | '
+            f'{1e3 * p[0]:.1f} / {1e3 * p[1]:.1f} / {1e3 * p[2]:.1f} |')
+    return '\n'.join(lines)
+
+
+def compare(client, publishers, params, model, joint_names, args):
+    """Run every --configs configuration --repeat times round-robin; return rows."""
+    spec = SCENARIOS['mismatch']
+    reference = true_reference(dict(params, **{'solver.N': args.N, 'solver.integrator': 'rk4'}),
+                               spec['true'], PAPER_GOAL_Q, PAPER_OBSTACLES)
+    rows = []
+    # Run 0 of each configuration is not recorded: a configuration's first cycles compile its
+    # kernels in solver_node (numba), which takes seconds.
+    for run in range(-1, args.repeat):
+        for label, goal, cycle, nodes in args.configs:
+            execution = run_execution(
+                client, publishers, model, joint_names, PAPER_GOAL_Q, PAPER_OBSTACLES,
+                plant=dict(NOMINAL_PLANT, **spec['plant']), replan_rate=args.rate,
+                estimate=spec['estimate'], integrator=goal, max_nodes=nodes,
+                solver=None if cycle is None else {'replan.integrator': cycle})
+            if run < 0:
+                continue
+            row = {'config': label, 'run': run + 1, 'true': reference,
+                   'metrics': execution.metrics,
+                   'latencies_s': [r.latency_s for r in execution.reports
+                                   if r.event == 'replanned']}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            time.sleep(0.5)
+    return rows
+
+
 def main(argv=None):
     """Run the scenarios and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[1])
@@ -106,6 +201,9 @@ def main(argv=None):
                         'latency near 10 ms at 20 Hz; the node default is 300)')
     parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS),
                         choices=list(SCENARIOS))
+    parser.add_argument('--configs', nargs='+', type=_config, metavar='CONFIG',
+                        help='compare GOAL/CYCLE/MAX_NODES configurations (above)')
+    parser.add_argument('--repeat', type=int, default=3, help='runs per --configs entry')
     parser.add_argument('--markdown')
     parser.add_argument('--json')
     args = parser.parse_args(argv)
@@ -132,7 +230,9 @@ def main(argv=None):
         client.wait_for(lambda: goal_pub.get_subscription_count() > 0
                         and obstacles_pub.get_subscription_count() > 0
                         and client.count('joint_states') > 10, 60.0, 'the nodes')
-        for name in args.scenarios:
+        if args.configs:
+            rows = compare(client, (goal_pub, obstacles_pub), params, model, joint_names, args)
+        for name in ([] if args.configs else args.scenarios):
             spec = SCENARIOS[name]
             obstacles = spec.get('obstacles', PAPER_OBSTACLES)
             if spec.get('moving') is not None:      # the circle's final place
@@ -170,6 +270,14 @@ def main(argv=None):
             node.stop()
         client.close()
     load = os.getloadavg()
+    if args.configs:
+        text = (f'bench_replanning --configs: mismatch with replan.estimate [hand_mass, '
+                f'inertia], first plan N = {args.N}, replan.rate = {args.rate} Hz, '
+                f'{args.repeat} runs each, true plan RK4, load {load[0]:.2f}\n\n'
+                + _compare_table(rows, args.configs))
+        write_outputs(text + '\n', {'N': args.N, 'rate': args.rate, 'rows': rows},
+                      args.markdown, args.json)
+        return 0
     text = (f'bench_replanning: N = {args.N}, solver.integrator = {args.integrator}, '
             f'replan.rate = {args.rate} Hz, replan.max_nodes = {args.max_nodes}, '
             f'load {load[0]:.2f}\n\n' + _table(rows))

@@ -19,6 +19,7 @@ The executing plan here is an independent RK4 rollout of the paper's eq. (37) un
 controls; clearances, conflicts and stops are recomputed with the tests' own numpy model.
 """
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -439,3 +440,33 @@ def test_a_cycle_problem_keeps_the_warm_starts_grid_within_its_budget():
     guess = SimpleNamespace(controls=np.zeros((4, 2)), final_time=0.05)
     assert policy.cycle_problem(source, cycle, problem, 300, options, 1.0) == (
         None, None, 'only 4 plan nodes left')
+
+
+def test_a_cycle_plans_with_the_replan_integrator_and_goals_keep_theirs():
+    """replan.integrator reaches the cycle's problem; without one it keeps the problem's."""
+    executing = make_plan(start=50.0, result=FakeResult(N))
+    k = 30
+    t = 50.0 + executing.times[k]
+    rk4_settings = SimpleNamespace(replan_deviation=0.02, replan_min_remaining=0.15,
+                                   replan_integrator='rk4')
+    cycle = policy.next_cycle(executing, executing.states[k], t, t + 0.004, 7.0, 0.025,
+                              rk4_settings, 6.0, 3)
+    assert cycle.integrator == 'rk4'
+    problem = Problem(x0=tuple(cycle.start), x_goal=tuple(executing.goal), obstacles=())
+    assert problem.integrator == 'euler'
+    guess = SimpleNamespace(controls=np.zeros((60, 2)), final_time=0.72)
+    source = SimpleNamespace(result=SimpleNamespace(remainder=lambda t: guess),
+                             times=executing.times, states=executing.states, model=MODEL)
+    options = SolverOptions(timeout=None)
+    planned, _, _ = policy.cycle_problem(source, cycle, problem, 300, options, 1.0)
+    assert planned.integrator == 'rk4' and planned.n_intervals == 60
+    # Every other field is the given problem's.
+    assert dataclasses.replace(planned, integrator='euler', n_intervals=N) == \
+        dataclasses.replace(problem, n_intervals=N)
+    euler = dataclasses.replace(cycle, integrator='euler')
+    assert policy.cycle_problem(source, euler, problem, 300, options, 1.0)[0].integrator == \
+        'euler'
+    unnamed = dataclasses.replace(cycle, integrator='')
+    rk4_problem = dataclasses.replace(problem, integrator='rk4')
+    assert policy.cycle_problem(source, unnamed, rk4_problem, 300, options, 1.0)[0] \
+        .integrator == 'rk4'

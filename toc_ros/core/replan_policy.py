@@ -98,6 +98,7 @@ class Cycle:
     reason: str             # RATE, DEVIATION or DATA_CHANGE
     revision: int = -1      # the data revision when it started
     deadline: float = math.inf      # publish by then: received + lead [s, monotonic]
+    integrator: str = ''    # discretisation of its plan ('': the problem's own)
 
 
 def state_time(t, now):
@@ -163,7 +164,8 @@ def next_cycle(plan, state, t, now, received, lead, settings, next_due, revision
     Return the replan Cycle due from a measured state, or None.
 
     state: measured at node-clock time t, received at monotonic time received; settings:
-    replan_deviation and replan_min_remaining (the node's settings); next_due: monotonic time
+    replan_deviation, replan_min_remaining and replan_integrator (the node's settings; the
+    cycle plans with that integrator); next_due: monotonic time
     of the next regular cycle; reason: None (due by deviation or rate) or why it is due at
     once (DATA_CHANGE).  The cycle starts from the state predicted along the plan to the plan
     node at or after now + lead (cycle_start) and must be published by received + lead.
@@ -187,7 +189,8 @@ def next_cycle(plan, state, t, now, received, lead, settings, next_due, revision
         return None
     start_at, stamp = timing
     start = predict(plan.model, state, plan.times, plan.controls, measured_at, start_at)
-    return Cycle(plan, start, stamp, received, t, deviation, reason, revision, received + lead)
+    return Cycle(plan, start, stamp, received, t, deviation, reason, revision, received + lead,
+                 getattr(settings, 'replan_integrator', ''))
 
 
 def cycle_problem(source, cycle, problem, max_nodes, options, now):
@@ -195,7 +198,8 @@ def cycle_problem(source, cycle, problem, max_nodes, options, now):
     Return (problem, options, warm start) of a cycle, or (None, None, why) when it cannot run.
 
     source: what warm-starts it (cycle_warm_source); problem: the cycle's problem from
-    cycle.start to the goal (model and data current); the warm start is source's remainder
+    cycle.start to the goal (model and data current), planned with cycle.integrator when it
+    names one; the warm start is source's remainder
     from its node nearest to cycle.start, on its own grid (cycle_nodes), and the solve may run
     until the deadline plus SEED_EXTRA_S (cycle_timeout).
     """
@@ -203,8 +207,9 @@ def cycle_problem(source, cycle, problem, max_nodes, options, now):
         source.model, source.states, cycle.start)])
     if guess.controls.shape[0] < MIN_CYCLE_GUESS_NODES:
         return None, None, f'only {guess.controls.shape[0]} plan nodes left'
-    problem = dataclasses.replace(problem, n_intervals=cycle_nodes(
-        guess.controls.shape[0], max_nodes, guess.final_time, problem.robot_model.max_step))
+    problem = dataclasses.replace(
+        problem, integrator=cycle.integrator or problem.integrator, n_intervals=cycle_nodes(
+            guess.controls.shape[0], max_nodes, guess.final_time, problem.robot_model.max_step))
     options = dataclasses.replace(options, timeout=cycle_timeout(
         cycle.deadline, now, options.timeout))
     return problem, options, guess

@@ -67,9 +67,14 @@ class SolverNodeSettings:
         'starts a replan cycle at once instead of at the next replan.rate tick; 0 = off',
         unit='rad or m', low=0.0, high=1e3, ros_name='replan.deviation')
     replan_max_nodes: int = setting(
-        300, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
+        150, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
         'most this many intervals (fewer intervals, faster cycles)', low=20, high=100000,
         ros_name='replan.max_nodes')
+    replan_integrator: str = setting(
+        'rk4', "discretisation of the replan cycles' plans: 'rk4' (the plan is what the robot "
+        'does under its piecewise-constant controls, so the cycles correct the mismatch and '
+        "not their own discretisation error) or 'euler'; goals are planned with "
+        'solver.integrator', choices=('rk4', 'euler'), ros_name='replan.integrator')
     replan_lead: float = setting(
         0.025, 'a replanned trajectory starts (header.stamp) at least this long after the '
         'joint_states it starts from was received (longer when recent cycles took longer, up '
