@@ -452,7 +452,7 @@ class PlantNode(Node):
 
     def _deliver_outcomes(self):
         """Wake the execute callbacks of the goals that ended."""
-        for outcome in self._sim.follower.take_outcomes():
+        for outcome in self._sim.take_outcomes():
             future = self._goal_futures.pop(id(outcome.goal), None)
             if future is not None and not future.done():
                 future.set_result(outcome)

@@ -46,13 +46,14 @@ def catch_up(behind, dt, max_catch_up=MAX_CATCH_UP_S):
     Return (steps, skipped [s]) of a real-time loop that is behind [s] real time.
 
     steps of dt make up the lag; a lag beyond max_catch_up is skipped (not simulated) down to
-    max_catch_up.  The 1e-9 keeps a lag of exactly k steps from flooring to k - 1.
+    max_catch_up.  The 1e-9 keeps a lag of exactly k steps from flooring to k - 1; a clock
+    ahead of real time (behind < 0) takes no step.
     """
     skipped = 0.0
     if behind > max_catch_up:
         skipped = behind - max_catch_up
         behind = max_catch_up
-    return int(behind / dt + 1e-9), skipped
+    return max(int(behind / dt + 1e-9), 0), skipped
 
 
 def stamp_text(total_ns):
@@ -70,6 +71,7 @@ class PlantSimulator:
         self.following = False          # the follower (an action goal) drives the reference
         self.active = None              # the Scheduled topic trajectory being executed
         self.pending = None             # a Scheduled topic trajectory with a future start
+        self._ended = []                # outcomes of the goals of replaced followers
         self.x = None
         self.u = None                   # the u applied over the last step
         self.u_lag = None               # the lag's output (None: no state yet)
@@ -127,6 +129,7 @@ class PlantSimulator:
         """Abort the action goals (reason) and start a follower for joint_names."""
         if self.follower is not None:
             self.end_goals(reason)
+            self._ended += self.follower.take_outcomes()
         self.joint_names = list(joint_names)
         self.follower = fjt.TrajectoryFollower(self.joint_names,
                                                interpolate_from_desired_state=True)
@@ -135,6 +138,11 @@ class PlantSimulator:
     def end_goals(self, reason, hold=None):
         """Abort the active and pending action goals; the follower holds `hold` if given."""
         self.follower.stop(fjt.INVALID_GOAL, reason, hold)
+
+    def take_outcomes(self):
+        """Return the action goals that ended since the last call, oldest first."""
+        ended, self._ended = self._ended, []
+        return ended + self.follower.take_outcomes()
 
     def warm_up(self):
         """Take one step without keeping it: compiles or loads the model's kernels."""
