@@ -62,8 +62,9 @@ cycle's plan is published only when solved before its stamp, else the executing 
 replan.estimate the cycles plan with model parameters estimated online from the joint_states
 efforts (core/estimation.py).  The policy (when a cycle is due, its lead and grid, braking)
 is core/replan_policy.py, the executing plan core/executing_plan.py and its bookkeeping
-execution_state.py, the goals' checks and problems goal_requests.py, the worker
-goal_worker.py: this node translates messages and wires them.
+execution_state.py, the goals' checks and problems goal_requests.py, the solves, cycles and
+stops planner.py (free of rclpy), the worker goal_worker.py: this node translates messages
+and wires them.
 
 No plan for stale data: when the obstacles, the margin, the robot data or the extension
 limits change during a goal's solve, the solve restarts from the same goal and the latest
@@ -79,8 +80,6 @@ measured state.
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
 
-import dataclasses
-import math
 import sys
 import threading
 import time
@@ -100,24 +99,18 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros import conversions, goal_requests as goals, progress as schema
-from toc_ros.config import problem_from_parameters
-from toc_ros.core import ProblemError, Progress, solve, Status
 from toc_ros.core import replan_policy as policy
-from toc_ros.core.executing_plan import braking_plan, plan_from_result, true_conflict_time
-from toc_ros.execution_state import ExecutionState
-from toc_ros.goal_worker import GoalWorker, Request
 from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
 from toc_ros.nodes.solver_settings import checked, parameter_errors, SolverNodeConfig
-from toc_ros.solve_progress import SolveProgress
+from toc_ros.planner import Planner, start_state
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 PARAMETER_NAMES = parameters.SOLVER_NODE_NAMES
 # ~/progress while solving: the heartbeat checks this often for a gap to fill.
 HEARTBEAT_PERIOD_S = 0.05
-CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # Queue depth of the services: every request of a burst is kept and answered.
@@ -153,20 +146,17 @@ class SolverNode(Node):
         self._config = SolverNodeConfig.from_flat(flat)
         self._accepted = None               # the config of the last accepted candidate
         self._name = self.get_fully_qualified_name()
+        self.logger = self.get_logger()
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest joint state from joint_states
         self._measured_effort = None        # and its efforts (None: not given or not used)
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
-        self._progress = SolveProgress()    # of the running solve, for the heartbeat
         self._publish_lock = threading.Lock()
-        # The plan in execution and its data revision (a trajectory is published only while
-        # its data revision is still current: under self._plans.lock).
-        self._plans = ExecutionState(self._config.planning_data())
         self._estimate = policy.OnlineEstimate()    # replan.estimate: fed by joint_states
         self._kernels = KernelLoader(self._config.model, self._on_kernels_loaded,
                                      self._on_kernels_failed)
-        self._ready = self._kernels.ready
+        self._planner = Planner(self, self._config.planning_data(), self._kernels.ready)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
@@ -199,8 +189,8 @@ class SolverNode(Node):
         self.create_timer(HEARTBEAT_PERIOD_S, self._heartbeat, callback_group=timers)
         self.create_timer(MARKER_PERIOD_S, self._publish_markers_if_dirty,
                           callback_group=timers)
-        self._worker = GoalWorker(self._run, self._drop, self._ready, self.get_logger().error)
-        self._publish_markers()
+        self._worker = self._planner.worker
+        self.publish_markers()
         # Compile or load the numba kernels in the background: the node already listens, and
         # goals that arrive meanwhile are queued.
         self._kernels.start()
@@ -215,8 +205,8 @@ class SolverNode(Node):
 
     def _on_kernels_loaded(self, elapsed):
         self.get_logger().info(f'numba kernels loaded in {elapsed:.2f} s')
-        config = self._snapshot()[0]
-        self._publish_progress(schema.ProgressReport(
+        config = self.settings()
+        self.report(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
             event=schema.EVENT_READY, **config.model_keys()))
         self.get_logger().info(
@@ -225,11 +215,54 @@ class SolverNode(Node):
 
     def ready(self):
         """Tell whether the kernels are loaded (goals before that are queued)."""
-        return self._ready.is_set()
+        return self._kernels.ready.is_set()
 
     def _on_ready(self, _request, response):
         response.success, response.message = self._kernels.status()
         return response
+
+    # -- the planner's port -------------------------------------------------------------------
+
+    def settings(self):
+        """Return the current SolverNodeConfig."""
+        with self._lock:
+            return self._config
+
+    def snapshot(self):
+        """Return (settings, the measured state of their model or None)."""
+        with self._lock:
+            config, joints, effort = self._config, self._measured, self._measured_effort
+        return config, (None if joints is None else self._model_state(joints, effort))
+
+    def now(self):
+        """Return the node clock's time [s] (simulated time under use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def publish_trajectory(self, msg):
+        """Send a trajectory (the planner holds its plan lock meanwhile)."""
+        self._trajectory_pub.publish(msg)
+
+    def publish_path(self, msg):
+        """Send a planned path."""
+        self._path_pub.publish(msg)
+
+    def arm_moved(self):
+        """Have the marker timer redraw."""
+        with self._lock:
+            self._arm_dirty = True
+
+    def report(self, report):
+        """Send a ~/progress report."""
+        msg = schema.progress_msg(self._name, report)
+        with self._publish_lock:
+            self._progress_pub.publish(msg)
+            self._planner.progress.sent()
+
+    def estimated_model(self, config):
+        """Return (model with the online estimate or None, its text or why there is none)."""
+        if not config.node.replan_estimate:
+            return None, ''
+        return self._estimate.model(self._model.joint_model, config.robot.actuator_lag)
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -242,13 +275,13 @@ class SolverNode(Node):
         if not result.successful:
             self.get_logger().warning(f'refused parameter change: {result.reason}')
             if any(p.name.startswith('robot.model') for p in changed):
-                self._publish_progress(schema.refusal_report(
+                self.report(schema.refusal_report(
                     f'parameters: refused robot model: {result.reason}'))
         return result
 
     def _after_set_parameters(self, changed):
         if any(p.name in ('replan.lead', 'robot.model', 'robot.actuator_lag') for p in changed):
-            self._plans.clear_latencies()   # another lead or model: measured afresh
+            self._planner.plans.clear_latencies()   # another lead or model: measured afresh
         if any(p.name.startswith('replan.estimate') for p in changed):
             self._estimate.reset()      # set (even to the same value): start afresh
         flat = parameters.candidate(self._config.flat, changed)
@@ -261,93 +294,7 @@ class SolverNode(Node):
         if any(p.name.startswith('robot.') for p in changed) \
                 and self._kernels.switch(config.model):
             self.get_logger().info(f'robot model changed: loading the kernels of {config.model!r}')
-        revision = self._plans.new_data(config.planning_data())
-        if revision is None:
-            return
-        reason = f'planning data changed (data revision {revision})'
-        if self._worker.restart(reason):
-            self.get_logger().warning(f'{reason}: restarting the running solve')
-            self._publish_progress(schema.ProgressReport(
-                message=f'{reason}: solving again from the latest state',
-                event=schema.EVENT_RESTARTED, data_revision=revision))
-        self._check_executing(config, revision)
-
-    # -- the executing plan under new data ----------------------------------------------------
-
-    def _check_executing(self, config, revision):
-        """Replan around, or stop, an executing trajectory that violates the current data."""
-        stale = self._plans.stale_plan(
-            revision, self._now(), lambda plan, t: goals.plan_violation(plan, config, t))
-        if stale is None:
-            return
-        plan, elapsed, problem = stale
-        measured = self._snapshot()[1]
-        if measured is not None and self._brake_can_wait(plan, config, measured, elapsed) \
-                and self._maybe_replan(config, measured, self._now(), time.monotonic(),
-                                       reason=policy.DATA_CHANGE):
-            self.get_logger().warning(
-                f'the executing trajectory {problem} under data revision {revision}: '
-                'replanning from the current state')
-            return
-        self._stop(plan, config, revision, problem)
-
-    def _publish_stop(self, plan, config, still_valid):
-        """
-        Replace plan by a stop at once; return (published, braking plan or None).
-
-        With a measured state the stop is a braking trajectory (every joint decelerates at
-        its control bound until it rests); without one an empty trajectory (the plant holds).
-        still_valid() (under the plan lock) tells whether plan may still be replaced.
-        """
-        measured = self._snapshot()[1]
-        names = config.frames.joint_names
-        braking = braking_plan(plan, measured, self._now(), policy.BRAKE_STEP_S)
-        if braking is None:
-            stop = JointTrajectory(joint_names=list(names))
-        else:
-            stop = conversions.trajectory_msg(braking, names, braking.model,
-                                              conversions.time_msg(0.0))
-        with self._plans.lock:
-            if not still_valid():
-                return False, None
-            self._trajectory_pub.publish(stop)
-            if braking is not None:
-                braking.start = self._now()
-            self._plans.executing = braking
-        return True, braking
-
-    def _stop(self, plan, config, revision, problem):
-        """Stop the executing plan at once and plan its goal again (unless a goal is queued)."""
-        plans = self._plans
-        published, braking = self._publish_stop(
-            plan, config, lambda: revision == plans.revision and plans.executing is plan)
-        if not published:
-            return        # newer data or a newer plan took over meanwhile
-        replan = plan.goal_active and not self._worker.goal_busy()
-        how = 'braking to rest' if braking is not None else 'stopped'
-        reason = (f'the executing trajectory {problem} under data revision {revision}: '
-                  f'{how}' + (', planning the goal again' if replan else ''))
-        self.get_logger().warning(reason)
-        self._publish_progress(schema.ProgressReport(
-            status=Status.CANCELED, message=reason, level=schema.DiagnosticStatus.WARN,
-            goal_source=plan.source, data_revision=revision, event=schema.EVENT_STOPPED))
-        if replan:
-            request = self._submit(lambda _config: plan.goal, goals.REPLAN)
-            if request is not None:
-                request.event = schema.EVENT_REPLACED
-
-    def _brake_can_wait(self, plan, config, measured, elapsed):
-        """Tell whether plan may run on while a cycle plans around new data (the policy)."""
-        rows = config.problem.obstacles
-        conflict = true_conflict_time(plan, rows, elapsed)
-        return policy.brake_can_wait(plan, rows, measured, elapsed,
-                                     self._plans.cycle_lead(config.node.replan_lead), conflict)
-
-    def _snapshot(self):
-        """Return (settings, the measured state of their model or None)."""
-        with self._lock:
-            config, joints, effort = self._config, self._measured, self._measured_effort
-        return config, (None if joints is None else self._model_state(joints, effort))
+        self._planner.data_changed(config)
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -371,10 +318,11 @@ class SolverNode(Node):
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
-        state_time = stamp if stamp > 0.0 else self._now()
+        state_time = stamp if stamp > 0.0 else self.now()
         if config.node.replan_estimate:
             self._estimate_from(msg, config, state, state_time)
-        self._maybe_replan(config, self._model_state(state, effort), state_time, received)
+        self._planner.maybe_replan(config, self._model_state(state, effort), state_time,
+                                   received)
 
     def _model_state(self, joints, effort=None):
         """
@@ -406,24 +354,18 @@ class SolverNode(Node):
         self._estimate.add(self._model.joint_model, config.node.replan_estimate,
                            config.node.replan_estimate_window, state_time, state, effort)
 
-    def _estimated_model(self, config):
-        """Return (model with the online estimate or None, its text or why there is none)."""
-        if not config.node.replan_estimate:
-            return None, ''
-        return self._estimate.model(self._model.joint_model, config.robot.actuator_lag)
-
     def _pose_goal(self, msg, config):
         """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
-        start, _ = self._start_state(config, self._snapshot()[1])
+        start, _ = start_state(config, self.snapshot()[1])
         return conversions.pose_to_joint_goal(
             msg, config.frames.base_frame, config.model, tuple(config.node.extension_limits),
             config.node.ik_branch, seed=config.model.positions(start))
 
     def _on_goal_pose(self, msg):
-        self._submit(lambda config: self._pose_goal(msg, config), 'goal_pose')
+        self._planner.submit(lambda config: self._pose_goal(msg, config), 'goal_pose')
 
     def _on_goal_joints(self, msg):
-        self._submit(lambda config: conversions.joint_state_to_state(
+        self._planner.submit(lambda config: conversions.joint_state_to_state(
             msg, config.frames.joint_names), 'goal_joints')
 
     def _on_obstacles(self, msg):
@@ -431,26 +373,27 @@ class SolverNode(Node):
             limit = self._config.node.max_count
         count = obstacle_count(msg)
         if count > limit:    # refused before any per-obstacle work
-            self._refuse('obstacles', f'{count} obstacles exceed obstacles.max_count = {limit}')
+            self._planner.refuse('obstacles',
+                                 f'{count} obstacles exceed obstacles.max_count = {limit}')
             return
         try:
             rows = conversions.obstacle_rows_from_msg(msg)
         except conversions.ConversionError as exc:
-            self._refuse('obstacles', str(exc))
+            self._planner.refuse('obstacles', str(exc))
             return
         outcome = self.set_parameters_atomically([
             Parameter(f'obstacles.{key}', Parameter.Type.DOUBLE_ARRAY, [row[i] for row in rows])
             for i, key in enumerate(('x', 'y', 'radius'))])
         if not outcome.successful:
-            self._refuse('obstacles', outcome.reason)
+            self._planner.refuse('obstacles', outcome.reason)
         else:
             self.get_logger().info(f'obstacles replaced: {len(rows)} circle(s)')
 
     async def _on_plan(self, request, response):
-        config, measured = self._snapshot()
+        config, measured = self.snapshot()
         response.plan.header.frame_id = config.frames.base_frame
         response.plan.header.stamp = self.get_clock().now().to_msg()
-        start, start_source = self._start_state(config, measured)
+        start, start_source = start_state(config, measured)
         try:
             why = ignored_start(request.start, config, start)
         except (ValueError, IndexError) as exc:      # a model without a hand position
@@ -459,10 +402,11 @@ class SolverNode(Node):
             note = (f'~/plan: the request start {why}; planning from the {start_source} state '
                     'instead (the start is always the measured state)')
             self.get_logger().warning(note)
-            self._publish_progress(schema.ProgressReport(
+            self.report(schema.ProgressReport(
                 message=note, level=schema.DiagnosticStatus.WARN, goal_source='~/plan',
                 start_source=start_source, event=schema.EVENT_START_IGNORED))
-        pending = self._submit(lambda cfg: self._pose_goal(request.goal, cfg), '~/plan')
+        pending = self._planner.submit(lambda cfg: self._pose_goal(request.goal, cfg),
+                                       '~/plan')
         if pending is None:
             return response
         finished = Future()
@@ -488,333 +432,14 @@ class SolverNode(Node):
 
     def _on_cancel_goal(self, _request, response):
         """Abandon the goal: no more solves or cycles for it, the robot brakes to rest."""
-        started = time.monotonic()
-        reason = 'goal canceled by ~/cancel_goal'
-        with self._plans.lock:      # first: no new cycle and no replan after a stop for it
-            plan = self._plans.executing
-            active = plan is not None and plan.goal_active and plan.executing(self._now())
-            if plan is not None:
-                plan.goal_active = False
-        stopped, dropped = self._worker.cancel_goal(reason)
-        config, measured = self._snapshot()
-        how = None
-        if policy.cancel_goal_action(plan, self._now(), measured) != policy.NOTHING:
-            published, braking = self._publish_stop(
-                plan, config, lambda: self._plans.executing is plan)
-            if published and braking is None:
-                how = 'stopped (no measured state)'
-        current, revision = self._plans.current()
-        if how is None and current is not None and current.braking \
-                and current.executing(self._now()):
-            how = 'braking to rest'
-        response.success = bool(stopped or dropped or active)
-        if not response.success:
-            response.message = 'no active goal (nothing solving, queued or executing)'
-            return response
-        response.message = (f'{reason}: ' + (how or 'no plan was executing')
-                            + f' ({time.monotonic() - started:.4f} s)')
-        self.get_logger().warning(response.message)
-        self._publish_progress(schema.ProgressReport(
-            status=Status.CANCELED, message=response.message, level=schema.DiagnosticStatus.WARN,
-            goal_source='' if plan is None else plan.source, data_revision=revision,
-            event=schema.EVENT_GOAL_CANCELED))
+        response.success, response.message = self._planner.cancel_goal(
+            'goal canceled by ~/cancel_goal')
         return response
 
-    def _start_state(self, config, measured):
-        if measured is not None:
-            return measured, 'joint_states'
-        return np.asarray(config.problem.x0, dtype=float), 'initial_state'
-
-    def _submit(self, make_goal, source):
-        """Check a goal against the current start state and obstacles, then queue it."""
-        config, measured = self._snapshot()
-        start, start_source = self._start_state(config, measured)
-        try:
-            goal = make_goal(config)
-        except conversions.ConversionError as exc:
-            self._refuse(source, str(exc))
-            return None
-        why = goals.goal_refusal(config, start, start_source, goal, source)
-        if why is not None:
-            self._refuse(source, why)
-            return None
-        request = Request(np.asarray(goal, dtype=float), source)
-        self.get_logger().info(f'goal from {source}: {np.round(goal, 6).tolist()}')
-        if not self._ready.is_set():
-            note = (f'goal from {source} queued: the numba kernels are still loading; it is '
-                    'solved once ready')
-            self.get_logger().info(note)
-            self._publish_progress(schema.ProgressReport(
-                message=note, goal_source=source, goal=tuple(goal), event=schema.EVENT_QUEUED))
-        self._worker.submit(request)
-        return request
-
-    def _refuse(self, source, reason):
-        self.get_logger().error(f'refused {source}: {reason}')
-        self._publish_progress(schema.refusal_report(f'{source}: {reason}'))
-
-    # -- solving (worker thread) --------------------------------------------------------------
-
-    def _publish_progress(self, report):
-        msg = schema.progress_msg(self._name, report)
-        with self._publish_lock:
-            self._progress_pub.publish(msg)
-            self._progress.sent()
-
-    def _on_progress(self, progress):
-        progress = self._progress.update(progress)
-        if progress is not None:
-            self._publish_progress(schema.running_report(progress))
-
     def _heartbeat(self):
-        progress = self._progress.due()
+        progress = self._planner.progress.due()
         if progress is not None:
-            self._publish_progress(schema.running_report(progress))
-
-    def _drop(self, request, reason, event=None):
-        event = schema.EVENT_SUPERSEDED if event is None else event
-        self.get_logger().warning(f'goal from {request.source} {reason}')
-        self._publish_progress(schema.ProgressReport(
-            status=Status.CANCELED, message=f'goal from {request.source} {reason}',
-            goal_source=request.source, event=event))
-        request.finish()
-
-    def _run(self, request, cancel):
-        if request.cycle is not None:
-            self._run_cycle(request, cancel)
-            return
-        config, measured = self._snapshot()
-        start, start_source = self._start_state(config, measured)
-        executing, revision = self._plans.current()
-        try:
-            problem, guess, margin = goals.goal_problem(
-                config, start, request.goal, request.source,
-                executing if start_source == 'joint_states' else None, self._now())
-        except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
-            self._refuse(request.source, str(exc))
-            return
-        if margin is not None:
-            self.get_logger().warning(
-                f'replanning from inside the obstacle margin with margin {margin:.4g} m')
-        self._publish_progress(schema.running_report(self._progress.start(
-            Progress(0, problem.t_f0, math.nan, math.nan, 0.0, 'start'))))
-        try:
-            result = solve(problem, config.options, progress=self._on_progress, cancel=cancel,
-                           initial_guess=guess)
-        except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
-            self.get_logger().error(f'solver failed: {exc!r}')
-            self._publish_progress(schema.refusal_report(
-                f'internal solver error: {exc!r}', status=Status.INVALID_INPUT, event=''))
-            return
-        finally:
-            self._progress.end()
-        if request.restart_reason is not None:
-            return        # the worker runs it again with the current data
-        request.result = result
-        status, message = goals.goal_outcome(result, request.stop_reason, start_source)
-        if status in schema.PUBLISHED and result.has_trajectory \
-                and not self._publish_plan(request, result, problem, config, revision):
-            if self._worker.current(request):
-                request.restart_reason = 'planning data changed at the end of the solve'
-                return
-            status, message = Status.CANCELED, f'{request.stop_reason}: not published'
-        report = schema.result_report(
-            result, message, goal_source=request.source, start_source=start_source,
-            goal=tuple(float(v) for v in np.round(request.goal, 9)),
-            obstacles_hash=schema.obstacles_hash(problem.obstacles, problem.margin),
-            data_revision=revision, event=request.event, **config.model_keys())
-        if status is not result.status:
-            report = dataclasses.replace(report, status=status, level=None)
-        text = (f'{status.value} for goal from {request.source}: {message} '
-                f'({result.iterations} iterations, {result.wall_time_s:.3f} s)')
-        # One call site per severity: rclpy refuses to change it between calls of a site.
-        level = schema.LEVELS[status]
-        if level == schema.DiagnosticStatus.OK:
-            self.get_logger().info(text)
-        elif level == schema.DiagnosticStatus.WARN:
-            self.get_logger().warning(text)
-        else:
-            self.get_logger().error(text)
-        self._publish_progress(report)
-
-    def _publish_plan(self, request, result, problem, config, revision, stamp_s=None):
-        """
-        Publish the plan unless its data revision is stale or its goal canceled (then False).
-
-        stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
-        cycles: ahead of now); None: start_lead after publication for a start at rest (the
-        stamp is taken once the message is built), else now.  A replan cycle's plan whose data
-        changed meanwhile is published when it also satisfies the current data (checked as
-        executing plans are).
-        """
-        model = problem.robot_model
-        rest = stamp_s is None and policy.at_rest(model, problem.x0)
-        lead = config.node.start_lead if rest else 0.0
-        names = config.frames.joint_names
-        trajectory = conversions.trajectory_msg(result, names, model, conversions.time_msg(0.0))
-        now = self._now()
-        if request.cycle is not None and time.monotonic() > request.cycle.deadline:
-            request.late = True         # over the cycle's budget (the lead): keep the old plan
-            return False
-        start = now + lead if stamp_s is None else float(stamp_s)
-        stamp = trajectory.header.stamp = conversions.time_msg(start)
-        plan = plan_from_result(result, start, request.goal, request.source, model)
-        plans = self._plans
-        with plans.lock:
-            if not self._worker.current(request):
-                return False            # its goal was canceled (~/cancel_goal)
-            if revision != plans.revision:
-                with self._lock:
-                    current = self._config
-                if request.cycle is None or goals.plan_violation(plan, current, 0.0):
-                    return False
-                problem = problem_from_parameters(current.flat, x0=problem.x0,
-                                                  x_goal=problem.x_goal)
-                revision = plans.revision
-            self._trajectory_pub.publish(trajectory)
-            request.published_at = time.monotonic()
-            plans.executing = plan
-            plans.plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
-                               revision)
-        # The path and the markers only after the trajectory: they are not on its latency.
-        path = conversions.hand_path_msg(result.states, model, config.frames.base_frame, stamp)
-        request.path = path
-        self._path_pub.publish(path)
-        if request.cycle is None:
-            self._publish_markers()   # cycles: the marker timer redraws (no solve delay)
-        else:
-            with self._lock:
-                self._arm_dirty = True
-        return True
-
-    # -- replanning (receding horizon) ----------------------------------------------------------
-
-    def _now(self):
-        """Return the node clock's time [s] (simulated time under use_sim_time)."""
-        return self.get_clock().now().nanoseconds * 1e-9
-
-    def _maybe_replan(self, config, state, state_time, received, reason=None):
-        """
-        Start a replan cycle from a measured state when one is due; True when it was queued.
-
-        Due (policy.cycle_reason): at replan.rate, at once when the state deviates from the
-        executing plan by more than replan.deviation, or for a reason (new data).  The cycle's
-        plan starts on the executing plan's node at or after now + lead (policy.cycle_start)
-        from the state predicted along the executing plan; the worker takes it only when no
-        goal is queued or solving.
-        """
-        plan, revision = self._plans.current()
-        if not policy.cycle_allowed(plan, config.replanning, self._ready.is_set()) \
-                or state.shape[0] != plan.model.nx:
-            return False
-        cycle = policy.next_cycle(plan, state, state_time, self._now(), received,
-                                  self._plans.cycle_lead(config.node.replan_lead), config.node,
-                                  self._plans.next_cycle, revision, reason)
-        if cycle is None:
-            return False
-        request = Request(plan.goal, CYCLE_SOURCE, cycle)
-        if not self._worker.offer(request, behind_cycle=cycle.reason == policy.DATA_CHANGE):
-            return False
-        self._plans.cycle_taken(received, config.node.replan_rate)
-        return True
-
-    def _run_cycle(self, request, cancel):
-        """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
-        cycle, plan = request.cycle, request.cycle.plan
-        config = self._snapshot()[0]
-        taken = self._plans.cycle_source(plan)
-        if taken is None:
-            return          # a newer plan was published meanwhile: nothing to replace
-        revision, source = taken
-        result, problem, why = None, None, ''
-        estimated, estimate = self._estimated_model(config)
-        try:
-            problem = problem_from_parameters(config.flat, x0=cycle.start, x_goal=plan.goal)
-            if estimated is not None:
-                problem = problem.with_model(estimated)
-            # Published only by its deadline (its lead after its joint_states arrived): the
-            # lead bounds the latency; a late solve seeds the next cycle's warm start.
-            planned, options, guess = policy.cycle_problem(
-                source, cycle, problem, config.node.replan_max_nodes, config.options,
-                time.monotonic())
-            if planned is None:
-                why = guess
-            else:
-                problem = planned
-                result = solve(problem, options, cancel=cancel, initial_guess=guess)
-        except (ProblemError, TypeError, ValueError) as exc:
-            why = f'no plan from the predicted state: {exc}'
-        except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
-            self.get_logger().error(f'replan cycle failed: {exc!r}')
-            why = f'internal solver error: {exc!r}'
-        published = False
-        if result is not None:
-            late_by = None
-            if result.status is Status.SOLVED and result.has_trajectory:
-                # Published only when its message is ready by the deadline (else late).
-                request.late = time.monotonic() > cycle.deadline
-                published = not request.late and self._publish_plan(
-                    request, result, problem, config, revision, stamp_s=cycle.stamp_s)
-                if request.late:
-                    late_by = time.monotonic() - cycle.deadline
-                    self._plans.seed_next(plan, result, problem)
-            why = goals.cycle_failure(result, request.stop_reason, late_by,
-                                      cycle.deadline - cycle.received, published,
-                                      published or self._worker.current(request)) or why
-        # joint_states received -> trajectory published (the path and markers come after).
-        latency = (request.published_at if published else time.monotonic()) - cycle.received
-        if result is not None and result.status is Status.SOLVED:
-            # Solved cycles, published or late: the median follows cycles that are slow most
-            # of the time, not the rare one that seeds the next.  Not timed-out ones: those
-            # are the final braking's overshoot problems, hundreds of iterations whatever the
-            # lead (they would stretch every later cycle's lead to the cap).
-            self._plans.record_latency(latency)
-        values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
-                      goal=tuple(float(v) for v in np.round(plan.goal, 9)),
-                      data_revision=revision, latency_s=latency, deviation=cycle.deviation,
-                      plan_stamp=cycle.stamp_s, state_stamp=cycle.state_stamp,
-                      estimate=estimate if estimated is not None else
-                      (f'none: {estimate}' if estimate else ''), **config.model_keys())
-        if problem is not None:
-            values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
-        if published:       # the data it was checked against
-            with self._plans.lock:
-                values['obstacles_hash'], values['data_revision'] = self._plans.plan_info
-            self._publish_progress(schema.result_report(
-                result, f'replanned ({cycle.reason}): {result.message}',
-                event=schema.EVENT_REPLANNED, **values))
-            return
-        message = f'replan cycle ({cycle.reason}) kept the executing plan: {why}'
-        self.get_logger().warning(message, throttle_duration_sec=1.0)
-        report = (schema.result_report(result, message, **values) if result is not None
-                  else schema.ProgressReport(status=Status.INVALID_INPUT, message=message,
-                                             **values))
-        self._publish_progress(dataclasses.replace(
-            report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
-        self._stop_if_violating(plan, self._snapshot()[0], cycle, request.late)
-
-    def _stop_if_violating(self, plan, config, cycle, late=False):
-        """
-        After a failed cycle: act on the plan it kept if that violates the current data.
-
-        Another data-change cycle is tried when policy.retry_after_failed_cycle says so and
-        braking can wait for it (_brake_can_wait); else the plan is stopped.
-        """
-        plan_now, revision = self._plans.current()
-        if plan_now is not plan:
-            return
-        elapsed = plan.elapsed(self._now())
-        problem = goals.plan_violation(plan, config, elapsed)
-        if problem is None:
-            return
-        measured = self._snapshot()[1]
-        again = policy.retry_after_failed_cycle(cycle.reason, cycle.revision, revision, late)
-        if again and measured is not None \
-                and self._brake_can_wait(plan, config, measured, elapsed) \
-                and self._maybe_replan(config, measured, self._now(), time.monotonic(),
-                                       reason=policy.DATA_CHANGE):
-            return
-        self._stop(plan, config, revision, problem)
+            self.report(schema.running_report(progress))
 
     # -- markers ------------------------------------------------------------------------------
 
@@ -822,15 +447,16 @@ class SolverNode(Node):
         with self._lock:
             dirty = self._arm_dirty
         if dirty:
-            self._publish_markers()
+            self.publish_markers()
 
-    def _publish_markers(self):
+    def publish_markers(self):
+        """Draw the obstacles, the arm and the executing plan's path."""
         with self._lock:
             config = self._config
             arm = self._measured
             self._arm_dirty = False
             self._arm_drawn = arm
-        path_states, plan_info, revision = self._plans.drawing()
+        path_states, plan_info, revision = self._planner.plans.drawing()
         if arm is None:
             arm = np.asarray(config.problem.x0, dtype=float)
         rows, margin = config.problem.obstacles, config.problem.margin
