@@ -148,7 +148,7 @@ def hand(q1, q2):
 
 @pytest.fixture(scope='module')
 def solved():
-    """A goal solved from X0 to NEAR_GOAL (no measured state: from initial_state)."""
+    """Solve a goal from X0 to NEAR_GOAL (no measured state: from initial_state)."""
     p, port = planner()
     request = p.submit(lambda _c: NEAR_GOAL, 'goal_joints')
     finish(p, request)
@@ -409,8 +409,8 @@ def test_a_replan_from_inside_the_margin_uses_half_the_true_clearance():
     flat = goals.recovery_params(settings, start)
     assert flat['obstacles.margin'] == pytest.approx(0.025, rel=1e-6)
     goal = np.array([0.0, 0.0, 0.5, 0.0])
-    assert 'start state from joint_states' in goals.goal_refusal(settings, start,
-                                                                'joint_states', goal, 'goal')
+    refusal = goals.goal_refusal(settings, start, 'joint_states', goal, 'goal')
+    assert 'start state from joint_states' in refusal
     assert goals.goal_refusal(settings, start, 'joint_states', goal, goals.REPLAN) is None
     problem, guess, margin = goals.goal_problem(settings, start, goal, goals.REPLAN, None, 0.0)
     assert margin == pytest.approx(0.025, rel=1e-6) and problem.margin == margin

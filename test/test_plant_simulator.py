@@ -13,8 +13,9 @@
 # limitations under the License.
 
 """
-The ROS-free plant simulator (toc_ros/plant/simulator.py): the cases of the plant's process
-tests, in simulated time, plus edge cases that real time cannot provoke exactly.
+The ROS-free plant simulator (toc_ros/plant/simulator.py), in simulated time.
+
+The cases of the plant's process tests, plus edge cases that real time cannot provoke exactly.
 
 References are checked against the independent Hermite polynomial and first-order lag of
 plant_oracle.py; the integration step against an RK4 of the model's dynamics written here.

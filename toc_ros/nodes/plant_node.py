@@ -26,9 +26,9 @@ nanoseconds).  With ``publish_clock`` true it publishes it on /clock and stamps 
 it (the other nodes then run with use_sim_time), so a stamp is a simulated time.  With
 ``publish_clock`` false the stamps are in the node's ROS clock: stamp = _sim_time + offset,
 the offset (integer nanoseconds) being taken from the ROS clock at start-up, when publish_clock
-changes, when the timer skips a stall (see simulator.MAX_CATCH_UP_S) and when the ROS clock jumps by
-more than CLOCK_JUMP_S; a received stamp maps back to simulated time as stamp - offset.  So
-joint_states stamps are the exact time of the published state, and a trajectory stamped with
+changes, when the timer skips a stall (see simulator.MAX_CATCH_UP_S) and when the ROS clock
+jumps by more than CLOCK_JUMP_S; a received stamp maps back to simulated time as
+stamp - offset.  So joint_states stamps are the exact time of the published state, and a trajectory stamped with
 a joint_states stamp + d starts exactly d after that state, on the integration step grid.
 
 *Trajectories* (ros2_controllers JointTrajectoryController semantics).  A trajectory's

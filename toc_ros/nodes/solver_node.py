@@ -197,7 +197,7 @@ class SolverNode(Node):
 
     @property
     def _model(self):
-        """The robot model planned for (its kernels loaded or loading)."""
+        """Return the robot model planned for (its kernels loaded or loading)."""
         return self._kernels.model
 
     def _on_kernels_failed(self, exc):

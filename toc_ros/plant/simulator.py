@@ -263,7 +263,7 @@ class PlantSimulator:
             self.sim_ns += self.dt_ns
 
     def finite(self):
-        """Tell whether the state is finite (else the simulation diverged)."""
+        """Tell whether no state value is NaN or infinite: else the simulation diverged."""
         return bool(np.all(np.isfinite(self.x)))
 
     def track_error(self):
