@@ -28,8 +28,9 @@ it (the other nodes then run with use_sim_time), so a stamp is a simulated time.
 the offset (integer nanoseconds) being taken from the ROS clock at start-up, when publish_clock
 changes, when the timer skips a stall (see simulator.MAX_CATCH_UP_S) and when the ROS clock
 jumps by more than CLOCK_JUMP_S; a received stamp maps back to simulated time as
-stamp - offset.  So joint_states stamps are the exact time of the published state, and a trajectory stamped with
-a joint_states stamp + d starts exactly d after that state, on the integration step grid.
+stamp - offset.  So joint_states stamps are the exact time of the published state, and a
+trajectory stamped with a joint_states stamp + d starts exactly d after that state, on the
+integration step grid.
 
 *Trajectories* (ros2_controllers JointTrajectoryController semantics).  A trajectory's
 ``header.stamp`` is the time of its time_from_start = 0:
