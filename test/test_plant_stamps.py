@@ -17,7 +17,8 @@ plant_node as a process: trajectories by header.stamp, splices, actuator lag and
 
 Everything is checked on the real message traffic: ``plant_node/reference`` (q_ref, dq_ref,
 u_ff), ``joint_states`` (effort = applied u) and ``plant_node/tracking``, against a cubic
-Hermite interpolation and a first-order lag written out here independently of the package.
+Hermite interpolation and a first-order lag written out independently of the package
+(plant_oracle.py).
 Times are integer nanoseconds of the stamps (the plant's step grid is 1 ms).
 """
 
@@ -28,6 +29,7 @@ from types import SimpleNamespace
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_harness import handshake, JOINTS, NodeProcess, PAPER_X0, RosClient, values
 import numpy as np
+from plant_oracle import deviation, Expected, hold, lagged, rest_to_rest
 import pytest
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -70,48 +72,6 @@ def plant(tmp_path_factory):
     finally:
         node.stop()
         client.close()
-
-
-# -- independent reference: cubic Hermite by its polynomial coefficients ------------------------
-
-class Expected:
-    """q_ref, dq_ref, u_ff of a trajectory (times [s] from its stamp), as the plant defines it."""
-
-    def __init__(self, times, positions, velocities, efforts=None):
-        # As sent: time_from_start has whole nanoseconds.
-        self.times = np.round(np.asarray(times, dtype=float) * NS) / NS
-        self.positions = np.asarray(positions, dtype=float)
-        self.velocities = np.asarray(velocities, dtype=float)
-        self.efforts = None if efforts is None else np.asarray(efforts, dtype=float)
-
-    def __call__(self, tau):
-        zero = np.zeros(2)
-        if tau >= self.times[-1]:
-            return self.positions[-1], zero, zero
-        k = int(np.flatnonzero(self.times <= tau)[-1])
-        h = self.times[k + 1] - self.times[k]
-        p0, p1 = self.positions[k], self.positions[k + 1]
-        v0, v1 = self.velocities[k], self.velocities[k + 1]
-        c2 = (3.0 * (p1 - p0) / h - 2.0 * v0 - v1) / h
-        c3 = (2.0 * (p0 - p1) / h + v0 + v1) / (h * h)
-        s = tau - self.times[k]
-        q = p0 + v0 * s + c2 * s * s + c3 * s * s * s
-        dq = v0 + 2.0 * c2 * s + 3.0 * c3 * s * s
-        return q, dq, (zero if self.efforts is None else self.efforts[k])
-
-
-def hold(q):
-    """Return the reference of holding q."""
-    return lambda tau: (np.asarray(q, dtype=float), np.zeros(2), np.zeros(2))
-
-
-def rest_to_rest(start, goal, duration, points=7):
-    """Return the Expected reference of a smoothstep from start to goal (no effort)."""
-    s = np.linspace(0.0, 1.0, points)
-    blend = 3 * s ** 2 - 2 * s ** 3
-    rate = (6 * s - 6 * s ** 2) / duration
-    delta = np.asarray(goal, dtype=float) - np.asarray(start, dtype=float)
-    return Expected(s * duration, start + np.outer(blend, delta), np.outer(rate, delta))
 
 
 def message(expected, stamp_ns=0):
@@ -175,17 +135,6 @@ def references(ctx, first, last):
 def wait_until_stamp(ctx, stamp):
     ctx.client.wait_for(lambda: [m for m in ctx.client.messages(REFERENCE)
                                  if ns(m.header.stamp) >= stamp], 10.0, f'stamp {stamp}')
-
-
-def deviation(samples, pieces):
-    """Largest |reference - expected| over samples; pieces: [(start ns, expected)] in order."""
-    worst = 0.0
-    for t, q, dq, u in samples:
-        start, expected = [p for p in pieces if p[0] <= t][-1]
-        q_e, dq_e, u_e = expected((t - start) / NS)
-        worst = max(worst, float(np.max(np.abs(q - q_e))), float(np.max(np.abs(dq - dq_e))),
-                    float(np.max(np.abs(u - u_e))))
-    return worst
 
 
 def near(samples, stamp, before_ns=50 * MS):
@@ -352,16 +301,6 @@ def effort_step(ctx, lag, delay, effort=(100.0, 50.0), duration=0.6):
             'control_delay': 0.0})
         reset(ctx)
     return step, u, samples
-
-
-def lagged(t, width, u, lag):
-    """Output at t [s] of a lag (time constant lag, 0: none) fed u on [0, width), else 0."""
-    if t <= 0.0:
-        return np.zeros_like(u)
-    if lag == 0.0:
-        return u if t <= width else np.zeros_like(u)
-    rise = u * (1.0 - math.exp(-min(t, width) / lag))
-    return rise if t <= width else rise * math.exp(-(t - width) / lag)
 
 
 @pytest.mark.parametrize('lag, delay', [(0.05, 0.0), (0.0, 0.04), (0.02, 0.03)])

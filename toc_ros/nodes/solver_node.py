@@ -61,7 +61,10 @@ cycle's plan is published only when solved before its stamp, else the executing 
 (~/progress event replan_kept).  Goals go first: a cycle never preempts a goal.  With
 replan.estimate the cycles plan with model parameters estimated online from the joint_states
 efforts (core/estimation.py).  The policy (when a cycle is due, its lead and grid, braking)
-is core/replan_policy.py, the executing plan core/executing_plan.py, the worker goal_worker.py.
+is core/replan_policy.py, the executing plan core/executing_plan.py and its bookkeeping
+execution_state.py, the goals' checks and problems goal_requests.py, the solves, cycles and
+stops planner.py (free of rclpy), the worker goal_worker.py: this node translates messages
+and wires them.
 
 No plan for stale data: when the obstacles, the margin, the robot data or the extension
 limits change during a goal's solve, the solve restarts from the same goal and the latest
@@ -77,9 +80,6 @@ measured state.
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
 
-import collections
-import dataclasses
-import math
 import sys
 import threading
 import time
@@ -98,33 +98,23 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from toc_ros import conversions, progress as schema
-from toc_ros.config import problem_from_parameters
-from toc_ros.core import ProblemError, Progress, solve, Status, warm_up
+from toc_ros import conversions, goal_requests as goals, progress as schema
 from toc_ros.core import replan_policy as policy
-from toc_ros.core.executing_plan import (braking_plan, goal_warm_start, plan_from_result,
-                                         Seed, true_conflict_time, violation)
-from toc_ros.core.models import CylindricalRobot
-from toc_ros.core.result import CLEARANCE_TOL
-from toc_ros.goal_worker import GoalWorker, Request
+from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
 from toc_ros.nodes.solver_settings import checked, parameter_errors, SolverNodeConfig
+from toc_ros.planner import Planner, start_state
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 PARAMETER_NAMES = parameters.SOLVER_NODE_NAMES
-# ~/progress while solving: the core reports every 0.1 s; the heartbeat fills gaps (set-up,
-# slow iterations) so that no gap exceeds MAX_PROGRESS_GAP_S.
+# ~/progress while solving: the heartbeat checks this often for a gap to fill.
 HEARTBEAT_PERIOD_S = 0.05
-MAX_PROGRESS_GAP_S = 0.15
-CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 MARKER_PERIOD_S = 0.2
 ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # Queue depth of the services: every request of a burst is kept and answered.
 SERVICE_QOS = QoSProfile(depth=100)
-# [m] a ~/plan start farther than this from the measured hand position is warned about.
-START_TOLERANCE_M = 1e-3
 
 
 def obstacle_count(msg):
@@ -135,40 +125,12 @@ def obstacle_count(msg):
     return len(msg.data) // 3
 
 
-def recovery_params(config, start):
-    """Return the flat parameters of a replan from start inside the margin (None: as is)."""
-    margin = policy.recovery_margin(config.model, start, config.problem.obstacles,
-                                    config.problem.margin)
-    return None if margin is None else dict(config.flat, **{'obstacles.margin': margin})
-
-
-def plan_violation(plan, config, elapsed):
-    """Return what the rest of an executing plan violates under config, or None."""
-    try:
-        problem = problem_from_parameters(config.flat, x0=plan.states[0], x_goal=plan.goal)
-    except ProblemError as exc:
-        return f'cannot be checked ({exc})'
-    return violation(plan, problem.robot_model, problem.circles(), elapsed, CLEARANCE_TOL)
-
-
 def ignored_start(start, config, measured_state):
     """Return why a ~/plan request's start pose is ignored with a warning, or None."""
     p = start.pose.position
-    frame = start.header.frame_id.strip('/')
-    if not frame and p.x == 0.0 and p.y == 0.0 and p.z == 0.0:
-        return None         # the empty pose: no start given
-    model = config.model.joint_model
-    q = np.asarray(measured_state, dtype=float)[0:2 * model.n_joints:2]   # [q1, dq1, ...]
-    hand = np.asarray(model.hand_position(q), dtype=float)
-    where = f'({p.x:.6g}, {p.y:.6g})'
-    if frame and frame != config.frames.base_frame.strip('/'):
-        return f'its frame {frame!r} is not {config.frames.base_frame!r}'
-    if not (math.isfinite(p.x) and math.isfinite(p.y)):
-        return f'{where} is not finite'
-    gap = math.hypot(p.x - hand[0], p.y - hand[1])
-    if gap > START_TOLERANCE_M:
-        return f'{where} is {gap:.4g} m from the measured hand position'
-    return None
+    return goals.ignored_start(start.header.frame_id.strip('/'), p.x, p.y,
+                               config.frames.base_frame, config.model.joint_model,
+                               measured_state)
 
 
 class SolverNode(Node):
@@ -184,29 +146,17 @@ class SolverNode(Node):
         self._config = SolverNodeConfig.from_flat(flat)
         self._accepted = None               # the config of the last accepted candidate
         self._name = self.get_fully_qualified_name()
+        self.logger = self.get_logger()
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest joint state from joint_states
         self._measured_effort = None        # and its efforts (None: not given or not used)
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
-        self._progress = None               # (Progress, solve start) of the running solve
-        self._progress_sent = 0.0
         self._publish_lock = threading.Lock()
-        # Planning data: revision counter and the plan in execution, guarded by _plan_lock
-        # (a trajectory is published only while its data revision is still current).
-        self._plan_lock = threading.Lock()
-        self._revision = 0
-        self._planning = self._config.planning_data()
-        self._executing = None              # ExecutingPlan: the last published plan
-        self._seed = None                   # Seed: a late cycle's plan, the next warm start
-        self._plan_info = None              # (hash, revision) of the last published plan
-        self._next_cycle = 0.0              # time.monotonic() of the next replan.rate cycle
-        self._latencies = collections.deque(maxlen=policy.LATENCY_WINDOW)   # of cycles [s]
         self._estimate = policy.OnlineEstimate()    # replan.estimate: fed by joint_states
-        self._ready = threading.Event()
-        self._started = time.monotonic()
-        self._kernel_load_s = None
-        self._model = self._config.model
+        self._kernels = KernelLoader(self._config.model, self._on_kernels_loaded,
+                                     self._on_kernels_failed)
+        self._planner = Planner(self, self._config.planning_data(), self._kernels.ready)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
@@ -239,55 +189,80 @@ class SolverNode(Node):
         self.create_timer(HEARTBEAT_PERIOD_S, self._heartbeat, callback_group=timers)
         self.create_timer(MARKER_PERIOD_S, self._publish_markers_if_dirty,
                           callback_group=timers)
-        self._worker = GoalWorker(self._run, self._drop, self._ready, self.get_logger().error)
-        self._publish_markers()
+        self._worker = self._planner.worker
+        self.publish_markers()
         # Compile or load the numba kernels in the background: the node already listens, and
         # goals that arrive meanwhile are queued.
-        threading.Thread(target=self._warm_up, name='warm_up', daemon=True).start()
+        self._kernels.start()
 
-    def _warm_up(self):
-        started = time.monotonic()
-        try:
-            warm_up(None if isinstance(self._model, CylindricalRobot) else [self._model])
-        except Exception as exc:  # noqa: B902 - reported; solves then compile on demand
-            self.get_logger().error(f'loading the numba kernels failed: {exc!r}')
-        elapsed = time.monotonic() - started
+    @property
+    def _model(self):
+        """Return the robot model planned for (its kernels loaded or loading)."""
+        return self._kernels.model
+
+    def _on_kernels_failed(self, exc):
+        self.get_logger().error(f'loading the numba kernels failed: {exc!r}')
+
+    def _on_kernels_loaded(self, elapsed):
         self.get_logger().info(f'numba kernels loaded in {elapsed:.2f} s')
-        self._kernel_load_s = elapsed
-        self._ready.set()
-        config = self._snapshot()[0]
-        self._publish_progress(schema.ProgressReport(
+        config = self.settings()
+        self.report(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
             event=schema.EVENT_READY, **config.model_keys()))
         self.get_logger().info(
             f'ready: {len(config.problem.obstacles)} obstacle(s), mode '
             f'{config.options.mode}, N = {config.problem.n_intervals}')
 
-    def _load_kernels_of(self, config):
-        """
-        Load the kernels of a new robot model in the background (goals wait for them).
-
-        E.g. robot.actuator_lag or robot.model set at run time: the new model's kernels are
-        compiled (or loaded from the cache) before any goal is solved with it, as at start-up.
-        """
-        previous, self._model = self._model, config.model
-        if self._model.kernels is previous.kernels:
-            return
-        self._ready.clear()
-        self.get_logger().info(f'robot model changed: loading the kernels of {self._model!r}')
-        threading.Thread(target=self._warm_up, name='warm_up', daemon=True).start()
-
     def ready(self):
         """Tell whether the kernels are loaded (goals before that are queued)."""
-        return self._ready.is_set()
+        return self._kernels.ready.is_set()
 
     def _on_ready(self, _request, response):
-        response.success = self._ready.is_set()
-        response.message = (
-            f'ready: numba kernels loaded in {self._kernel_load_s:.2f} s' if response.success
-            else f'loading the numba kernels ({time.monotonic() - self._started:.1f} s so '
-                 'far); goals are queued until then')
+        response.success, response.message = self._kernels.status()
         return response
+
+    # -- the planner's port -------------------------------------------------------------------
+
+    def settings(self):
+        """Return the current SolverNodeConfig."""
+        with self._lock:
+            return self._config
+
+    def snapshot(self):
+        """Return (settings, the measured state of their model or None)."""
+        with self._lock:
+            config, joints, effort = self._config, self._measured, self._measured_effort
+        return config, (None if joints is None else self._model_state(joints, effort))
+
+    def now(self):
+        """Return the node clock's time [s] (simulated time under use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def publish_trajectory(self, msg):
+        """Send a trajectory (the planner holds its plan lock meanwhile)."""
+        self._trajectory_pub.publish(msg)
+
+    def publish_path(self, msg):
+        """Send a planned path."""
+        self._path_pub.publish(msg)
+
+    def arm_moved(self):
+        """Have the marker timer redraw."""
+        with self._lock:
+            self._arm_dirty = True
+
+    def report(self, report):
+        """Send a ~/progress report."""
+        msg = schema.progress_msg(self._name, report)
+        with self._publish_lock:
+            self._progress_pub.publish(msg)
+            self._planner.progress.sent()
+
+    def estimated_model(self, config):
+        """Return (model with the online estimate or None, its text or why there is none)."""
+        if not config.node.replan_estimate:
+            return None, ''
+        return self._estimate.model(self._model.joint_model, config.robot.actuator_lag)
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -300,14 +275,13 @@ class SolverNode(Node):
         if not result.successful:
             self.get_logger().warning(f'refused parameter change: {result.reason}')
             if any(p.name.startswith('robot.model') for p in changed):
-                self._publish_progress(schema.refusal_report(
+                self.report(schema.refusal_report(
                     f'parameters: refused robot model: {result.reason}'))
         return result
 
     def _after_set_parameters(self, changed):
         if any(p.name in ('replan.lead', 'robot.model', 'robot.actuator_lag') for p in changed):
-            with self._lock:    # another lead or model: cycle latencies measured afresh
-                self._latencies.clear()
+            self._planner.plans.clear_latencies()   # another lead or model: measured afresh
         if any(p.name.startswith('replan.estimate') for p in changed):
             self._estimate.reset()      # set (even to the same value): start afresh
         flat = parameters.candidate(self._config.flat, changed)
@@ -317,105 +291,10 @@ class SolverNode(Node):
         with self._lock:
             self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed
-        if any(p.name.startswith('robot.') for p in changed):
-            self._load_kernels_of(config)
-        planning = config.planning_data()
-        with self._plan_lock:
-            if planning == self._planning:
-                return
-            self._planning = planning
-            self._revision += 1
-            revision = self._revision
-        reason = f'planning data changed (data revision {revision})'
-        if self._worker.restart(reason):
-            self.get_logger().warning(f'{reason}: restarting the running solve')
-            self._publish_progress(schema.ProgressReport(
-                message=f'{reason}: solving again from the latest state',
-                event=schema.EVENT_RESTARTED, data_revision=revision))
-        self._check_executing(config, revision)
-
-    # -- the executing plan under new data ----------------------------------------------------
-
-    def _check_executing(self, config, revision):
-        """Replan around, or stop, an executing trajectory that violates the current data."""
-        with self._plan_lock:
-            plan = self._executing
-            if plan is None or revision != self._revision:
-                return
-            now = self._now()
-            if not plan.executing(now):
-                self._executing = None
-                return
-            elapsed = plan.elapsed(now)
-            problem = plan_violation(plan, config, elapsed)
-            if problem is None:
-                return
-        measured = self._snapshot()[1]
-        if measured is not None and self._brake_can_wait(plan, config, measured, elapsed) \
-                and self._maybe_replan(config, measured, self._now(), time.monotonic(),
-                                       reason=policy.DATA_CHANGE):
-            self.get_logger().warning(
-                f'the executing trajectory {problem} under data revision {revision}: '
-                'replanning from the current state')
-            return
-        self._stop(plan, config, revision, problem)
-
-    def _publish_stop(self, plan, config, still_valid):
-        """
-        Replace plan by a stop at once; return (published, braking plan or None).
-
-        With a measured state the stop is a braking trajectory (every joint decelerates at
-        its control bound until it rests); without one an empty trajectory (the plant holds).
-        still_valid() (under the plan lock) tells whether plan may still be replaced.
-        """
-        measured = self._snapshot()[1]
-        names = config.frames.joint_names
-        braking = braking_plan(plan, measured, self._now(), policy.BRAKE_STEP_S)
-        if braking is None:
-            stop = JointTrajectory(joint_names=list(names))
-        else:
-            stop = conversions.trajectory_msg(braking, names, braking.model,
-                                              conversions.time_msg(0.0))
-        with self._plan_lock:
-            if not still_valid():
-                return False, None
-            self._trajectory_pub.publish(stop)
-            if braking is not None:
-                braking.start = self._now()
-            self._executing = braking
-        return True, braking
-
-    def _stop(self, plan, config, revision, problem):
-        """Stop the executing plan at once and plan its goal again (unless a goal is queued)."""
-        published, braking = self._publish_stop(
-            plan, config, lambda: revision == self._revision and self._executing is plan)
-        if not published:
-            return        # newer data or a newer plan took over meanwhile
-        replan = plan.goal_active and not self._worker.goal_busy()
-        how = 'braking to rest' if braking is not None else 'stopped'
-        reason = (f'the executing trajectory {problem} under data revision {revision}: '
-                  f'{how}' + (', planning the goal again' if replan else ''))
-        self.get_logger().warning(reason)
-        self._publish_progress(schema.ProgressReport(
-            status=Status.CANCELED, message=reason, level=schema.DiagnosticStatus.WARN,
-            goal_source=plan.source, data_revision=revision, event=schema.EVENT_STOPPED))
-        if replan:
-            request = self._submit(lambda _config: plan.goal, 'replan')
-            if request is not None:
-                request.event = schema.EVENT_REPLACED
-
-    def _brake_can_wait(self, plan, config, measured, elapsed):
-        """Tell whether plan may run on while a cycle plans around new data (the policy)."""
-        rows = config.problem.obstacles
-        conflict = true_conflict_time(plan, rows, elapsed)
-        return policy.brake_can_wait(plan, rows, measured, elapsed, self._cycle_lead(config),
-                                     conflict)
-
-    def _snapshot(self):
-        """Return (settings, the measured state of their model or None)."""
-        with self._lock:
-            config, joints, effort = self._config, self._measured, self._measured_effort
-        return config, (None if joints is None else self._model_state(joints, effort))
+        if any(p.name.startswith('robot.') for p in changed) \
+                and self._kernels.switch(config.model):
+            self.get_logger().info(f'robot model changed: loading the kernels of {config.model!r}')
+        self._planner.data_changed(config)
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -439,10 +318,11 @@ class SolverNode(Node):
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
-        state_time = stamp if stamp > 0.0 else self._now()
+        state_time = stamp if stamp > 0.0 else self.now()
         if config.node.replan_estimate:
             self._estimate_from(msg, config, state, state_time)
-        self._maybe_replan(config, self._model_state(state, effort), state_time, received)
+        self._planner.maybe_replan(config, self._model_state(state, effort), state_time,
+                                   received)
 
     def _model_state(self, joints, effort=None):
         """
@@ -450,7 +330,7 @@ class SolverNode(Node):
 
         A model with actuator states (robot.actuator_lag) takes the efforts as the applied ones
         (without them: the torques that hold the joints' velocities); others the joint state.
-        self._model follows the robot parameters (_load_kernels_of): no model is built here,
+        self._model follows the robot parameters (KernelLoader.switch): no model is built here,
         on the joint_states path.
         """
         try:
@@ -474,24 +354,18 @@ class SolverNode(Node):
         self._estimate.add(self._model.joint_model, config.node.replan_estimate,
                            config.node.replan_estimate_window, state_time, state, effort)
 
-    def _estimated_model(self, config):
-        """Return (model with the online estimate or None, its text or why there is none)."""
-        if not config.node.replan_estimate:
-            return None, ''
-        return self._estimate.model(self._model.joint_model, config.robot.actuator_lag)
-
     def _pose_goal(self, msg, config):
         """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
-        start, _ = self._start_state(config, self._snapshot()[1])
+        start, _ = start_state(config, self.snapshot()[1])
         return conversions.pose_to_joint_goal(
             msg, config.frames.base_frame, config.model, tuple(config.node.extension_limits),
             config.node.ik_branch, seed=config.model.positions(start))
 
     def _on_goal_pose(self, msg):
-        self._submit(lambda config: self._pose_goal(msg, config), 'goal_pose')
+        self._planner.submit(lambda config: self._pose_goal(msg, config), 'goal_pose')
 
     def _on_goal_joints(self, msg):
-        self._submit(lambda config: conversions.joint_state_to_state(
+        self._planner.submit(lambda config: conversions.joint_state_to_state(
             msg, config.frames.joint_names), 'goal_joints')
 
     def _on_obstacles(self, msg):
@@ -499,26 +373,27 @@ class SolverNode(Node):
             limit = self._config.node.max_count
         count = obstacle_count(msg)
         if count > limit:    # refused before any per-obstacle work
-            self._refuse('obstacles', f'{count} obstacles exceed obstacles.max_count = {limit}')
+            self._planner.refuse('obstacles',
+                                 f'{count} obstacles exceed obstacles.max_count = {limit}')
             return
         try:
             rows = conversions.obstacle_rows_from_msg(msg)
         except conversions.ConversionError as exc:
-            self._refuse('obstacles', str(exc))
+            self._planner.refuse('obstacles', str(exc))
             return
         outcome = self.set_parameters_atomically([
             Parameter(f'obstacles.{key}', Parameter.Type.DOUBLE_ARRAY, [row[i] for row in rows])
             for i, key in enumerate(('x', 'y', 'radius'))])
         if not outcome.successful:
-            self._refuse('obstacles', outcome.reason)
+            self._planner.refuse('obstacles', outcome.reason)
         else:
             self.get_logger().info(f'obstacles replaced: {len(rows)} circle(s)')
 
     async def _on_plan(self, request, response):
-        config, measured = self._snapshot()
+        config, measured = self.snapshot()
         response.plan.header.frame_id = config.frames.base_frame
         response.plan.header.stamp = self.get_clock().now().to_msg()
-        start, start_source = self._start_state(config, measured)
+        start, start_source = start_state(config, measured)
         try:
             why = ignored_start(request.start, config, start)
         except (ValueError, IndexError) as exc:      # a model without a hand position
@@ -527,10 +402,11 @@ class SolverNode(Node):
             note = (f'~/plan: the request start {why}; planning from the {start_source} state '
                     'instead (the start is always the measured state)')
             self.get_logger().warning(note)
-            self._publish_progress(schema.ProgressReport(
+            self.report(schema.ProgressReport(
                 message=note, level=schema.DiagnosticStatus.WARN, goal_source='~/plan',
                 start_source=start_source, event=schema.EVENT_START_IGNORED))
-        pending = self._submit(lambda cfg: self._pose_goal(request.goal, cfg), '~/plan')
+        pending = self._planner.submit(lambda cfg: self._pose_goal(request.goal, cfg),
+                                       '~/plan')
         if pending is None:
             return response
         finished = Future()
@@ -556,391 +432,14 @@ class SolverNode(Node):
 
     def _on_cancel_goal(self, _request, response):
         """Abandon the goal: no more solves or cycles for it, the robot brakes to rest."""
-        started = time.monotonic()
-        reason = 'goal canceled by ~/cancel_goal'
-        with self._plan_lock:       # first: no new cycle and no replan after a stop for it
-            plan = self._executing
-            active = plan is not None and plan.goal_active and plan.executing(self._now())
-            if plan is not None:
-                plan.goal_active = False
-        stopped, dropped = self._worker.cancel_goal(reason)
-        config, measured = self._snapshot()
-        how = None
-        if policy.cancel_goal_action(plan, self._now(), measured) != policy.NOTHING:
-            published, braking = self._publish_stop(plan, config, lambda: self._executing is plan)
-            if published and braking is None:
-                how = 'stopped (no measured state)'
-        with self._plan_lock:
-            current, revision = self._executing, self._revision
-        if how is None and current is not None and current.braking \
-                and current.executing(self._now()):
-            how = 'braking to rest'
-        response.success = bool(stopped or dropped or active)
-        if not response.success:
-            response.message = 'no active goal (nothing solving, queued or executing)'
-            return response
-        response.message = (f'{reason}: ' + (how or 'no plan was executing')
-                            + f' ({time.monotonic() - started:.4f} s)')
-        self.get_logger().warning(response.message)
-        self._publish_progress(schema.ProgressReport(
-            status=Status.CANCELED, message=response.message, level=schema.DiagnosticStatus.WARN,
-            goal_source='' if plan is None else plan.source, data_revision=revision,
-            event=schema.EVENT_GOAL_CANCELED))
+        response.success, response.message = self._planner.cancel_goal(
+            'goal canceled by ~/cancel_goal')
         return response
 
-    def _start_state(self, config, measured):
-        if measured is not None:
-            return measured, 'joint_states'
-        return np.asarray(config.problem.x0, dtype=float), 'initial_state'
-
-    def _submit(self, make_goal, source):
-        """Check a goal against the current start state and obstacles, then queue it."""
-        config, measured = self._snapshot()
-        start, start_source = self._start_state(config, measured)
-        try:
-            goal = make_goal(config)
-            low, high = config.node.extension_limits
-            if config.robot.name == 'cylindrical' and len(goal) == 4 \
-                    and not low <= goal[2] <= high:
-                raise conversions.ConversionError(
-                    f'goal extension q2 = {goal[2]:.6g} m is outside extension_limits '
-                    f'[{low:.6g}, {high:.6g}] m')
-            flat = config.flat
-            if source == 'replan':
-                flat = recovery_params(config, start) or flat
-            problem_from_parameters(flat, x0=start, x_goal=goal).validate()
-        except conversions.ConversionError as exc:
-            self._refuse(source, str(exc))
-            return None
-        except ProblemError as exc:
-            self._refuse(source, f'{exc} (start state from {start_source}: '
-                                 f'{np.round(start, 6).tolist()})')
-            return None
-        request = Request(np.asarray(goal, dtype=float), source)
-        self.get_logger().info(f'goal from {source}: {np.round(goal, 6).tolist()}')
-        if not self._ready.is_set():
-            note = (f'goal from {source} queued: the numba kernels are still loading; it is '
-                    'solved once ready')
-            self.get_logger().info(note)
-            self._publish_progress(schema.ProgressReport(
-                message=note, goal_source=source, goal=tuple(goal), event=schema.EVENT_QUEUED))
-        self._worker.submit(request)
-        return request
-
-    def _refuse(self, source, reason):
-        self.get_logger().error(f'refused {source}: {reason}')
-        self._publish_progress(schema.refusal_report(f'{source}: {reason}'))
-
-    # -- solving (worker thread) --------------------------------------------------------------
-
-    def _publish_progress(self, report):
-        msg = schema.progress_msg(self._name, report)
-        with self._publish_lock:
-            self._progress_pub.publish(msg)
-            self._progress_sent = time.monotonic()
-
-    def _on_progress(self, progress):
-        if progress.phase == 'done':   # the result message follows
-            return
-        with self._lock:
-            if self._progress is None:
-                return
-            self._progress = (progress, self._progress[1])
-        self._publish_progress(schema.running_report(progress))
-
     def _heartbeat(self):
-        with self._lock:
-            current = self._progress
-        if current is None or time.monotonic() - self._progress_sent < MAX_PROGRESS_GAP_S:
-            return
-        progress, started = current
-        progress = dataclasses.replace(progress, elapsed_s=time.monotonic() - started)
-        self._publish_progress(schema.running_report(progress))
-
-    def _drop(self, request, reason, event=None):
-        event = schema.EVENT_SUPERSEDED if event is None else event
-        self.get_logger().warning(f'goal from {request.source} {reason}')
-        self._publish_progress(schema.ProgressReport(
-            status=Status.CANCELED, message=f'goal from {request.source} {reason}',
-            goal_source=request.source, event=event))
-        request.finish()
-
-    def _run(self, request, cancel):
-        if request.cycle is not None:
-            self._run_cycle(request, cancel)
-            return
-        config, measured = self._snapshot()
-        with self._plan_lock:
-            revision = self._revision
-        start, start_source = self._start_state(config, measured)
-        flat = config.flat
-        if request.source == 'replan':
-            recovery = recovery_params(config, start)
-            if recovery is not None:
-                self.get_logger().warning(
-                    'replanning from inside the obstacle margin with margin '
-                    f"{recovery['obstacles.margin']:.4g} m")
-                flat = recovery
-        try:
-            problem = problem_from_parameters(flat, x0=start, x_goal=request.goal)
-        except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
-            self._refuse(request.source, str(exc))
-            return
-        options = config.options
-        with self._plan_lock:
-            plan = self._executing if start_source == 'joint_states' else None
-        problem, guess = goal_warm_start(plan, problem, self._now(), options.mode == 'fast')
-        with self._lock:
-            self._progress = (Progress(0, problem.t_f0, math.nan, math.nan, 0.0, 'start'),
-                              time.monotonic())
-            progress = self._progress[0]
-        self._publish_progress(schema.running_report(progress))
-        try:
-            result = solve(problem, options, progress=self._on_progress, cancel=cancel,
-                           initial_guess=guess)
-        except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
-            self.get_logger().error(f'solver failed: {exc!r}')
-            self._publish_progress(schema.refusal_report(
-                f'internal solver error: {exc!r}', status=Status.INVALID_INPUT, event=''))
-            return
-        finally:
-            with self._lock:
-                self._progress = None
-        if request.restart_reason is not None:
-            return        # the worker runs it again with the current data
-        request.result = result
-        status, message = result.status, result.message
-        if status is Status.CANCELED and request.stop_reason:
-            message = f'{request.stop_reason} ({result.message})'
-        if status is Status.INVALID_INPUT:
-            message = f'{message} (start state from {start_source})'
-        if status in schema.PUBLISHED and result.has_trajectory \
-                and not self._publish_plan(request, result, problem, config, revision):
-            if self._worker.current(request):
-                request.restart_reason = 'planning data changed at the end of the solve'
-                return
-            status, message = Status.CANCELED, f'{request.stop_reason}: not published'
-        report = schema.result_report(
-            result, message, goal_source=request.source, start_source=start_source,
-            goal=tuple(float(v) for v in np.round(request.goal, 9)),
-            obstacles_hash=schema.obstacles_hash(problem.obstacles, problem.margin),
-            data_revision=revision, event=request.event, **config.model_keys())
-        if status is not result.status:
-            report = dataclasses.replace(report, status=status, level=None)
-        text = (f'{status.value} for goal from {request.source}: {message} '
-                f'({result.iterations} iterations, {result.wall_time_s:.3f} s)')
-        # One call site per severity: rclpy refuses to change it between calls of a site.
-        level = schema.LEVELS[status]
-        if level == schema.DiagnosticStatus.OK:
-            self.get_logger().info(text)
-        elif level == schema.DiagnosticStatus.WARN:
-            self.get_logger().warning(text)
-        else:
-            self.get_logger().error(text)
-        self._publish_progress(report)
-
-    def _publish_plan(self, request, result, problem, config, revision, stamp_s=None):
-        """
-        Publish the plan unless its data revision is stale or its goal canceled (then False).
-
-        stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
-        cycles: ahead of now); None: start_lead after publication for a start at rest (the
-        stamp is taken once the message is built), else now.  A replan cycle's plan whose data
-        changed meanwhile is published when it also satisfies the current data (checked as
-        executing plans are).
-        """
-        model = problem.robot_model
-        rest = stamp_s is None and policy.at_rest(model, problem.x0)
-        lead = config.node.start_lead if rest else 0.0
-        names = config.frames.joint_names
-        trajectory = conversions.trajectory_msg(result, names, model, conversions.time_msg(0.0))
-        now = self._now()
-        if request.cycle is not None and time.monotonic() > request.cycle.deadline:
-            request.late = True         # over the cycle's budget (the lead): keep the old plan
-            return False
-        start = now + lead if stamp_s is None else float(stamp_s)
-        stamp = trajectory.header.stamp = conversions.time_msg(start)
-        plan = plan_from_result(result, start, request.goal, request.source, model)
-        with self._plan_lock:
-            if not self._worker.current(request):
-                return False            # its goal was canceled (~/cancel_goal)
-            if revision != self._revision:
-                with self._lock:
-                    current = self._config
-                if request.cycle is None or plan_violation(plan, current, 0.0):
-                    return False
-                problem = problem_from_parameters(current.flat, x0=problem.x0,
-                                                  x_goal=problem.x_goal)
-                revision = self._revision
-            self._trajectory_pub.publish(trajectory)
-            request.published_at = time.monotonic()
-            self._executing = plan
-            self._plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
-                               revision)
-        # The path and the markers only after the trajectory: they are not on its latency.
-        path = conversions.hand_path_msg(result.states, model, config.frames.base_frame, stamp)
-        request.path = path
-        self._path_pub.publish(path)
-        if request.cycle is None:
-            self._publish_markers()   # cycles: the marker timer redraws (no solve delay)
-        else:
-            with self._lock:
-                self._arm_dirty = True
-        return True
-
-    # -- replanning (receding horizon) ----------------------------------------------------------
-
-    def _now(self):
-        """Return the node clock's time [s] (simulated time under use_sim_time)."""
-        return self.get_clock().now().nanoseconds * 1e-9
-
-    def _maybe_replan(self, config, state, state_time, received, reason=None):
-        """
-        Start a replan cycle from a measured state when one is due; True when it was queued.
-
-        Due (policy.cycle_reason): at replan.rate, at once when the state deviates from the
-        executing plan by more than replan.deviation, or for a reason (new data).  The cycle's
-        plan starts on the executing plan's node at or after now + lead (policy.cycle_start)
-        from the state predicted along the executing plan; the worker takes it only when no
-        goal is queued or solving.
-        """
-        with self._plan_lock:
-            plan, revision = self._executing, self._revision
-        if not policy.cycle_allowed(plan, config.replanning, self._ready.is_set()) \
-                or state.shape[0] != plan.model.nx:
-            return False
-        cycle = policy.next_cycle(plan, state, state_time, self._now(), received,
-                                  self._cycle_lead(config), config.node, self._next_cycle,
-                                  revision, reason)
-        if cycle is None:
-            return False
-        request = Request(plan.goal, CYCLE_SOURCE, cycle)
-        if not self._worker.offer(request, behind_cycle=cycle.reason == policy.DATA_CHANGE):
-            return False
-        self._next_cycle = received + 1.0 / config.node.replan_rate
-        return True
-
-    def _cycle_lead(self, config):
-        """Return a cycle's lead [s] (policy.cycle_lead of the recent cycle latencies)."""
-        with self._lock:
-            recent = list(self._latencies)
-        return policy.cycle_lead(config.node.replan_lead, recent)
-
-    def _run_cycle(self, request, cancel):
-        """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
-        cycle, plan = request.cycle, request.cycle.plan
-        config = self._snapshot()[0]
-        with self._plan_lock:
-            revision = self._revision
-            if self._executing is not plan:
-                return          # a newer plan was published meanwhile: nothing to replace
-            seed = self._seed
-        # The warm start: the executing plan, or a late cycle's plan for it (when the data
-        # changed since, still closer to the new optimum than the executing plan).
-        source = policy.cycle_warm_source(plan, seed)
-        result, problem, why = None, None, ''
-        estimated, estimate = self._estimated_model(config)
-        try:
-            problem = problem_from_parameters(config.flat, x0=cycle.start, x_goal=plan.goal)
-            if estimated is not None:
-                problem = problem.with_model(estimated)
-            # Published only by its deadline (its lead after its joint_states arrived): the
-            # lead bounds the latency; a late solve seeds the next cycle's warm start.
-            planned, options, guess = policy.cycle_problem(
-                source, cycle, problem, config.node.replan_max_nodes, config.options,
-                time.monotonic())
-            if planned is None:
-                why = guess
-            else:
-                problem = planned
-                result = solve(problem, options, cancel=cancel, initial_guess=guess)
-        except (ProblemError, TypeError, ValueError) as exc:
-            why = f'no plan from the predicted state: {exc}'
-        except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
-            self.get_logger().error(f'replan cycle failed: {exc!r}')
-            why = f'internal solver error: {exc!r}'
-        published = False
-        if result is not None:
-            if result.status is not Status.SOLVED or not result.has_trajectory:
-                why = f'{result.status.value}: {request.stop_reason or result.message}'
-            else:
-                # Published only when its message is ready by the deadline (else late).
-                request.late = time.monotonic() > cycle.deadline
-                published = not request.late and self._publish_plan(
-                    request, result, problem, config, revision, stamp_s=cycle.stamp_s)
-                if request.late:
-                    why = (f'late: ready {1e3 * (time.monotonic() - cycle.deadline):.1f} ms after '
-                           f'its deadline ({1e3 * (cycle.deadline - cycle.received):.0f} ms '
-                           'after its joint_states); it seeds the next cycle')
-                    self._seed_next(plan, result, problem)
-                elif not published and not self._worker.current(request):
-                    why = f'{request.stop_reason}: not published'
-                elif not published:
-                    why = 'the planning data changed during the cycle and the plan ' \
-                          'violates the new data'
-        # joint_states received -> trajectory published (the path and markers come after).
-        latency = (request.published_at if published else time.monotonic()) - cycle.received
-        if result is not None and result.status is Status.SOLVED:
-            # Solved cycles, published or late: the median follows cycles that are slow most
-            # of the time, not the rare one that seeds the next.  Not timed-out ones: those
-            # are the final braking's overshoot problems, hundreds of iterations whatever the
-            # lead (they would stretch every later cycle's lead to the cap).
-            with self._lock:
-                self._latencies.append(policy.latency_sample(latency))
-        values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
-                      goal=tuple(float(v) for v in np.round(plan.goal, 9)),
-                      data_revision=revision, latency_s=latency, deviation=cycle.deviation,
-                      plan_stamp=cycle.stamp_s, state_stamp=cycle.state_stamp,
-                      estimate=estimate if estimated is not None else
-                      (f'none: {estimate}' if estimate else ''), **config.model_keys())
-        if problem is not None:
-            values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
-        if published:       # the data it was checked against
-            with self._plan_lock:
-                values['obstacles_hash'], values['data_revision'] = self._plan_info
-            self._publish_progress(schema.result_report(
-                result, f'replanned ({cycle.reason}): {result.message}',
-                event=schema.EVENT_REPLANNED, **values))
-            return
-        message = f'replan cycle ({cycle.reason}) kept the executing plan: {why}'
-        self.get_logger().warning(message, throttle_duration_sec=1.0)
-        report = (schema.result_report(result, message, **values) if result is not None
-                  else schema.ProgressReport(status=Status.INVALID_INPUT, message=message,
-                                             **values))
-        self._publish_progress(dataclasses.replace(
-            report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
-        self._stop_if_violating(plan, self._snapshot()[0], cycle, request.late)
-
-    def _seed_next(self, plan, result, problem):
-        """Keep a late cycle's plan: the next cycle for the same executing plan starts there."""
-        with self._plan_lock:
-            if self._executing is plan:
-                self._seed = Seed(plan, result, np.asarray(result.time_grid),
-                                  np.asarray(result.states), problem.robot_model)
-
-    def _stop_if_violating(self, plan, config, cycle, late=False):
-        """
-        After a failed cycle: act on the plan it kept if that violates the current data.
-
-        Another data-change cycle is tried when policy.retry_after_failed_cycle says so and
-        braking can wait for it (_brake_can_wait); else the plan is stopped.
-        """
-        with self._plan_lock:
-            revision = self._revision
-            if self._executing is not plan:
-                return
-        elapsed = plan.elapsed(self._now())
-        problem = plan_violation(plan, config, elapsed)
-        if problem is None:
-            return
-        measured = self._snapshot()[1]
-        again = policy.retry_after_failed_cycle(cycle.reason, cycle.revision, revision, late)
-        if again and measured is not None \
-                and self._brake_can_wait(plan, config, measured, elapsed) \
-                and self._maybe_replan(config, measured, self._now(), time.monotonic(),
-                                       reason=policy.DATA_CHANGE):
-            return
-        self._stop(plan, config, revision, problem)
+        progress = self._planner.progress.due()
+        if progress is not None:
+            self.report(schema.running_report(progress))
 
     # -- markers ------------------------------------------------------------------------------
 
@@ -948,20 +447,16 @@ class SolverNode(Node):
         with self._lock:
             dirty = self._arm_dirty
         if dirty:
-            self._publish_markers()
+            self.publish_markers()
 
-    def _publish_markers(self):
+    def publish_markers(self):
+        """Draw the obstacles, the arm and the executing plan's path."""
         with self._lock:
             config = self._config
             arm = self._measured
             self._arm_dirty = False
             self._arm_drawn = arm
-        with self._plan_lock:
-            plan = self._executing
-            path_states = None if plan is None else plan.path_states
-            if path_states is not None and plan.model is not None:
-                path_states = plan.model.joint_states(path_states)
-            plan_info, revision = self._plan_info, self._revision
+        path_states, plan_info, revision = self._planner.plans.drawing()
         if arm is None:
             arm = np.asarray(config.problem.x0, dtype=float)
         rows, margin = config.problem.obstacles, config.problem.margin

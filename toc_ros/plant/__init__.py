@@ -15,6 +15,10 @@
 """
 ROS-free parts of the simulated plant.
 
+simulator: the simulated robot of plant_node (stepping, drives, trajectory scheduling,
+tracking), in integer nanoseconds of simulated time.
+model: what it integrates (the robot model with the mismatch knobs, or MuJoCo), reference:
+the Hermite reference of a topic trajectory.
 mujoco_arm: a URDF arm simulated by MuJoCo (torque motors, mismatch knobs).
 follow_joint_trajectory: ros2_controllers JointTrajectoryController's semantics for the
 control_msgs/action/FollowJointTrajectory action (validation, interpolation, tolerances,

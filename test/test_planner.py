@@ -1,0 +1,491 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+solver_node's planning without rclpy: the Planner on a recording port, with real solves.
+
+The cases of the node's process tests (a goal solved and published, refusals, a plan that
+new obstacles make unsafe stopped and planned again, a canceled goal braking, a replan cycle
+published ahead of its stamp or kept when late), each in well under a second, plus the ROS-free
+pieces it is made of (ExecutionState, goal_requests, SolveProgress, KernelLoader).  Published
+trajectories are checked against limits and goals recomputed here.
+"""
+
+import math
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from toc_ros import goal_requests as goals, progress as schema
+from toc_ros import kernel_loader
+from toc_ros.core import Progress, replan_policy as policy, Status
+from toc_ros.core.executing_plan import ExecutingPlan, Seed
+from toc_ros.core.models import CylindricalRobot
+from toc_ros.execution_state import ExecutionState
+from toc_ros.nodes import parameters
+from toc_ros.nodes.solver_settings import SolverNodeConfig
+from toc_ros.planner import CYCLE_SOURCE, Planner, start_state
+from toc_ros.solve_progress import SolveProgress
+
+X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
+NEAR_GOAL = np.array([-0.5, 0.0, 1.0, 0.0])
+U_MAX = np.array([600.0, 500.0])
+A = 1.1             # [m] the cylindrical robot's hand offset (eq. 37's a)
+SOLVE_WAIT_S = 120.0
+
+
+def config(**changes):
+    """Return the node's default settings with changes (solver.N 100: quick solves)."""
+    flat = {name: parameters.default(name) for name in parameters.SOLVER_NODE_NAMES}
+    flat.update({'solver.N': 100, 'solver.timeout': 300.0})
+    flat.update(changes)
+    return SolverNodeConfig.from_flat(flat)
+
+
+class Log:
+    """A logger that records (severity, text)."""
+
+    def __init__(self):
+        self.lines = []
+
+    def info(self, text, **_):
+        self.lines.append(('info', text))
+
+    def warning(self, text, **_):
+        self.lines.append(('warning', text))
+
+    def error(self, text, **_):
+        self.lines.append(('error', text))
+
+
+class Port:
+    """The node side of a Planner: records what it would publish; a clock that tests set."""
+
+    def __init__(self, settings, measured=None):
+        self.config, self.measured, self.clock = settings, measured, 100.0
+        self.trajectories, self.paths, self.reports = [], [], []
+        self.markers, self.arm = 0, 0
+        self.logger = Log()
+        self.estimate = (None, '')
+
+    def settings(self):
+        return self.config
+
+    def snapshot(self):
+        return self.config, self.measured
+
+    def now(self):
+        return self.clock
+
+    def publish_trajectory(self, msg):
+        self.trajectories.append(msg)
+
+    def publish_path(self, msg):
+        self.paths.append(msg)
+
+    def publish_markers(self):
+        self.markers += 1
+
+    def arm_moved(self):
+        self.arm += 1
+
+    def report(self, report):
+        self.reports.append(report)
+
+    def estimated_model(self, _config):
+        return self.estimate
+
+    def events(self):
+        return [r.event for r in self.reports]
+
+
+def planner(settings=None, measured=None):
+    ready = threading.Event()
+    ready.set()
+    settings = settings or config()
+    port = Port(settings, measured)
+    return Planner(port, settings.planning_data(), ready), port
+
+
+def finish(plan_maker, request=None):
+    """Wait until request (if given) and every follow-up (a replan, a cycle) is done."""
+    assert request is None or request.done.wait(SOLVE_WAIT_S)
+    deadline = time.monotonic() + SOLVE_WAIT_S
+    while plan_maker.worker.busy() and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert not plan_maker.worker.busy()
+
+
+def points(msg):
+    """Return (times [s], positions, velocities, efforts) of a JointTrajectory."""
+    t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points])
+    return (t, np.array([p.positions for p in msg.points]),
+            np.array([p.velocities for p in msg.points]),
+            np.array([p.effort for p in msg.points]))
+
+
+def stamp(msg):
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
+def hand(q1, q2):
+    r = A + q2
+    return np.array([r * math.cos(q1), r * math.sin(q1)])
+
+
+@pytest.fixture(scope='module')
+def solved():
+    """Solve a goal from X0 to NEAR_GOAL (no measured state: from initial_state)."""
+    p, port = planner()
+    request = p.submit(lambda _c: NEAR_GOAL, 'goal_joints')
+    finish(p, request)
+    return p, port, request
+
+
+# -- goals ---------------------------------------------------------------------------------
+
+def test_a_goal_is_solved_published_at_the_start_lead_and_reported(solved):
+    p, port, request = solved
+    assert len(port.trajectories) == 1 and len(port.paths) == 1 and port.markers == 1
+    msg = port.trajectories[0]
+    assert stamp(msg) == pytest.approx(port.clock + port.config.node.start_lead, abs=1e-9)
+    t, q, dq, u = points(msg)
+    assert np.all(np.diff(t) > 0.0)
+    assert np.all(np.abs(u) <= U_MAX * (1 + 1e-9))                  # the bounds, recomputed
+    np.testing.assert_allclose(q[0], np.array(X0)[0::2], atol=1e-9)  # from initial_state
+    np.testing.assert_allclose(q[-1], NEAR_GOAL[0::2], atol=1e-3)
+    np.testing.assert_allclose(dq[-1], [0.0, 0.0], atol=1e-3)
+    rows = np.array(port.config.problem.obstacles)
+    clearance = min(np.hypot(*(hand(a, b) - rows[0, :2])) - rows[0, 2] for a, b in q)
+    assert clearance > 0.0
+    final = port.reports[-1]
+    assert final.status is Status.SOLVED and final.goal_source == 'goal_joints'
+    assert final.start_source == 'initial_state' and final.data_revision == 0
+    assert final.obstacles_hash == schema.obstacles_hash(port.config.problem.obstacles,
+                                                         port.config.problem.margin)
+    plan, revision = p.plans.current()
+    assert revision == 0 and plan.source == 'goal_joints' and plan.replannable
+    np.testing.assert_array_equal(plan.goal, NEAR_GOAL)
+    assert plan.start == stamp(msg) and request.path is port.paths[0]
+
+
+def test_refused_goals_are_reported_with_the_reason_and_never_queued():
+    p, port = planner()
+    assert p.submit(lambda _c: np.array([0.3, 0.0, 5.0, 0.0]), 'goal_joints') is None
+    assert 'outside extension_limits' in port.reports[-1].message
+    assert port.reports[-1].status is Status.INVALID_INPUT
+    inside = np.array([math.pi / 4, 0.0, math.sqrt(2.0) - A, 0.0])   # the hand on (1, 1)
+    assert p.submit(lambda _c: inside, 'goal_pose') is None
+    assert 'start state from initial_state' in port.reports[-1].message
+    assert not p.worker.busy() and port.trajectories == []
+
+
+def test_an_obstacle_on_the_rest_of_the_plan_stops_it_and_the_goal_is_planned_again():
+    p, port = planner()
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.3 * plan.duration
+    k = int(0.7 * (len(plan.times) - 1))
+    x, y = hand(plan.states[k, 0], plan.states[k, 2])
+    port.config = config(**{'obstacles.x': [1.0, float(x)], 'obstacles.y': [1.0, float(y)],
+                            'obstacles.radius': [0.2, 0.03]})
+    p.data_changed(port.config)
+    # No measured state: the stop is an empty trajectory (the plant holds).
+    assert port.trajectories[1].points == [] and p.plans.current()[1] == 1
+    stopped = [r for r in port.reports if r.event == schema.EVENT_STOPPED]
+    assert len(stopped) == 1 and 'cuts obstacle 1' in stopped[0].message
+    assert 'planning the goal again' in stopped[0].message
+    finish(p)
+    replaced = port.reports[-1]
+    assert replaced.event == schema.EVENT_REPLACED and replaced.status is Status.SOLVED
+    assert replaced.goal_source == goals.REPLAN and replaced.data_revision == 1
+    _, q, _, _ = points(port.trajectories[-1])
+    gaps = [np.hypot(*(hand(a, b) - [x, y])) - 0.03 for a, b in q]
+    assert min(gaps) > 0.0
+
+
+def test_with_a_measured_state_the_stop_brakes_and_unchanged_data_change_nothing():
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.4 * plan.duration
+    k = int(np.searchsorted(plan.times, 0.4 * plan.duration))
+    port.measured = plan.states[k].copy()
+    p.data_changed(config(**{'replan.rate': 0.0}))          # the same planning data
+    assert len(port.trajectories) == 1 and p.plans.current()[1] == 0
+    x, y = hand(plan.states[-5, 0], plan.states[-5, 2])
+    port.config = config(**{'replan.rate': 0.0, 'obstacles.x': [1.0, float(x)],
+                            'obstacles.y': [1.0, float(y)], 'obstacles.radius': [0.2, 0.02]})
+    p.data_changed(port.config)
+    braking, _ = p.plans.current()
+    assert braking is not None and braking.braking and braking.source == 'brake'
+    t, q, dq, u = points(port.trajectories[1])
+    np.testing.assert_allclose(q[0], port.measured[0::2], atol=1e-12)
+    np.testing.assert_allclose(dq[-1], [0.0, 0.0], atol=1e-2)
+    assert np.all(np.abs(u) <= U_MAX * (1 + 1e-9))
+    p.worker.stop()
+
+
+def test_cancel_goal_brakes_the_executing_plan_once():
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    assert p.cancel_goal('goal canceled') == (
+        False, 'no active goal (nothing solving, queued or executing)')
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.5 * plan.duration
+    port.measured = plan.states[len(plan.times) // 2].copy()
+    ok, message = p.cancel_goal('goal canceled')
+    assert ok and message.startswith('goal canceled: braking to rest')
+    assert not plan.goal_active and p.plans.current()[0].braking
+    assert port.reports[-1].event == schema.EVENT_GOAL_CANCELED
+    assert port.reports[-1].status is Status.CANCELED
+    assert len(port.trajectories) == 2
+    # Nothing drives to the goal any more: a second cancel has nothing to do.
+    assert p.cancel_goal('goal canceled')[0] is False and len(port.trajectories) == 2
+
+
+# -- replan cycles ------------------------------------------------------------------------------
+
+def cycle_setup():
+    p, port = planner(config(**{'replan.rate': 20.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.2 * plan.duration
+    k = int(np.searchsorted(plan.times, 0.2 * plan.duration))
+    return p, port, plan, plan.states[k].copy()
+
+
+def test_a_due_cycle_is_published_on_a_plan_node_ahead_of_now():
+    p, port, plan, state = cycle_setup()
+    received = time.monotonic() + 30.0      # a deadline that a loaded machine still meets
+    assert p.maybe_replan(port.config, state, port.clock, received)
+    assert p.plans.next_cycle == pytest.approx(received + 1.0 / 20.0)
+    finish(p)
+    report = port.reports[-1]
+    assert report.event == schema.EVENT_REPLANNED and report.goal_source == CYCLE_SOURCE
+    new, _ = p.plans.current()
+    assert new is not plan and len(port.trajectories) == 2 and port.arm == 1
+    start = stamp(port.trajectories[-1]) - plan.start
+    assert start >= port.clock - plan.start + port.config.node.replan_lead - 1e-9
+    assert np.min(np.abs(plan.times - start)) < 1e-9          # on a node of the old plan
+    # Not due again before the next rate tick (state on the plan: no deviation).
+    assert not p.maybe_replan(port.config, new.states[0], new.start, received + 0.01)
+
+
+def test_a_late_cycle_keeps_the_plan_and_seeds_the_next():
+    p, port, plan, state = cycle_setup()
+    received = time.monotonic() - 10.0      # its deadline passed long ago
+    assert p.maybe_replan(port.config, state, port.clock, received)
+    finish(p)
+    report = port.reports[-1]
+    assert report.event == schema.EVENT_REPLAN_KEPT and 'kept the executing plan' in \
+        report.message
+    assert p.plans.current()[0] is plan and len(port.trajectories) == 1
+    assert report.latency_s >= 10.0
+    if report.status is Status.SOLVED:      # late: it seeds the next cycle of this plan
+        assert 'late: ready' in report.message and p.plans.seed.plan is plan
+
+
+def test_no_cycle_without_replanning_or_for_a_state_of_another_size():
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    assert not p.maybe_replan(port.config, plan.states[0], port.clock, 0.0)
+    q, port2, plan2, state = cycle_setup()
+    assert not q.maybe_replan(port2.config, state[:3], port2.clock, 0.0)
+    assert start_state(port.config, None)[1] == 'initial_state'
+    assert start_state(port.config, state)[1] == 'joint_states'
+
+
+# -- the execution record -----------------------------------------------------------------------
+
+def straight_plan(start=0.0, duration=1.0, nodes=11, result=None):
+    times = np.linspace(0.0, duration, nodes)
+    states = np.zeros((nodes, 4))
+    states[:, 0] = np.linspace(0.2, 0.8, nodes)
+    states[:, 2] = 1.0
+    return ExecutingPlan(start=start, times=times, states=states,
+                         controls=np.zeros((nodes - 1, 2)), goal=states[-1], source='test',
+                         model=CylindricalRobot(), result=result, path_states=states)
+
+
+def test_new_data_count_revisions_only_when_the_planning_data_change():
+    record = ExecutionState({'obstacles.x': [1.0]})
+    assert record.new_data({'obstacles.x': [1.0]}) is None
+    assert record.new_data({'obstacles.x': [0.5]}) == 1
+    assert record.new_data({'obstacles.x': [0.5], 'robot.model': 'x'}) == 2
+    assert record.current() == (None, 2)
+
+
+def test_a_stale_plan_is_named_a_finished_one_forgotten():
+    record = ExecutionState({})
+    plan = straight_plan(start=10.0)
+    record.executing = plan
+    assert record.stale_plan(0, 10.5, lambda _p, _t: None) is None
+    assert record.stale_plan(0, 10.5, lambda _p, t: f'cuts at {t}') == (plan, 0.5, 'cuts at 0.5')
+    assert record.stale_plan(1, 10.5, lambda _p, _t: 'x') is None     # newer data meanwhile
+    assert record.executing is plan
+    assert record.stale_plan(0, 11.0 + 0.51, lambda _p, _t: 'x') is None   # over (+ slack)
+    assert record.executing is None
+
+
+def test_a_seed_warm_starts_only_the_cycles_of_its_plan():
+    record = ExecutionState({})
+    plan, other = straight_plan(), straight_plan()
+    record.executing = plan
+    assert record.cycle_source(plan) == (0, plan)
+    result = SimpleNamespace(time_grid=plan.times, states=plan.states)
+    record.seed_next(other, result, SimpleNamespace(robot_model=plan.model))   # not executing
+    assert record.seed is None
+    record.seed_next(plan, result, SimpleNamespace(robot_model=plan.model))
+    assert isinstance(record.seed, Seed) and record.cycle_source(plan) == (0, record.seed)
+    record.executing = other
+    assert record.cycle_source(plan) is None and record.cycle_source(other) == (0, other)
+
+
+def test_the_lead_follows_the_median_of_recent_cycles_capped():
+    record = ExecutionState({})
+    for _ in range(policy.MIN_LATENCY_SAMPLES - 1):
+        record.record_latency(0.04)
+    assert record.cycle_lead(0.025) == 0.025          # too few samples yet
+    record.record_latency(0.04)
+    assert record.cycle_lead(0.025) == pytest.approx(policy.LEAD_PER_MEDIAN * 0.04)
+    for _ in range(policy.LATENCY_WINDOW):
+        record.record_latency(5.0)                    # a stalled machine: capped
+    assert record.cycle_lead(0.025) == pytest.approx(policy.MAX_LEAD_S)
+    record.clear_latencies()
+    assert record.cycle_lead(0.025) == 0.025
+    record.cycle_taken(3.0, 20.0)
+    assert record.next_cycle == pytest.approx(3.05)
+
+
+def test_the_drawn_path_is_in_joint_states():
+    record = ExecutionState({})
+    assert record.drawing() == (None, None, 0)
+    record.executing = straight_plan()
+    record.plan_info = ('hash', 0)
+    path, info, revision = record.drawing()
+    np.testing.assert_array_equal(path, record.executing.states)
+    assert info == ('hash', 0) and revision == 0
+
+
+# -- goal requests ------------------------------------------------------------------------------
+
+def test_a_plan_requests_start_is_ignored_unless_it_is_the_measured_hand_position():
+    model = CylindricalRobot()
+    x = np.array(X0)
+    here = hand(x[0], x[2])
+    args = ('base_link', model, x)
+    assert goals.ignored_start('', 0.0, 0.0, *args) is None                 # no start given
+    assert goals.ignored_start('', *here, *args) is None
+    assert goals.ignored_start('base_link', here[0] + 9e-4, here[1], *args) is None
+    assert 'm from the measured hand position' in goals.ignored_start(
+        'base_link', here[0] + 2e-3, here[1], *args)
+    assert 'is not finite' in goals.ignored_start('', math.nan, 1.0, *args)
+    assert "its frame 'map' is not 'base_link'" == goals.ignored_start('map', *here, *args)
+    assert goals.ignored_start('base_link', *here, '/base_link', model, x) is None
+
+
+def test_a_replan_from_inside_the_margin_uses_half_the_true_clearance():
+    settings = config(**{'obstacles.margin': 0.1})
+    rows = np.array(settings.problem.obstacles)
+    # The hand 0.05 m outside the circle (inside the 0.1 m margin).
+    r = math.hypot(1.0, 1.0) - 0.2 - 0.05
+    start = np.array([math.pi / 4, 0.0, r - A, 0.0])
+    assert np.hypot(*hand(start[0], start[2]) - rows[0, :2]) - rows[0, 2] == pytest.approx(0.05)
+    flat = goals.recovery_params(settings, start)
+    assert flat['obstacles.margin'] == pytest.approx(0.025, rel=1e-6)
+    goal = np.array([0.0, 0.0, 0.5, 0.0])
+    refusal = goals.goal_refusal(settings, start, 'joint_states', goal, 'goal')
+    assert 'start state from joint_states' in refusal
+    assert goals.goal_refusal(settings, start, 'joint_states', goal, goals.REPLAN) is None
+    problem, guess, margin = goals.goal_problem(settings, start, goal, goals.REPLAN, None, 0.0)
+    assert margin == pytest.approx(0.025, rel=1e-6) and problem.margin == margin
+    assert guess is None
+    assert goals.recovery_params(settings, np.array(X0)) is None        # clear of the margin
+
+
+def test_outcome_texts_of_goals_and_cycles():
+    result = SimpleNamespace(status=Status.CANCELED, message='stopped', has_trajectory=False)
+    assert goals.goal_outcome(result, 'preempted', 'x') == (Status.CANCELED,
+                                                            'preempted (stopped)')
+    result.status = Status.INVALID_INPUT
+    assert goals.goal_outcome(result, None, 'initial_state')[1] == \
+        'stopped (start state from initial_state)'
+    assert goals.cycle_failure(result, None, None, 0.025, False, True) == \
+        f'{Status.INVALID_INPUT.value}: stopped'
+    assert goals.cycle_failure(result, 'preempted', None, 0.025, False, True) == \
+        f'{Status.INVALID_INPUT.value}: preempted'
+    solved = SimpleNamespace(status=Status.SOLVED, message='ok', has_trajectory=True)
+    assert goals.cycle_failure(solved, None, None, 0.025, True, True) is None
+    assert goals.cycle_failure(solved, None, 0.0123, 0.025, False, True) == (
+        'late: ready 12.3 ms after its deadline (25 ms after its joint_states); it seeds the '
+        'next cycle')
+    assert goals.cycle_failure(solved, 'canceled', None, 0.025, False, False) == \
+        'canceled: not published'
+    assert 'violates the new data' in goals.cycle_failure(solved, None, None, 0.025, False,
+                                                          True)
+
+
+# -- progress and kernels -----------------------------------------------------------------------
+
+def test_the_heartbeat_fills_gaps_longer_than_the_limit_only():
+    now = [0.0]
+    progress = SolveProgress(max_gap=0.15, clock=lambda: now[0])
+    assert progress.due() is None                       # no solve
+    first = Progress(0, 1.0, math.nan, math.nan, 0.0, 'start')
+    assert progress.start(first) is first
+    progress.sent()
+    now[0] = 0.1
+    assert progress.due() is None
+    now[0] = 0.2
+    assert progress.due().elapsed_s == pytest.approx(0.2)
+    later = Progress(5, 0.9, 1.0, 0.0, 0.1, 'iterate')
+    assert progress.update(later) is later
+    assert progress.update(Progress(6, 0.9, 1.0, 0.0, 0.1, 'done')) is None
+    now[0] = 0.3
+    assert progress.due().iteration == 5
+    progress.end()
+    assert progress.due() is None and progress.update(later) is None
+
+
+def test_kernels_load_in_the_background_and_again_only_for_other_kernels(monkeypatch):
+    loaded, done = [], threading.Event()
+    monkeypatch.setattr(kernel_loader, 'warm_up', lambda models: loaded.append(models))
+    model = CylindricalRobot()
+    loader = kernel_loader.KernelLoader(model, lambda s: done.set(), lambda e: None)
+    assert loader.status()[0] is False and 'so far' in loader.status()[1]
+    loader.start()
+    assert done.wait(10.0) and loader.ready.is_set() and loaded == [None]
+    assert loader.status()[1].startswith('ready: numba kernels loaded in')
+    assert loader.switch(CylindricalRobot()) is False and loader.ready.is_set()
+    other = SimpleNamespace(kernels=object())
+    done.clear()
+    assert loader.switch(other) is True
+    assert done.wait(10.0) and loaded[-1] == [other] and loader.model is other
+
+
+def test_a_failed_load_is_reported_and_the_node_still_gets_ready(monkeypatch):
+    errors, done = [], threading.Event()
+
+    def fail(_models):
+        raise RuntimeError('no compiler')
+    monkeypatch.setattr(kernel_loader, 'warm_up', fail)
+    loader = kernel_loader.KernelLoader(CylindricalRobot(), lambda s: done.set(),
+                                        errors.append)
+    loader.start()
+    assert done.wait(10.0) and loader.ready.is_set()
+    assert [str(e) for e in errors] == ['no compiler']

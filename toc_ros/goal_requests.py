@@ -1,0 +1,147 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A planner node's goal requests without ROS: checks, the problem to solve, and the outcome.
+
+The node translates a goal message into a joint goal; this module decides whether the goal
+is refused against the measured start and the current data (``goal_refusal``), whether a
+``~/plan`` request's start is ignored (``ignored_start``), builds the problem a goal is solved
+as (``goal_problem``: the margin of a recovery, the warm start from the executing plan), names
+what the rest of an executing plan violates under new data (``plan_violation``), and words the
+result of a goal's solve (``goal_outcome``) and of a replan cycle that kept its plan
+(``cycle_failure``).  ``config`` is a ``nodes.solver_settings.SolverNodeConfig``.
+"""
+
+import math
+
+import numpy as np
+
+from toc_ros.config import problem_from_parameters
+from toc_ros.core import ProblemError, replan_policy as policy, Status
+from toc_ros.core.executing_plan import goal_warm_start, violation
+from toc_ros.core.result import CLEARANCE_TOL
+
+# [m] a ~/plan start farther than this from the measured hand position is warned about.
+START_TOLERANCE_M = 1e-3
+# The source of the goals that the node plans again after stopping a plan.
+REPLAN = 'replan'
+
+
+def recovery_params(config, start):
+    """Return the flat parameters of a replan from start inside the margin (None: as is)."""
+    margin = policy.recovery_margin(config.model, start, config.problem.obstacles,
+                                    config.problem.margin)
+    return None if margin is None else dict(config.flat, **{'obstacles.margin': margin})
+
+
+def plan_violation(plan, config, elapsed):
+    """Return what the rest of an executing plan violates under config, or None."""
+    try:
+        problem = problem_from_parameters(config.flat, x0=plan.states[0], x_goal=plan.goal)
+    except ProblemError as exc:
+        return f'cannot be checked ({exc})'
+    return violation(plan, problem.robot_model, problem.circles(), elapsed, CLEARANCE_TOL)
+
+
+def ignored_start(frame, x, y, base_frame, joint_model, measured_state):
+    """
+    Return why a ~/plan request's start pose is ignored with a warning, or None.
+
+    frame, x, y: the request's start (frame without slashes; the empty frame with x = y = 0 is
+    no start); the start must be in base_frame, finite and within START_TOLERANCE_M of the
+    hand position of measured_state [q1, dq1, ...].
+    """
+    if not frame and x == 0.0 and y == 0.0:
+        return None         # the empty pose: no start given
+    q = np.asarray(measured_state, dtype=float)[0:2 * joint_model.n_joints:2]
+    hand = np.asarray(joint_model.hand_position(q), dtype=float)
+    where = f'({x:.6g}, {y:.6g})'
+    if frame and frame != base_frame.strip('/'):
+        return f'its frame {frame!r} is not {base_frame!r}'
+    if not (math.isfinite(x) and math.isfinite(y)):
+        return f'{where} is not finite'
+    gap = math.hypot(x - hand[0], y - hand[1])
+    if gap > START_TOLERANCE_M:
+        return f'{where} is {gap:.4g} m from the measured hand position'
+    return None
+
+
+def goal_refusal(config, start, start_source, goal, source):
+    """
+    Return why a joint goal is refused from start under config, or None when it is taken.
+
+    Checked: the cylindrical extension against extension_limits, then the problem from the
+    start (a replan after a stop: with the recovery margin) to the goal.
+    """
+    low, high = config.node.extension_limits
+    if config.robot.name == 'cylindrical' and len(goal) == 4 and not low <= goal[2] <= high:
+        return (f'goal extension q2 = {goal[2]:.6g} m is outside extension_limits '
+                f'[{low:.6g}, {high:.6g}] m')
+    flat = config.flat
+    if source == REPLAN:
+        flat = recovery_params(config, start) or flat
+    try:
+        problem_from_parameters(flat, x0=start, x_goal=goal).validate()
+    except ProblemError as exc:
+        return f'{exc} (start state from {start_source}: {np.round(start, 6).tolist()})'
+    return None
+
+
+def goal_problem(config, start, goal, source, plan, now):
+    """
+    Return (problem, warm start or None, recovery margin or None) of a goal's solve.
+
+    A replan after a stop that ended inside the obstacle margin plans with the recovery margin;
+    plan: the executing plan when start is measured (its rest warm-starts a solve to the same
+    goal in fast mode).  Raises ProblemError (TypeError, ValueError) for data that do not make
+    a problem.
+    """
+    flat, margin = config.flat, None
+    if source == REPLAN:
+        recovery = recovery_params(config, start)
+        if recovery is not None:
+            flat, margin = recovery, recovery['obstacles.margin']
+    problem = problem_from_parameters(flat, x0=start, x_goal=goal)
+    problem, guess = goal_warm_start(plan, problem, now, config.options.mode == 'fast')
+    return problem, guess, margin
+
+
+def goal_outcome(result, stop_reason, start_source):
+    """Return (status, message) of a goal's solve result as reported."""
+    message = result.message
+    if result.status is Status.CANCELED and stop_reason:
+        message = f'{stop_reason} ({result.message})'
+    if result.status is Status.INVALID_INPUT:
+        message = f'{message} (start state from {start_source})'
+    return result.status, message
+
+
+def cycle_failure(result, stop_reason, late_by, budget, published, current):
+    """
+    Return why a solved replan cycle kept the executing plan, or None when it published.
+
+    late_by: how long [s] after its deadline its plan was ready (None: in time); budget: its
+    lead [s] (deadline - joint_states receipt); current: whether its goal is still active.
+    """
+    if result.status is not Status.SOLVED or not result.has_trajectory:
+        return f'{result.status.value}: {stop_reason or result.message}'
+    if late_by is not None:
+        return (f'late: ready {1e3 * late_by:.1f} ms after its deadline ({1e3 * budget:.0f} ms '
+                'after its joint_states); it seeds the next cycle')
+    if published:
+        return None
+    if not current:
+        return f'{stop_reason}: not published'
+    return 'the planning data changed during the cycle and the plan violates the new data'
