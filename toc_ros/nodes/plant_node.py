@@ -125,6 +125,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from toc_ros import conversions
 from toc_ros.core import ProblemError
+from toc_ros.execution import follow_joint_trajectory_action
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node, survives_shutdown
 from toc_ros.plant import follow_joint_trajectory as fjt
@@ -141,16 +142,6 @@ ACTION_NAME = '~/follow_joint_trajectory'
 CLOCK_JUMP_S = 1.0
 MAX_CONTROL_DELAY_S = parameters.MAX_CONTROL_DELAY_S
 MAX_ACTUATOR_LAG_S = parameters.MAX_ACTUATOR_LAG_S
-
-
-def follow_joint_trajectory_action():
-    """Return (the FollowJointTrajectory action type, None), or (None, why it is missing)."""
-    try:
-        from control_msgs.action import FollowJointTrajectory
-    except ImportError as exc:
-        return None, (f'control_msgs is not installed ({exc}); a ROS install has it '
-                      '(ros-jazzy-control-msgs)')
-    return FollowJointTrajectory, None
 
 
 def trajectory_point(positions, velocities, accelerations=None, effort=None):
