@@ -28,7 +28,7 @@ import time
 from types import SimpleNamespace
 
 from builtin_interfaces.msg import Duration, Time
-from node_harness import JOINTS, NodeProcess, RosClient
+from node_harness import CONFIG, JOINTS, NodeProcess, RosClient
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
@@ -283,7 +283,7 @@ def _outcomes_of(plant, action_name):
             outcomes.append(outcome)
             arrived.notify_all()
 
-    executor = TrajectoryExecutor(plant.client.node, plant.client.name(action_name), JOINTS,
+    executor = TrajectoryExecutor(plant.client.node, plant.client.name(action_name),
                                   Tolerances(goal_position=0.01, goal_time=3.0), record)
 
     def wait(kinds, timeout=RESULT_TIMEOUT):
@@ -330,7 +330,54 @@ def test_executor_without_a_server_reports_unavailable(plant):
     executor, outcomes, _ = _outcomes_of(plant, 'no_such_controller/follow_joint_trajectory')
     try:
         executor.send(_trajectory([(0.5, _current(plant), [0.0, 0.0])]))
+        plant.client.wait_for(lambda: outcomes, timeout=3 * executor.SERVER_WAIT_S,
+                              what='the outcome')
         assert [(o.goal_id, o.kind) for o in outcomes] == [(1, ex.UNAVAILABLE)]
         assert outcomes[0].failed and 'no action server' in outcomes[0].text
     finally:
         executor.destroy()
+
+
+@needs_control_msgs
+def test_solver_node_executes_its_plan_through_the_action(plant, tmp_path):
+    """execute.follow_joint_trajectory: the plan goes to the plant as a goal and succeeds."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from node_harness import report
+    from toc_ros import progress as schema
+    from toc_ros.harness import node_command
+    client = plant.client
+    # The solver's trajectory topic is remapped away: the plant hears the plan only as a goal.
+    argv = node_command('solver_node', CONFIG, {
+        'solver.N': 100, 'replan.rate': 0.0,
+        'execute.follow_joint_trajectory': client.name('plant_node/follow_joint_trajectory'),
+        'execute.goal_tolerance': 0.01, 'execute.goal_time_tolerance': 3.0},
+        client.namespace, extra=['-r', 'trajectory:=planned_only'])
+    solver = NodeProcess('solver_node', client.namespace, tmp_path, argv=argv)
+    try:
+        solver.wait_for_log('ready:')
+        assert 'executing plans through' in solver.log(), solver.tail()
+        # A goal sent before discovery waits for the server and may arrive after its plan.
+        solver.wait_for_log('found', timeout=30.0)
+        client.collect(DiagnosticStatus, 'solver_node/progress', keep=1000)
+        goals = client.node.create_publisher(JointState, client.name('goal_joints'), 10)
+        client.wait_for(lambda: goals.get_subscription_count() > 0, what='goal_joints')
+        # The plant's initial state, or a turn away from the scenario's circle from there.
+        home = np.array([0.261799, 1.0])
+        target = home if np.max(np.abs(_current(plant) - home)) > 0.1 else home - [0.3, 0.0]
+        goals.publish(JointState(name=list(JOINTS), position=[float(v) for v in target]))
+
+        def executed():
+            return [r for r in map(report, client.messages('solver_node/progress'))
+                    if r.event == schema.EVENT_EXECUTION]
+        try:
+            client.wait_for(lambda: executed(), what='an execution report', timeout=120.0)
+        except Exception:
+            texts = [r.message for r in map(report, client.messages('solver_node/progress'))]
+            raise AssertionError(f'{texts[-10:]}\n{solver.tail(30)}\n{plant.node.tail(20)}')
+        outcome = executed()[-1]
+        assert 'succeeded' in outcome.message, outcome.message
+        assert outcome.level == DiagnosticStatus.OK
+        np.testing.assert_allclose(_current(plant), target, atol=0.01,
+                                   err_msg=solver.tail(20))
+    finally:
+        solver.stop()

@@ -29,7 +29,7 @@ without it execution through the action is refused with that reason.
 
 from dataclasses import dataclass
 import threading
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional
 
 # control_msgs/action/FollowJointTrajectory result codes (control_msgs 5.8.0).
 ERROR_NAMES = {0: 'SUCCESSFUL', -1: 'INVALID_GOAL', -2: 'INVALID_JOINTS',
@@ -110,10 +110,11 @@ def classify_result(goal_id, newest_id, goal_status, code, text):
     return Outcome(ABORTED, goal_id, code, text)
 
 
-def build_goal(action_type, trajectory, joint_names: Sequence[str], tolerances: Tolerances):
+def build_goal(action_type, trajectory, tolerances: Tolerances):
     """Return the FollowJointTrajectory goal of a trajectory_msgs/JointTrajectory message."""
     from builtin_interfaces.msg import Duration
     from control_msgs.msg import JointTolerance
+    joint_names = list(trajectory.joint_names)
     goal = action_type.Goal()
     goal.trajectory = trajectory
     if tolerances.path_position > 0.0:
@@ -131,11 +132,14 @@ class TrajectoryExecutor:
     """
     Send plans as FollowJointTrajectory goals; report every goal's Outcome through a callback.
 
-    on_outcome(Outcome) is called from the node's executor thread.  send() never blocks: when
-    the server is not (yet) there, the goal's outcome is UNAVAILABLE.
+    on_outcome(Outcome) is called from the node's executor thread (or a waiting thread).
+    send() never blocks: when the server is not (yet) discovered, the goal waits for it in the
+    background for SERVER_WAIT_S, then its outcome is UNAVAILABLE.
     """
 
-    def __init__(self, node, action_name, joint_names, tolerances: Tolerances,
+    SERVER_WAIT_S = 2.0
+
+    def __init__(self, node, action_name, tolerances: Tolerances,
                  on_outcome: Callable[[Outcome], None], action_type=None):
         from rclpy.action import ActionClient
         if action_type is None:
@@ -145,12 +149,12 @@ class TrajectoryExecutor:
         self._action_type = action_type
         self._client = ActionClient(node, action_type, action_name)
         self._action_name = action_name
-        self._joint_names = list(joint_names)
         self._tolerances = tolerances
         self._on_outcome = on_outcome
         self._lock = threading.Lock()
         self._sent = 0
         self._handles = {}          # goal id -> accepted goal handle, until its result
+        self._destroyed = False
 
     @property
     def action_name(self):
@@ -167,18 +171,33 @@ class TrajectoryExecutor:
         return self._client.wait_for_server(timeout_sec=timeout)
 
     def send(self, trajectory):
-        """Send a trajectory as the newest goal; return its goal id."""
+        """Send a trajectory as the newest goal; return its goal id (never blocks)."""
         with self._lock:
             self._sent += 1
             goal_id = self._sent
-        if not self._client.server_is_ready():
-            self._on_outcome(Outcome(UNAVAILABLE, goal_id,
-                                     text=f'no action server {self.action_name}'))
-            return goal_id
-        goal = build_goal(self._action_type, trajectory, self._joint_names, self._tolerances)
+        goal = build_goal(self._action_type, trajectory, self._tolerances)
+        if self._client.server_is_ready():
+            self._send(goal_id, goal)
+        else:
+            # Discovery may still be under way (a node just started): wait for the server in
+            # the background; a newer goal meanwhile takes this one's place.
+            threading.Thread(target=self._send_when_ready, args=(goal_id, goal),
+                             name='fjt_wait', daemon=True).start()
+        return goal_id
+
+    def _send(self, goal_id, goal):
         future = self._client.send_goal_async(goal)
         future.add_done_callback(lambda done: self._on_response(goal_id, done))
-        return goal_id
+
+    def _send_when_ready(self, goal_id, goal):
+        ready = self._client.wait_for_server(timeout_sec=self.SERVER_WAIT_S)
+        if goal_id != self.newest:
+            self._on_outcome(Outcome(PREEMPTED, goal_id, text='a newer goal was sent first'))
+        elif ready:
+            self._send(goal_id, goal)
+        else:
+            self._on_outcome(Outcome(UNAVAILABLE, goal_id, text=f'no action server '
+                                     f'{self.action_name} within {self.SERVER_WAIT_S:g} s'))
 
     def cancel(self):
         """Ask the server to cancel every goal of ours that is still running."""
@@ -187,8 +206,19 @@ class TrajectoryExecutor:
         for handle in handles:
             handle.cancel_goal_async()
 
+    def watch_server(self, on_found):
+        """Call on_found() once the action server is discovered (from a background thread)."""
+        def watch():
+            while not self._destroyed:
+                if self._client.wait_for_server(timeout_sec=1.0):
+                    if not self._destroyed:
+                        on_found()
+                    return
+        threading.Thread(target=watch, name='fjt_watch', daemon=True).start()
+
     def destroy(self):
         """Destroy the action client."""
+        self._destroyed = True
         self._client.destroy()
 
     def _on_response(self, goal_id, future):

@@ -59,6 +59,7 @@ EVENT_REPLANNED = 'replanned'            # a replan cycle published a new plan (
 EVENT_REPLAN_KEPT = 'replan_kept'        # a replan cycle failed or was late: plan kept
 EVENT_GOAL_CANCELED = 'goal_canceled'    # the goal was abandoned: no more cycles, braking
 EVENT_START_IGNORED = 'start_ignored'    # a plan request's start differs from the measured
+EVENT_EXECUTION = 'execution'            # a FollowJointTrajectory goal's outcome
 
 
 @dataclass(frozen=True)

@@ -95,6 +95,24 @@ class SolverNodeSettings:
         2.0, 'time constant of the exponential forgetting of the online estimation (older '
         'joint_states weigh less)', unit='s', low=0.01, high=1e4,
         ros_name='replan.estimate_window')
+    # Execution through ros2_control (toc_ros.execution).
+    execute_action: str = setting(
+        '', 'FollowJointTrajectory action (e.g. /arm_controller/follow_joint_trajectory) that '
+        'every published plan and replan cycle is also sent to as a goal, as MoveIt executes '
+        'through ros2_control; empty = the trajectory topic only. Needs control_msgs: without '
+        'it the node runs topic-only and says why', ros_name='execute.follow_joint_trajectory')
+    execute_path_tolerance: float = setting(
+        0.0, 'path_tolerance (position, every joint) sent with each goal; 0 = the '
+        "controller's own", unit='rad or m', low=0.0, high=1e3,
+        ros_name='execute.path_tolerance')
+    execute_goal_tolerance: float = setting(
+        0.0, 'goal_tolerance (position, every joint) sent with each goal; 0 = the '
+        "controller's own", unit='rad or m', low=0.0, high=1e3,
+        ros_name='execute.goal_tolerance')
+    execute_goal_time: float = setting(
+        0.0, 'goal_time_tolerance sent with each goal: how long after the end the joints may '
+        "take to get within the goal tolerance; 0 = the controller's own", unit='s', low=0.0,
+        high=1e3, ros_name='execute.goal_time_tolerance')
 
 
 # Largest plant actuator_lag and control_delay [s]: the delay's ring buffer holds

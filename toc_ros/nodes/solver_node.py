@@ -98,7 +98,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from toc_ros import conversions, goal_requests as goals, progress as schema
+from toc_ros import conversions, execution, goal_requests as goals, progress as schema
 from toc_ros.core import replan_policy as policy
 from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
@@ -166,6 +166,8 @@ class SolverNode(Node):
         self._path_pub = self.create_publisher(Path, 'planned_path', 10)
         self._marker_pub = self.create_publisher(MarkerArray, 'markers', latched)
         self._progress_pub = self.create_publisher(schema.DiagnosticStatus, '~/progress', 100)
+        self._executor = None               # FollowJointTrajectory client (execute.*)
+        self._configure_execution(self._config.node)
         inputs = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal_pose, 10,
                                  callback_group=inputs)
@@ -241,6 +243,9 @@ class SolverNode(Node):
     def publish_trajectory(self, msg):
         """Send a trajectory (the planner holds its plan lock meanwhile)."""
         self._trajectory_pub.publish(msg)
+        executor = self._executor
+        if executor is not None:
+            executor.send(msg)
 
     def publish_path(self, msg):
         """Send a planned path."""
@@ -264,12 +269,54 @@ class SolverNode(Node):
             return None, ''
         return self._estimate.model(self._model.joint_model, config.robot.actuator_lag)
 
+    # -- execution through ros2_control ------------------------------------------------------
+
+    def _configure_execution(self, node_settings):
+        """(Re)create the FollowJointTrajectory client of execute.* (none when empty)."""
+        old, self._executor = self._executor, None
+        if old is not None:
+            old.destroy()
+        name = node_settings.execute_action
+        if not name:
+            return
+        action_type, reason = execution.follow_joint_trajectory_action()
+        if action_type is None:
+            self.get_logger().error(f'execute.follow_joint_trajectory {name!r} refused: {reason}; '
+                                    'plans go to the trajectory topic only')
+            self.report(schema.refusal_report(f'execute.follow_joint_trajectory: {reason}'))
+            return
+        tolerances = execution.Tolerances(node_settings.execute_path_tolerance,
+                                          node_settings.execute_goal_tolerance,
+                                          node_settings.execute_goal_time)
+        self._executor = execution.TrajectoryExecutor(
+            self, name, tolerances, self._on_execution, action_type)
+        self.get_logger().info(f'executing plans through {name} (FollowJointTrajectory)')
+        self._executor.watch_server(
+            lambda: self.get_logger().info(f'action server {name} found'))
+
+    def _on_execution(self, outcome):
+        """Report a goal's outcome; a failed execution of the newest plan is an error."""
+        if outcome.kind == execution.ACCEPTED:
+            return      # the plan's own report said it was published: no message per goal
+        level = schema.DiagnosticStatus.ERROR if outcome.failed else schema.DiagnosticStatus.OK
+        self.report(schema.ProgressReport(message=outcome.describe(), level=level,
+                                          event=schema.EVENT_EXECUTION))
+        if outcome.failed:
+            # The controller holds the robot where it is; with replan cycles on, the next
+            # cycle plans on from the measured state (its deviation starts one at once).
+            self.get_logger().warning(outcome.describe())
+
     # -- parameters ---------------------------------------------------------------------------
 
     def _on_set_parameters(self, changed):
         with self._lock:
             flat = parameters.candidate(self._config.flat, changed)
         errors, config = checked(flat)
+        if flat['execute.follow_joint_trajectory'] and any(
+                p.name == 'execute.follow_joint_trajectory' for p in changed):
+            reason = execution.follow_joint_trajectory_action()[1]
+            if reason:
+                errors.append(f'execute.follow_joint_trajectory: {reason}')
         self._accepted = config       # built once: _after_set_parameters takes it
         result = parameters.result(errors)
         if not result.successful:
@@ -291,6 +338,8 @@ class SolverNode(Node):
         with self._lock:
             self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed
+        if any(p.name.startswith('execute.') for p in changed):
+            self._configure_execution(config.node)
         if any(p.name.startswith('robot.') for p in changed) \
                 and self._kernels.switch(config.model):
             self.get_logger().info(f'robot model changed: loading the kernels of {config.model!r}')
