@@ -42,7 +42,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf  # noqa: E402, I100
-from toc_ros.bench.arm_reference import ArmProblem, ArmSpec, ArmTranscription  # noqa: E402
+from toc_ros.bench.arm_problem import ArmProblem, ArmSpec  # noqa: E402
+from toc_ros.bench.arm_reference import ArmTranscription  # noqa: E402
 from toc_ros.core import Problem, solve, Status  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402

@@ -305,7 +305,7 @@ def test_cli_refuses_a_goal_outside_the_limits(tmp_path, capsys):
 
 def _independent_check(name, result, obstacles):
     from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
-    from toc_ros.bench.arm_reference import ArmSpec
+    from toc_ros.bench.arm_problem import ArmSpec
     start, goal, _ = SCENARIOS[name]
     arm = load_arm(name)
     spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
@@ -349,7 +349,8 @@ def test_self_collision_rows_hold_at_every_node():
                                              ('ur5', False), ('ur5', True)])
 def test_fast_arm_solve_matches_ipopt_and_is_feasible(name, obstacles):
     pytest.importorskip('casadi')
-    from toc_ros.bench.arm_reference import ArmProblem, solve_arm
+    from toc_ros.bench.arm_problem import ArmProblem
+    from toc_ros.bench.arm_reference import solve_arm
     problem = _problem(name, 50, obstacles)
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
