@@ -17,10 +17,9 @@
 import math
 
 import pytest
-from visualization_msgs.msg import Marker, MarkerArray
-
 from toc_ros.conversions import ConversionError
 from toc_ros.marker_obstacles import MarkerObstacles
+from visualization_msgs.msg import Marker, MarkerArray
 
 BASE = 'panda_link0'
 

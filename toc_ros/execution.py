@@ -82,7 +82,7 @@ class Outcome:
 
     @property
     def failed(self):
-        """Tell whether the execution failed (the node then stops or replans)."""
+        """Tell whether the execution failed: the node then stops or replans."""
         return self.kind in FAILED
 
     def describe(self):

@@ -79,7 +79,7 @@ class MarkerObstacles:
 
     @property
     def rows(self):
-        """Return the obstacle rows (x, y, z, r) [m], ordered by (ns, id)."""
+        """Return the obstacle rows: (x, y, z, r) [m] ordered by (ns, id)."""
         return tuple(self._spheres[key] for key in sorted(self._spheres))
 
     def apply(self, msg):

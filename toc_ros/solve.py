@@ -349,7 +349,7 @@ def _run(args):
             # --timeout limits the solve, not the one-time compile of a model's kernels.
             warm_up_for(problem, options)
             result = solve_interruptible(problem, options, line if show_progress else None,
-                                          getattr(args, 'guess', None))
+                                         getattr(args, 'guess', None))
         finally:
             line.clear()
     if result.status is Status.INVALID_INPUT:
