@@ -77,6 +77,14 @@ def _child_env(log_dir):
         venv_bin = os.path.join(sys.prefix, 'bin')
         env['PATH'] = os.pathsep.join(
             p for p in env.get('PATH', '').split(os.pathsep) if p and p != venv_bin)
+        # The ROS wheels of this venv put their libraries on LD_LIBRARY_PATH and mark that
+        # done: the underlay's wheels must set up their own (else, e.g., its control_msgs type
+        # support does not load).
+        env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
+        libraries = [p for p in env.pop('LD_LIBRARY_PATH', '').split(os.pathsep)
+                     if p and not p.startswith(sys.prefix)]
+        if libraries:
+            env['LD_LIBRARY_PATH'] = os.pathsep.join(libraries)
     env.update({
         'ROS_DOMAIN_ID': str(random.randint(1, 100)),
         'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',

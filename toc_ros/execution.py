@@ -59,6 +59,14 @@ def follow_joint_trajectory_action():
     except ImportError as exc:
         return None, (f'control_msgs is not installed ({exc}); a ROS install has it '
                       '(ros-jazzy-control-msgs)')
+    # The Python package can be there while its C type support does not load (e.g. a library
+    # path of another ROS environment): say so instead of failing when the action is created.
+    from rclpy.type_support import check_for_type_support
+    try:
+        check_for_type_support(FollowJointTrajectory)
+    except Exception as exc:   # noqa: B902 - UnsupportedTypeSupport, ImportError, ...
+        return None, (f'control_msgs is installed but its type support does not load '
+                      f'({type(exc).__name__}: {exc}); source the ROS environment it was built in')
     return FollowJointTrajectory, None
 
 
