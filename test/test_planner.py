@@ -28,16 +28,18 @@ import time
 from types import SimpleNamespace
 
 import numpy as np
+import numpy_model as nm
 import pytest
 from toc_ros import goal_requests as goals, progress as schema
 from toc_ros import kernel_loader
 from toc_ros.core import Progress, replan_policy as policy, Status
-from toc_ros.core.executing_plan import ExecutingPlan, Seed
+from toc_ros.core.executing_plan import braking_plan, ExecutingPlan, Seed
+from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
 from toc_ros.execution_state import ExecutionState
 from toc_ros.nodes import parameters
 from toc_ros.nodes.solver_settings import SolverNodeConfig
-from toc_ros.planner import CYCLE_SOURCE, Planner, start_state
+from toc_ros.planner import BRAKING_REST, CYCLE_SOURCE, Planner, start_state
 from toc_ros.solve_progress import SolveProgress
 
 X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)
@@ -76,6 +78,7 @@ class Port:
 
     def __init__(self, settings, measured=None):
         self.config, self.measured, self.clock = settings, measured, 100.0
+        self.measured_at = None      # node-clock time of measured (None: unknown)
         self.trajectories, self.paths, self.reports = [], [], []
         self.markers, self.arm = 0, 0
         self.logger = Log()
@@ -86,6 +89,9 @@ class Port:
 
     def snapshot(self):
         return self.config, self.measured
+
+    def measured_time(self):
+        return self.measured_at
 
     def now(self):
         return self.clock
@@ -237,6 +243,92 @@ def test_with_a_measured_state_the_stop_brakes_and_unchanged_data_change_nothing
     np.testing.assert_allclose(dq[-1], [0.0, 0.0], atol=1e-2)
     assert np.all(np.abs(u) <= U_MAX * (1 + 1e-9))
     p.worker.stop()
+
+
+def test_a_goal_planned_while_braking_starts_at_the_stops_rest_when_it_ends():
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.4 * plan.duration
+    port.measured = plan.states[int(np.searchsorted(plan.times, 0.4 * plan.duration))].copy()
+    k = int(0.75 * (len(plan.times) - 1))      # ahead of the stop, short of the goal
+    x, y = hand(plan.states[k, 0], plan.states[k, 2])
+    port.config = config(**{'replan.rate': 0.0, 'obstacles.x': [1.0, float(x)],
+                            'obstacles.y': [1.0, float(y)], 'obstacles.radius': [0.2, 0.02]})
+    heavier = CylindricalRobot(RobotParams(hand_mass=60.0))     # the online estimate
+    port.estimate = (heavier, 'hand_mass=60')
+    p.data_changed(port.config)
+    finish(p)
+    # The stop, then the goal again from where the stop rests, applying from its end on (the
+    # measured state is still the moving one from before the stop), for the estimated model.
+    assert p.plans.current()[0].model is heavier
+    assert len(port.trajectories) == 3, [(r.event, r.status, r.message) for r in port.reports]
+    t_stop, q_stop, dq_stop, _ = points(port.trajectories[1])
+    t_new, q_new, dq_new, _ = points(port.trajectories[2])
+    np.testing.assert_allclose(q_new[0], q_stop[-1], atol=1e-12)
+    np.testing.assert_allclose(dq_new[0], [0.0, 0.0], atol=1e-2)
+    assert stamp(port.trajectories[2]) >= port.clock + t_stop[-1] - 1e-6
+    replaced = [r for r in port.reports if r.event == schema.EVENT_REPLACED]
+    assert replaced and replaced[-1].start_source == BRAKING_REST
+    p.worker.stop()
+
+
+def test_a_deferred_brake_is_published_at_its_deadline_unless_a_plan_replaced_it():
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.4 * plan.duration
+    port.measured = plan.states[int(np.searchsorted(plan.times, 0.4 * plan.duration))].copy()
+    k = int(0.75 * (len(plan.times) - 1))
+    x, y = hand(plan.states[k, 0], plan.states[k, 2])
+    port.config = config(**{'replan.rate': 0.0, 'obstacles.x': [1.0, float(x)],
+                            'obstacles.y': [1.0, float(y)], 'obstacles.radius': [0.2, 0.02]})
+    p.plans.defer_brake(plan, port.clock + 0.1)
+    p.brake_if_overdue(port.config)
+    assert len(port.trajectories) == 1                 # not due yet
+    port.clock += 0.1
+    p.brake_if_overdue(port.config)
+    assert len(port.trajectories) == 2 and p.plans.current()[0].braking
+    stopped = [r for r in port.reports if r.event == schema.EVENT_STOPPED]
+    assert len(stopped) == 1 and 'no replan around it in time' in stopped[0].message
+    p.brake_if_overdue(port.config)                     # once
+    assert len(port.trajectories) == 2
+    finish(p)
+    # A plan that replaced the deferred one (a replan in time) is not braked.
+    replaced, _ = p.plans.current()
+    p.plans.defer_brake(plan, port.clock)               # not executing: ignored
+    port.clock += 1.0
+    p.brake_if_overdue(port.config)
+    assert p.plans.current()[0] is replaced
+    p.worker.stop()
+
+
+def test_a_deferred_brake_comes_before_the_stop_that_brake_can_wait_checked():
+    for lead in (0.0, 0.025, policy.MAX_LEAD_S):
+        assert 5.0 + lead < policy.brake_deadline(5.0, lead) < 5.0 + policy.brake_wait(lead)
+
+
+def test_a_measured_state_is_predicted_along_the_plan_to_now(solved):
+    p, _, _ = solved
+    plan, _ = p.plans.current()
+    k, m = 20, 35
+    measured = plan.states[k] + np.array([0.0, 0.01, 0.0, -0.01])    # off the plan a little
+    t_k, t_m = plan.start + plan.times[k], plan.start + plan.times[m]
+    # Independent: classic RK4 of eq. 37 in fine steps under the plan's controls.
+    x = measured.copy()
+    for i in range(k, m):
+        steps = 20
+        for _ in range(steps):
+            x = nm.step(x, plan.controls[i], (plan.times[i + 1] - plan.times[i]) / steps, 'rk4')
+    predicted = policy.state_now(plan, measured, t_k, t_m)
+    # The prediction holds the control of each 1 ms step's midpoint: steps across a switch
+    # of the plan's controls take one of them (some 1e-3 in velocity over 15 intervals).
+    np.testing.assert_allclose(predicted, x, atol=5e-3)
+    assert np.max(np.abs(predicted - measured)) > 0.1
+    # As it is: time unknown, from before the plan, or not older than now.
+    assert policy.state_now(plan, measured, None, t_m) is measured
+    assert policy.state_now(plan, measured, plan.start - 0.1, t_m) is measured
+    assert policy.state_now(plan, measured, t_m, t_m) is measured
 
 
 def test_cancel_goal_brakes_the_executing_plan_once():
@@ -489,3 +581,17 @@ def test_a_failed_load_is_reported_and_the_node_still_gets_ready(monkeypatch):
     loader.start()
     assert done.wait(10.0) and loader.ready.is_set()
     assert [str(e) for e in errors] == ['no compiler']
+
+
+def test_the_rest_of_a_braking_stop_is_a_goals_start_only_while_the_stop_executes():
+    moving = straight_plan(start=10.0, duration=1.0, result='a solve result')
+    stop = braking_plan(moving, np.array([0.5, 1.0, 1.0, -0.5]), 10.5, 0.002)
+    assert stop.braking and stop.times[-1] > 0.0
+    rest = policy.braking_rest_start(stop, 10.5, 4)
+    assert rest is not None
+    np.testing.assert_array_equal(rest[0], stop.states[-1])
+    assert rest[1] == pytest.approx(10.5 + stop.times[-1])
+    assert policy.braking_rest_start(moving, 10.5, 4) is None          # not a stop
+    assert policy.braking_rest_start(stop, 10.5 + stop.times[-1] + 1e-6, 4) is None   # ended
+    assert policy.braking_rest_start(stop, 10.5, 6) is None            # another model
+    assert policy.braking_rest_start(None, 10.5, 4) is None

@@ -44,6 +44,7 @@ class ExecutionState:
         self.seed = None                # Seed: a late cycle's plan, the next warm start
         self.plan_info = None           # (obstacles hash, revision) of the last published plan
         self.next_cycle = 0.0           # monotonic time [s] of the next regular cycle
+        self.brake_by = None            # (plan, node-clock time [s]): brake then unless replaced
         self._latencies = collections.deque(maxlen=policy.LATENCY_WINDOW)   # of cycles [s]
 
     def current(self):
@@ -83,6 +84,26 @@ class ExecutionState:
         """Tell whether plan still executes (and, given a revision, on that data)."""
         with self.lock:
             return self.executing is plan and (revision is None or revision == self.revision)
+
+    def defer_brake(self, plan, deadline):
+        """Record that plan, unsafe under new data, runs on until deadline for a replan."""
+        with self.lock:
+            if self.executing is plan:
+                self.brake_by = (plan, float(deadline))
+
+    def overdue_brake(self, now):
+        """Return the executing plan when its deferred braking is due at now (once), or None."""
+        with self.lock:
+            if self.brake_by is None:
+                return None
+            plan, deadline = self.brake_by
+            if self.executing is not plan:
+                self.brake_by = None        # replaced (a replan or a stop) meanwhile
+                return None
+            if now < deadline:
+                return None
+            self.brake_by = None
+            return plan
 
     def cycle_source(self, plan):
         """

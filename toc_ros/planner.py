@@ -23,7 +23,8 @@ messages (toc_ros.conversions) and ~/progress reports (toc_ros.progress) but sen
 itself: the node gives it a *port*, an object with
 
 - ``snapshot()``: (settings, measured state of their model or None); ``settings()``: the
-  settings only (cheap, called under the plan lock);
+  settings only (cheap, called under the plan lock); ``measured_time()``: the node-clock time
+  [s] of that measured state (None: none);
 - ``now()``: the node clock [s]; ``estimated_model(settings)``: (model, text) of the online
   estimate (replan.estimate);
 - ``publish_trajectory(msg)``, ``publish_path(msg)``, ``publish_markers()``, ``arm_moved()``
@@ -52,11 +53,27 @@ from trajectory_msgs.msg import JointTrajectory
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 
 
+BRAKING_REST = 'braking stop (its rest)'     # start_source of a goal solved while braking
+
+
 def start_state(config, measured):
     """Return (start state, its source): the measured state, else initial_state."""
     if measured is not None:
         return measured, 'joint_states'
     return np.asarray(config.problem.x0, dtype=float), 'initial_state'
+
+
+def goal_start(config, measured, executing, now):
+    """
+    Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
+
+    While a braking stop executes, the stop's rest (policy.braking_rest_start); else
+    start_state.
+    """
+    rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0])
+    if rest is not None:
+        return rest[0], BRAKING_REST, rest[1]
+    return (*start_state(config, measured), None)
 
 
 class Planner:
@@ -76,7 +93,8 @@ class Planner:
     def submit(self, make_goal, source):
         """Check a goal against the current start state and obstacles, then queue it."""
         config, measured = self._port.snapshot()
-        start, start_source = start_state(config, measured)
+        start, start_source, _ = goal_start(config, measured, self.plans.current()[0],
+                                            self._port.now())
         try:
             goal = make_goal(config)
         except conversions.ConversionError as exc:
@@ -170,16 +188,44 @@ class Planner:
             revision, port.now(), lambda plan, t: goals.plan_violation(plan, config, t))
         if stale is None:
             return
-        plan, elapsed, problem = stale
-        measured = port.snapshot()[1]
-        if measured is not None and self._brake_can_wait(plan, config, measured, elapsed) \
-                and self.maybe_replan(config, measured, port.now(), time.monotonic(),
-                                      reason=policy.DATA_CHANGE):
+        plan, _, problem = stale
+        if self._replan_before_braking(plan, config):
             self._log.warning(
                 f'the executing trajectory {problem} under data revision {revision}: '
                 'replanning from the current state')
             return
         self._stop(plan, config, revision, problem)
+
+    def _replan_before_braking(self, plan, config):
+        """
+        Queue a data-change cycle for plan, unsafe under new data, when braking can wait.
+
+        True when queued; the plan then brakes at policy.brake_deadline unless a plan replaced
+        it by then (brake_if_overdue).
+        """
+        port = self._port
+        measured, measured_time = port.snapshot()[1], port.measured_time()
+        now = port.now()
+        if measured is None or not self._brake_can_wait(
+                plan, config, policy.state_now(plan, measured, measured_time, now),
+                plan.elapsed(now)):
+            return False
+        if not self.maybe_replan(config, measured, measured_time, time.monotonic(),
+                                 reason=policy.DATA_CHANGE):
+            return False
+        self.plans.defer_brake(plan, policy.brake_deadline(
+            now, self.plans.cycle_lead(config.node.replan_lead)))
+        return True
+
+    def brake_if_overdue(self, config):
+        """Brake a plan whose deferred braking is due and that no replan replaced (any thread)."""
+        plan = self.plans.overdue_brake(self._port.now())
+        if plan is None:
+            return
+        problem = goals.plan_violation(plan, config, plan.elapsed(self._port.now()))
+        if problem is not None:
+            self._stop(plan, config, self.plans.current()[1],
+                       f'{problem} (no replan around it in time)')
 
     def _publish_stop(self, plan, config, still_valid):
         """
@@ -190,9 +236,11 @@ class Planner:
         still_valid() (under the plan lock) tells whether plan may still be replaced.
         """
         port = self._port
-        measured = port.snapshot()[1]
+        now = port.now()
+        # From where the robot is now: it follows plan until the stop reaches it.
+        measured = policy.state_now(plan, port.snapshot()[1], port.measured_time(), now)
         names = config.frames.joint_names
-        braking = braking_plan(plan, measured, port.now(), policy.BRAKE_STEP_S)
+        braking = braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
         if braking is None:
             stop = JointTrajectory(joint_names=list(names))
         else:
@@ -247,8 +295,8 @@ class Planner:
             return
         port = self._port
         config, measured = port.snapshot()
-        start, start_source = start_state(config, measured)
         executing, revision = self.plans.current()
+        start, start_source, not_before = goal_start(config, measured, executing, port.now())
         try:
             problem, guess, margin = goals.goal_problem(
                 config, start, request.goal, request.source,
@@ -256,6 +304,11 @@ class Planner:
         except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
             self.refuse(request.source, str(exc))
             return
+        if request.source == goals.REPLAN:
+            # The goal's execution goes on: plan with the model its replan cycles use.
+            estimated = port.estimated_model(config)[0]
+            if estimated is not None:
+                problem = problem.with_model(estimated)
         if margin is not None:
             self._log.warning(
                 f'replanning from inside the obstacle margin with margin {margin:.4g} m')
@@ -276,7 +329,8 @@ class Planner:
         request.result = result
         status, message = goals.goal_outcome(result, request.stop_reason, start_source)
         if status in schema.PUBLISHED and result.has_trajectory \
-                and not self._publish_plan(request, result, problem, config, revision):
+                and not self._publish_plan(request, result, problem, config, revision,
+                                           not_before=not_before):
             if self.worker.current(request):
                 request.restart_reason = 'planning data changed at the end of the solve'
                 return
@@ -300,13 +354,15 @@ class Planner:
             self._log.error(text)
         port.report(report)
 
-    def _publish_plan(self, request, result, problem, config, revision, stamp_s=None):
+    def _publish_plan(self, request, result, problem, config, revision, stamp_s=None,
+                      not_before=None):
         """
         Publish the plan unless its data revision is stale or its goal canceled (then False).
 
         stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
         cycles: ahead of now); None: start_lead after publication for a start at rest (the
-        stamp is taken once the message is built), else now.  A replan cycle's plan whose data
+        stamp is taken once the message is built), else now; not before not_before [s] (the
+        rest of the braking stop it starts from).  A replan cycle's plan whose data
         changed meanwhile is published when it also satisfies the current data (checked as
         executing plans are).
         """
@@ -321,6 +377,8 @@ class Planner:
             request.late = True         # over the cycle's budget (the lead): keep the old plan
             return False
         start = now + lead if stamp_s is None else float(stamp_s)
+        if not_before is not None:
+            start = max(start, float(not_before))
         stamp = trajectory.header.stamp = conversions.time_msg(start)
         plan = plan_from_result(result, start, request.goal, request.source, model)
         with plans.lock:
@@ -360,6 +418,8 @@ class Planner:
         from the state predicted along the executing plan; the worker takes it only when no
         goal is queued or solving.
         """
+        if reason is None:
+            self.brake_if_overdue(config)     # new data decide afresh (_replan_before_braking)
         plans = self.plans
         plan, revision = plans.current()
         if not policy.cycle_allowed(plan, config.replanning, self.ready.is_set()) \
@@ -466,11 +526,7 @@ class Planner:
         problem = goals.plan_violation(plan, config, elapsed)
         if problem is None:
             return
-        measured = port.snapshot()[1]
         again = policy.retry_after_failed_cycle(cycle.reason, cycle.revision, revision, late)
-        if again and measured is not None \
-                and self._brake_can_wait(plan, config, measured, elapsed) \
-                and self.maybe_replan(config, measured, port.now(), time.monotonic(),
-                                      reason=policy.DATA_CHANGE):
+        if again and self._replan_before_braking(plan, config):
             return
         self._stop(plan, config, revision, problem)

@@ -24,12 +24,14 @@ forward by a lead (the time the solve and the transport need).  This module deci
   longer) and how long a cycle may solve (``cycle_timeout``) on how many nodes (``cycle_nodes``);
 - which plan warm-starts a cycle (``cycle_warm_source``: a late cycle's plan seeds the next);
 - whether a plan that new data makes unsafe may run on while a cycle plans around the new
-  data, or must brake at once (``brake_can_wait``), and whether to try again after a failed
+  data, or must brake at once (``brake_can_wait``), until when at most (``brake_deadline``),
+  and whether to try again after a failed
   cycle (``retry_after_failed_cycle``);
 - the obstacle margin of the replan out of a braking stop that ended inside the margin
   (``recovery_margin``);
 - when the cycles' model follows the online estimate (``EstimateHold``);
-- what abandoning a goal does to the executing plan (``cancel_goal_action``).
+- what abandoning a goal does to the executing plan (``cancel_goal_action``);
+- where a goal solved while the robot brakes starts (``braking_rest_start``).
 """
 
 import dataclasses
@@ -104,6 +106,26 @@ class Cycle:
 def state_time(t, now):
     """Return a measured state's time t [s], or now when t is from another time base."""
     return now if abs(now - t) > MAX_STATE_AGE_S else t
+
+
+def state_now(plan, measured, measured_time, now):
+    """
+    Return a measured state predicted along plan to now, or as it is.
+
+    The robot follows plan until another trajectory reaches it, so a state measured at
+    measured_time [s, node clock] has moved on along plan since: on a loaded machine the newest
+    joint_states a node has processed can be a fifth of a second old, and a braking stop from
+    where the robot was then would pull it back along its path.  As it is when its time is
+    unknown or from another time base (state_time), or from before the plan started.
+    """
+    model = None if plan is None else plan.model
+    if measured is None or measured_time is None or model is None \
+            or np.shape(measured) != (model.nx,):
+        return measured
+    t0, t1 = plan.elapsed(state_time(measured_time, now)), plan.elapsed(now)
+    if t0 < 0.0 or not t1 > t0:
+        return measured
+    return predict(model, measured, plan.times, plan.controls, t0, t1)
 
 
 def at_rest(model, x):
@@ -246,6 +268,17 @@ def cycle_warm_source(plan, seed):
 def brake_wait(lead):
     """Return how long braking would wait for a data-change cycle with this lead [s]."""
     return lead + SEED_EXTRA_S + BRAKE_HORIZON_S
+
+
+def brake_deadline(now, lead):
+    """
+    Return when a plan whose braking waits for a replan must brake unless replaced [s].
+
+    brake_can_wait checked a stop started brake_wait(lead) after now; the deadline comes half
+    of BRAKE_HORIZON_S before that, so the stop is published in time even when the replan's
+    outcome (its failure, say) never comes: a worker that a loaded machine starves.
+    """
+    return float(now) + lead + SEED_EXTRA_S + 0.5 * BRAKE_HORIZON_S
 
 
 def brake_can_wait(plan, rows, measured, elapsed, lead, conflict):
@@ -414,3 +447,20 @@ def cancel_goal_action(plan, now, measured):
 def cycle_allowed(plan, replanning, ready):
     """Tell whether replan cycles may run for plan: replanning on, ready, its goal active."""
     return replanning and ready and plan is not None and plan.replannable
+
+
+def braking_rest_start(plan, now, nx):
+    """
+    Return (rest state, rest time [s, node clock]) of a braking stop executing at now, or None.
+
+    A goal solved while the robot brakes (the replan after a stop, or a new goal) starts where
+    the stop rests, and its plan applies from the rest time on: the measured state is moving,
+    and a plan from it would start where the robot was when the solve began, however long the
+    solve takes (on a loaded machine, hundreds of milliseconds of braking later).  The stop's
+    rest is where the plant will be.  None when plan is no braking stop, it has ended, or its
+    state is not of size nx (another model).
+    """
+    if plan is None or not plan.braking or plan.elapsed(now) >= plan.duration \
+            or plan.states.shape[1] != nx:
+        return None
+    return np.array(plan.states[-1], dtype=float), plan.start + plan.duration

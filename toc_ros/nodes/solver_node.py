@@ -104,7 +104,7 @@ from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
 from toc_ros.nodes.solver_settings import checked, parameter_errors, SolverNodeConfig
-from toc_ros.planner import Planner, start_state
+from toc_ros.planner import goal_start, Planner
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
@@ -150,6 +150,7 @@ class SolverNode(Node):
         self._lock = threading.Lock()       # guards the fields below, shared with the worker
         self._measured = None               # latest joint state from joint_states
         self._measured_effort = None        # and its efforts (None: not given or not used)
+        self._measured_time = None          # and its time [s, node clock]
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
         self._publish_lock = threading.Lock()
@@ -235,6 +236,11 @@ class SolverNode(Node):
         with self._lock:
             config, joints, effort = self._config, self._measured, self._measured_effort
         return config, (None if joints is None else self._model_state(joints, effort))
+
+    def measured_time(self):
+        """Return the node-clock time [s] of the measured state (None: none yet)."""
+        with self._lock:
+            return self._measured_time
 
     def now(self):
         """Return the node clock's time [s] (simulated time under use_sim_time)."""
@@ -361,13 +367,14 @@ class SolverNode(Node):
             return
         received = time.monotonic()
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        state_time = stamp if stamp > 0.0 else self.now()
         with self._lock:
             self._measured = state
             self._measured_effort = effort
+            self._measured_time = state_time
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
             if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
-        state_time = stamp if stamp > 0.0 else self.now()
         if config.node.replan_estimate:
             self._estimate_from(msg, config, state, state_time)
         self._planner.maybe_replan(config, self._model_state(state, effort), state_time,
@@ -405,7 +412,8 @@ class SolverNode(Node):
 
     def _pose_goal(self, msg, config):
         """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
-        start, _ = start_state(config, self.snapshot()[1])
+        start = goal_start(config, self.snapshot()[1], self._planner.plans.current()[0],
+                           self.now())[0]
         return conversions.pose_to_joint_goal(
             msg, config.frames.base_frame, config.model, tuple(config.node.extension_limits),
             config.node.ik_branch, seed=config.model.positions(start))
@@ -442,14 +450,15 @@ class SolverNode(Node):
         config, measured = self.snapshot()
         response.plan.header.frame_id = config.frames.base_frame
         response.plan.header.stamp = self.get_clock().now().to_msg()
-        start, start_source = start_state(config, measured)
+        start, start_source, _ = goal_start(config, measured, self._planner.plans.current()[0],
+                                            self.now())
         try:
             why = ignored_start(request.start, config, start)
         except (ValueError, IndexError) as exc:      # a model without a hand position
             why = f'cannot be compared with the measured state ({exc})'
         if why is not None:
             note = (f'~/plan: the request start {why}; planning from the {start_source} state '
-                    'instead (the start is always the measured state)')
+                    'instead (the start is the measured state, or the rest of a braking stop)')
             self.get_logger().warning(note)
             self.report(schema.ProgressReport(
                 message=note, level=schema.DiagnosticStatus.WARN, goal_source='~/plan',
@@ -486,6 +495,7 @@ class SolverNode(Node):
         return response
 
     def _heartbeat(self):
+        self._planner.brake_if_overdue(self.settings())    # also when joint_states stop
         progress = self._planner.progress.due()
         if progress is not None:
             self.report(schema.running_report(progress))
