@@ -140,7 +140,7 @@ def test_time_to_conflict_is_the_first_node_inside_a_true_obstacle(plan):
 def follow_then_brake(plan, k, wait):
     """Independently: plan controls from node k for wait [s], then the bang-bang stop."""
     return nm.follow_then_brake(plan.times, plan.controls, plan.states[k], plan.times[k], wait,
-                                U_MAX, BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED)
+                                U_MAX, BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED, substeps=2)
 
 
 def test_braking_waits_for_a_replan_only_while_a_later_stop_still_ends_clear(plan):
