@@ -73,6 +73,39 @@ def simulate(x0, controls, t_f, integrator='euler', variant='eq37', robot=None):
     return np.array(xs)
 
 
+def rk4(x, u, dt, steps, variant='eq37', robot=None):
+    """Integrate eq. (37) with u held over `steps` classic RK4 steps of dt each."""
+    x = np.asarray(x, dtype=float)
+    for _ in range(steps):
+        x = step(x, u, dt, 'rk4', variant, robot)
+    return x
+
+
+def follow_then_brake(times, controls, x, t, wait, u_max, rest_speed, smoothing_speed,
+                      dt=0.002, substeps=10):
+    """
+    Follow a plan from state x at time t for wait [s], then stop: the path of the stop.
+
+    The plan holds controls[i] on [times[i], times[i + 1]) (integrated in RK4 steps of at most
+    1 ms).  The stop applies u = -u_max * clip(dq / smoothing_speed, -1, 1) to each joint
+    (full bound against the velocity, linear near rest), held for dt in `substeps` RK4 steps,
+    until every joint is slower than rest_speed.  Rows: the state where braking starts, then
+    one per dt.
+    """
+    x, end = np.asarray(x, dtype=float), t + wait
+    while t < end - 1e-12:
+        i = min(int(np.searchsorted(times, t, side='right')) - 1, len(controls) - 1)
+        h = min(end, times[i + 1]) - t
+        steps = max(1, math.ceil(h / 1e-3))
+        x, t = rk4(x, controls[i], h / steps, steps), t + h
+    path = [x]
+    while np.max(np.abs(x[1::2])) >= rest_speed:
+        u = -np.asarray(u_max) * np.clip(x[1::2] / smoothing_speed, -1.0, 1.0)
+        x = rk4(x, u, dt / substeps, substeps)
+        path.append(x)
+    return np.array(path)
+
+
 def segment_clearance(segments, circles, squared=False):
     """
     Clearance of segments (..., L, 4) rows (ax, ay, bx, by) to circles (K, 3): (..., L K).

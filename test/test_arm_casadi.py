@@ -269,6 +269,8 @@ def test_ipopt_free_ur5_is_a_minimum_time_solution_pinocchio_agrees_with():
     assert check['terminal_error'] < 1e-7 and check['defect'] < 1e-7
 
 
+# Two IPOPT solves of the UR5 (several seconds): the obstacle-free one below stays quick.
+@pytest.mark.slow
 def test_ipopt_one_sphere_keeps_the_clearance():
     # The UR5 swings its arm up through a sphere; going around it costs a little time.
     path = _urdf('ur5')

@@ -23,6 +23,7 @@ import sys
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from mcap_ros2.reader import read_ros2_messages
+import pytest
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
@@ -144,6 +145,8 @@ os._exit(0)  # no close(), like a SIGKILL
 """
 
 
+# Two processes (a writer killed mid-recording, then the analysis CLI): an integration test.
+@pytest.mark.slow
 def test_toc_analyze_reads_a_bag_whose_writer_died(tmp_path):
     bag = tmp_path / 'died'
     written = subprocess.run([sys.executable, '-c', KILLED_WRITER, str(bag)],

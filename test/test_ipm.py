@@ -39,7 +39,7 @@ from toc_ros.core import CylindricalRobot, horizon, ip_run, ipm_obstacles, Probl
     RobotParams, solve, SolverOptions, start_points, Status
 from toc_ros.core.ipm_workspace import F_ELASTIC, F_MU, F_T, F_T_HIGH, F_T_LOW, F_T_REF, \
     F_ZT_HIGH, F_ZT_LOW, I_N
-from toc_ros.core.models import cylindrical, load_model
+from toc_ros.core.models import cylindrical, load_model, planar_2r
 
 
 def _residual(run, ws):
@@ -130,7 +130,7 @@ def test_newton_step_solves_the_linearised_kkt_system(name):
     assert errors[1] <= 1e-3 * np.max(np.abs(f0)), errors
 
 
-@njit
+@njit(cache=True)
 def _hessian(x, u, tau, p, lam, out):
     nx, nu = x.shape[0], u.shape[0]
     work = horizon.step_work(nx, nu)
@@ -140,7 +140,7 @@ def _hessian(x, u, tau, p, lam, out):
                                     work, hw)
 
 
-@njit
+@njit(cache=True)
 def _jacobians(x, u, tau, p, a, b, t):
     nx, nu = x.shape[0], u.shape[0]
     work = horizon.step_work(nx, nu)
@@ -185,10 +185,23 @@ def test_euler_stage_hessian_matches_finite_differences_of_the_jacobians():
     np.testing.assert_allclose(out[4], (gup - gum) / 2e-7, rtol=1e-6, atol=1e-8)
 
 
-@njit
-def _obstacle(segments, q, p, circles, z, sigma, cons, cons_q, hess):
+# One wrapper per model, each binding its segments kernel as a module attribute: numba caches
+# these, whereas a kernel passed as an argument makes every test run compile anew.
+@njit(cache=True)
+def _obstacle_cylindrical(q, p, circles, z, sigma, cons, cons_q, hess):
     work = ipm_obstacles.obstacle_work(cons.shape[0] // circles.shape[0], q.shape[0])
-    ipm_obstacles.obstacle_terms(segments, q, p, circles, cons, cons_q, z, sigma, hess, work)
+    ipm_obstacles.obstacle_terms(cylindrical.segments, q, p, circles, cons, cons_q, z, sigma,
+                                 hess, work)
+
+
+@njit(cache=True)
+def _obstacle_planar_2r(q, p, circles, z, sigma, cons, cons_q, hess):
+    work = ipm_obstacles.obstacle_work(cons.shape[0] // circles.shape[0], q.shape[0])
+    ipm_obstacles.obstacle_terms(planar_2r.segments, q, p, circles, cons, cons_q, z, sigma,
+                                 hess, work)
+
+
+OBSTACLE_TERMS = {cylindrical: _obstacle_cylindrical, planar_2r: _obstacle_planar_2r}
 
 
 @pytest.mark.parametrize('model', [cylindrical.CylindricalRobot(), PLANAR],
@@ -198,12 +211,12 @@ def test_obstacle_constraint_derivatives_match_finite_differences(model):
     n_con = model.n_links * circles.shape[0]
     rng = np.random.default_rng(11)
     p = model.packed()
-    segments = model.kernels.segments
+    obstacle = OBSTACLE_TERMS[model.kernels]
     for _ in range(20):
         q = rng.uniform([-1.0, 0.2], [2.0, 1.2])
         z = np.zeros(n_con)
         cons, grad, hess = np.zeros(n_con), np.zeros((n_con, 2)), np.zeros((2, 2))
-        _obstacle(segments, q, p, circles, z, np.zeros(n_con), cons, grad, hess)
+        obstacle(q, p, circles, z, np.zeros(n_con), cons, grad, hess)
         # Against the numpy geometry (independent of the kernels).
         seg = model.link_segments(q)
         ref = nm.segment_clearance(seg, circles)
@@ -215,15 +228,15 @@ def test_obstacle_constraint_derivatives_match_finite_differences(model):
             # Hessian of constraint j alone: z = e_j, sigma = 0 gives -grad^2 c_j.
             zj = np.zeros(n_con)
             zj[j] = 1.0
-            _obstacle(segments, q, p, circles, zj, np.zeros(n_con), cons, grad, hess)
+            obstacle(q, p, circles, zj, np.zeros(n_con), cons, grad, hess)
             h = 1e-6
             for a in range(2):
                 e = np.zeros(2)
                 e[a] = h
                 cp, gp = np.zeros(n_con), np.zeros((n_con, 2))
                 cm, gm = np.zeros(n_con), np.zeros((n_con, 2))
-                _obstacle(segments, q + e, p, circles, z, z, cp, gp, np.zeros((2, 2)))
-                _obstacle(segments, q - e, p, circles, z, z, cm, gm, np.zeros((2, 2)))
+                obstacle(q + e, p, circles, z, z, cp, gp, np.zeros((2, 2)))
+                obstacle(q - e, p, circles, z, z, cm, gm, np.zeros((2, 2)))
                 assert grad[j, a] == pytest.approx((cp[j] - cm[j]) / (2 * h), abs=1e-6)
                 np.testing.assert_allclose(-hess[a], (gp[j] - gm[j]) / (2 * h), atol=1e-5)
 

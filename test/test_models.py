@@ -349,20 +349,26 @@ def test_three_link_model_sizes_and_damping():
                                     x, np.array([0.0, -2.0, 0.0])), moved, rtol=1e-12)
 
 
-def test_generation_is_deterministic_and_cached(tmp_path):
-    with open(PLANAR_FILE) as stream:
+# The explicit right-hand side derives in about a second; the planar arm's Lagrangian (several
+# seconds of sympy on every run, its text being new) is left to the full run.
+@pytest.mark.parametrize('model_file', [
+    CYLINDRICAL_FILE, pytest.param(PLANAR_FILE, marks=pytest.mark.slow)],
+    ids=['cylindrical_eq37', 'planar_2r'])
+def test_generation_is_deterministic_and_cached(tmp_path, model_file):
+    with open(model_file) as stream:
         # A comment makes a new file content: a module of its own, not yet imported.
         text = stream.read() + f'\n# {tmp_path}\n'
+    name = os.path.basename(model_file)
     first, key = symbolic.generate_source(text)
     second, key2 = symbolic.generate_source(text)
     assert first == second and key == key2
     assert symbolic.content_hash(text + '\n') != key
-    model = symbolic.model_from_text(text, 'planar_2r.yaml', cache_dir=str(tmp_path))
+    model = symbolic.model_from_text(text, name, cache_dir=str(tmp_path))
     path = tmp_path / key / f'model_{key}.py'
     assert path.read_text() == first
     assert model.kernels.MODEL_HASH == key and model.kernels.__file__ == str(path)
     # Loaded again: the same module, no regeneration.
-    assert symbolic.model_from_text(text, 'planar_2r.yaml', cache_dir=str(tmp_path)) == model
+    assert symbolic.model_from_text(text, name, cache_dir=str(tmp_path)) == model
 
 
 def test_generated_model_is_a_value_object():

@@ -92,9 +92,20 @@ def test_bad_flat_values_are_clear_errors():
         config.problem_from_parameters({**config.DEFAULTS, 'solver.N': 'many'})
 
 
-def test_toc_solve_help_and_overrides_come_from_the_table():
+@pytest.mark.slow
+def test_toc_solve_help_of_the_process_comes_from_the_table():
+    """The same help as below, printed by python -m toc_ros.solve (a process: the full run)."""
     text = subprocess.run([sys.executable, '-m', 'toc_ros.solve', '--help'], check=True,
                           capture_output=True, text=True).stdout
+    for spec in config.SCENARIO_TABLE:
+        assert f'--{spec.name}' in text
+
+
+def test_toc_solve_help_and_overrides_come_from_the_table(capsys):
+    with pytest.raises(SystemExit) as done:
+        solve._parse(['--help'])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
     for spec in config.SCENARIO_TABLE:
         assert f'--{spec.name}' in text
     args = solve._parse(['--solver.paper.K_B', '700', '--robot.u_max', '650', '450',

@@ -16,7 +16,6 @@
 
 import math
 
-from node_harness import eq37
 import numpy as np
 import numpy_model as nm
 import pytest
@@ -28,19 +27,6 @@ from toc_ros.core.replan import (brake, BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED,
 
 MODEL = CylindricalRobot()
 U_MAX = np.array([600.0, 500.0])
-
-
-def rk4(x, u, dt, steps):
-    """Integrate eq. (37) (written out in node_harness) with classic RK4 steps."""
-    def f(y):
-        return np.asarray(eq37(y, u), dtype=float)
-    for _ in range(steps):
-        k1 = f(x)
-        k2 = f(x + 0.5 * dt * k1)
-        k3 = f(x + 0.5 * dt * k2)
-        k4 = f(x + dt * k3)
-        x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return x
 
 
 @pytest.fixture(scope='module')
@@ -70,7 +56,7 @@ def test_prediction_integrates_the_plan_controls(plan):
         end = min(times[i + 1], t1)
         if end <= t:
             break
-        expected = rk4(expected, controls[i], (end - t) / 50, 50)
+        expected = nm.rk4(expected, controls[i], (end - t) / 50, 50)
         t = end
     assert np.max(np.abs(got - expected)) < 1e-7
     assert np.array_equal(predict(MODEL, x, times, controls, t1, t0), x)   # no time: no motion
@@ -90,7 +76,7 @@ def test_brake_stops_every_joint_at_its_bounds():
     assert np.max(np.abs(states[-2, 1::2])) < 10 * BRAKE_REST_SPEED
     # The states follow the model under those controls (independent RK4).
     for k in (0, len(controls) // 2, len(controls) - 2):
-        step = rk4(states[k], controls[k], 0.002 / 20, 20)
+        step = nm.rk4(states[k], controls[k], 0.002 / 20, 20)
         assert np.max(np.abs(step - states[k + 1])) < 1e-9
 
 
@@ -123,21 +109,11 @@ def test_vectorised_and_pointwise_control_lookup():
                                   expected)
 
 
-def _follow_then_brake(plan, k, wait, dt=0.002):
+def _follow_then_brake(plan, k, wait):
     """Independently: plan controls from node k for wait [s], then the bang-bang stop."""
-    times, controls = plan.time_grid, plan.controls
-    x, t, end = np.asarray(plan.states[k], dtype=float), times[k], times[k] + wait
-    while t < end - 1e-12:                      # piecewise-constant controls, 1 ms RK4 steps
-        i = min(int(np.searchsorted(times, t, side='right')) - 1, len(controls) - 1)
-        h = min(end, times[i + 1]) - t
-        steps = max(1, math.ceil(h / 1e-3))
-        x, t = rk4(x, controls[i], h / steps, steps), t + h
-    path = [x]
-    while np.max(np.abs(x[1::2])) >= BRAKE_REST_SPEED:
-        u = -U_MAX * np.clip(x[1::2] / BRAKE_SMOOTHING_SPEED, -1.0, 1.0)
-        x = rk4(x, u, dt / 10, 10)
-        path.append(x)
-    return np.array(path)
+    return nm.follow_then_brake(plan.time_grid, plan.controls, plan.states[k],
+                                plan.time_grid[k], wait, U_MAX, BRAKE_REST_SPEED,
+                                BRAKE_SMOOTHING_SPEED)
 
 
 def test_a_stop_may_wait_only_while_it_still_ends_clear(plan):

@@ -23,7 +23,6 @@ import dataclasses
 import math
 from types import SimpleNamespace
 
-from node_harness import eq37
 import numpy as np
 import numpy_model as nm
 import pytest
@@ -39,19 +38,6 @@ MODEL = CylindricalRobot()
 U_MAX = np.array([600.0, 500.0])
 X0 = np.array([math.pi / 12.0, 0.0, 1.0, 0.0])
 N, T = 100, 1.2
-
-
-def rk4(x, u, dt, steps):
-    """Integrate eq. (37) with classic RK4 steps."""
-    def f(y):
-        return np.asarray(eq37(y, u), dtype=float)
-    for _ in range(steps):
-        k1 = f(x)
-        k2 = f(x + 0.5 * dt * k1)
-        k3 = f(x + 0.5 * dt * k2)
-        k4 = f(x + dt * k3)
-        x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return x
 
 
 def make_plan(start=0.0, u1=600.0, result=None, goal=None):
@@ -151,21 +137,10 @@ def test_time_to_conflict_is_the_first_node_inside_a_true_obstacle(plan):
 
 # -- brake or wait: against an independent simulation ---------------------------------------
 
-def follow_then_brake(plan, k, wait, dt=0.002):
+def follow_then_brake(plan, k, wait):
     """Independently: plan controls from node k for wait [s], then the bang-bang stop."""
-    times, controls = plan.times, plan.controls
-    x, t, end = np.asarray(plan.states[k], dtype=float), times[k], times[k] + wait
-    while t < end - 1e-12:
-        i = min(int(np.searchsorted(times, t, side='right')) - 1, len(controls) - 1)
-        h = min(end, times[i + 1]) - t
-        steps = max(1, math.ceil(h / 1e-3))
-        x, t = rk4(x, controls[i], h / steps, steps), t + h
-    path = [x]
-    while np.max(np.abs(x[1::2])) >= BRAKE_REST_SPEED:
-        u = -U_MAX * np.clip(x[1::2] / BRAKE_SMOOTHING_SPEED, -1.0, 1.0)
-        x = rk4(x, u, dt / 2, 2)
-        path.append(x)
-    return np.array(path)
+    return nm.follow_then_brake(plan.times, plan.controls, plan.states[k], plan.times[k], wait,
+                                U_MAX, BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED, substeps=2)
 
 
 def test_braking_waits_for_a_replan_only_while_a_later_stop_still_ends_clear(plan):
@@ -402,7 +377,7 @@ def test_a_due_cycle_starts_from_the_state_predicted_to_its_plan_node():
     while s < node - 1e-12:                   # the plan's controls, interval by interval
         i = int(np.searchsorted(executing.times, s, side='right')) - 1
         h = min(node, executing.times[i + 1]) - s
-        x, s = rk4(x, executing.controls[i], h / 20, 20), s + h
+        x, s = nm.rk4(x, executing.controls[i], h / 20, 20), s + h
     assert np.max(np.abs(cycle.start - x)) < 1e-7
     assert cycle.deviation == pytest.approx(0.004, abs=1e-9)
     # Not due before the next tick unless it deviates; a state from before the plan's start
