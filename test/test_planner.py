@@ -595,3 +595,8 @@ def test_the_rest_of_a_braking_stop_is_a_goals_start_only_while_the_stop_execute
     assert policy.braking_rest_start(stop, 10.5 + stop.times[-1] + 1e-6, 4) is None   # ended
     assert policy.braking_rest_start(stop, 10.5, 6) is None            # another model
     assert policy.braking_rest_start(None, 10.5, 4) is None
+    # Measured on the stop: its rest; measured far off it (a reset plant): none.
+    on_stop = stop.states[10]
+    assert policy.braking_rest_start(stop, 10.5, 4, on_stop, 10.5 + stop.times[10]) is not None
+    reset = np.array([0.2, 0.0, 1.0, 0.0])
+    assert policy.braking_rest_start(stop, 10.5, 4, reset, 10.5 + stop.times[10]) is None

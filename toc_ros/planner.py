@@ -63,14 +63,15 @@ def start_state(config, measured):
     return np.asarray(config.problem.x0, dtype=float), 'initial_state'
 
 
-def goal_start(config, measured, executing, now):
+def goal_start(config, measured, executing, now, measured_time=None):
     """
     Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
 
-    While a braking stop executes, the stop's rest (policy.braking_rest_start); else
-    start_state.
+    While a braking stop executes that the measured state (at measured_time) follows, the
+    stop's rest (policy.braking_rest_start); else start_state.
     """
-    rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0])
+    rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0],
+                                     measured, measured_time)
     if rest is not None:
         return rest[0], BRAKING_REST, rest[1]
     return (*start_state(config, measured), None)
@@ -94,7 +95,7 @@ class Planner:
         """Check a goal against the current start state and obstacles, then queue it."""
         config, measured = self._port.snapshot()
         start, start_source, _ = goal_start(config, measured, self.plans.current()[0],
-                                            self._port.now())
+                                            self._port.now(), self._port.measured_time())
         try:
             goal = make_goal(config)
         except conversions.ConversionError as exc:
@@ -296,7 +297,8 @@ class Planner:
         port = self._port
         config, measured = port.snapshot()
         executing, revision = self.plans.current()
-        start, start_source, not_before = goal_start(config, measured, executing, port.now())
+        start, start_source, not_before = goal_start(config, measured, executing, port.now(),
+                                                     port.measured_time())
         try:
             problem, guess, margin = goals.goal_problem(
                 config, start, request.goal, request.source,

@@ -75,6 +75,10 @@ SEED_EXTRA_S = 0.05
 # started then still keeps every link out of them (brake_can_wait).  So the lead, which grows
 # with the measured cycle latency on a loaded machine, moves the braking decision earlier.
 BRAKE_HORIZON_S = 0.1
+# [rad, m] a measured state this far from a braking stop's reference does not follow it (a reset
+# plant): goals then start from the measured state, not from the stop's rest.  A plant that
+# brakes later than the reference (a heavier payload) stays within a few hundredths.
+BRAKING_FOLLOW_TOL = 0.2
 # Step of the braking trajectory that is published.
 BRAKE_STEP_S = 0.002
 # Step of the stop simulated to decide whether braking can wait: its path stays within 3e-4
@@ -449,7 +453,7 @@ def cycle_allowed(plan, replanning, ready):
     return replanning and ready and plan is not None and plan.replannable
 
 
-def braking_rest_start(plan, now, nx):
+def braking_rest_start(plan, now, nx, measured=None, measured_time=None):
     """
     Return (rest state, rest time [s, node clock]) of a braking stop executing at now, or None.
 
@@ -457,10 +461,16 @@ def braking_rest_start(plan, now, nx):
     the stop rests, and its plan applies from the rest time on: the measured state is moving,
     and a plan from it would start where the robot was when the solve began, however long the
     solve takes (on a loaded machine, hundreds of milliseconds of braking later).  The stop's
-    rest is where the plant will be.  None when plan is no braking stop, it has ended, or its
-    state is not of size nx (another model).
+    rest is where the plant will be, as long as the robot follows the stop: None when a
+    measured state (at measured_time) is more than BRAKING_FOLLOW_TOL off it (a plant reset,
+    a robot moved by hand), and when plan is no braking stop, it has ended, or its state is not
+    of size nx (another model).
     """
     if plan is None or not plan.braking or plan.elapsed(now) >= plan.duration \
             or plan.states.shape[1] != nx:
         return None
+    if measured is not None and np.shape(measured) == (nx,) and measured_time is not None:
+        if plan.deviation(measured, plan.elapsed(state_time(measured_time, now))) \
+                > BRAKING_FOLLOW_TOL:
+            return None
     return np.array(plan.states[-1], dtype=float), plan.start + plan.duration

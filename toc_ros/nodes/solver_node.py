@@ -413,7 +413,7 @@ class SolverNode(Node):
     def _pose_goal(self, msg, config):
         """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
         start = goal_start(config, self.snapshot()[1], self._planner.plans.current()[0],
-                           self.now())[0]
+                           self.now(), self.measured_time())[0]
         return conversions.pose_to_joint_goal(
             msg, config.frames.base_frame, config.model, tuple(config.node.extension_limits),
             config.node.ik_branch, seed=config.model.positions(start))
@@ -451,7 +451,7 @@ class SolverNode(Node):
         response.plan.header.frame_id = config.frames.base_frame
         response.plan.header.stamp = self.get_clock().now().to_msg()
         start, start_source, _ = goal_start(config, measured, self._planner.plans.current()[0],
-                                            self.now())
+                                            self.now(), self.measured_time())
         try:
             why = ignored_start(request.start, config, start)
         except (ValueError, IndexError) as exc:      # a model without a hand position
