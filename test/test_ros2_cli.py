@@ -239,15 +239,15 @@ def _solver_ready(log):
     return re.search(r'\[solver_node-\d+\].*\bready\b', _read(log), re.I)
 
 
-def _launch(ws, log, arguments, expected, check):
+def _launch(ws, log, arguments, expected, check, launch_file='demo.launch.py'):
     """
-    Launch demo.launch.py, wait for the expected nodes, run check(), stop with SIGINT.
+    Launch launch_file, wait for the expected nodes, run check(), stop with SIGINT.
 
     Returns the launch output after asserting that launch and every node exited cleanly.
     """
     # --noninteractive: launch itself forwards SIGINT to the nodes (interactive launch leaves
     # that to the terminal's process-group signal, which this test does not send).
-    proc = ws.start('ros2 launch --noninteractive toc_ros demo.launch.py ' + arguments, log)
+    proc = ws.start(f'ros2 launch --noninteractive toc_ros {launch_file} ' + arguments, log)
     try:
         names = set()
 
@@ -314,6 +314,44 @@ def test_launch_arguments_apply(ws, tmp_path):
     _launch(ws, tmp_path / 'launch.log',
             f'namespace:=toc_test record:=false params_file:={params}',
             ['/toc_test/solver_node', '/toc_test/plant_node'], check)
+
+
+PANDA_GOAL = (0.8, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785)
+
+
+@pytest.mark.parametrize('execute', ['topic', 'action'])
+def test_launch_panda_plans_and_the_mujoco_plant_arrives(ws, tmp_path, execute):
+    """panda.launch.py: a joint goal is planned, executed (topic or action) and reached."""
+    if execute == 'action':
+        probe = ws.run("python3 -c 'import control_msgs.action'", timeout=60)
+        if probe.returncode != 0:
+            pytest.skip('control_msgs is not installed in this ROS environment')
+    names = ', '.join(f'panda_joint{i}' for i in range(1, 8))
+    goal = ', '.join(str(q) for q in PANDA_GOAL)
+    log = tmp_path / 'launch.log'
+
+    def check(_names):
+        assert _wait_until(lambda: _solver_ready(log), READY_TIMEOUT), _read(log)
+        sent = ws.run(f'ros2 topic pub --once goal_joints sensor_msgs/msg/JointState '
+                      f'"{{name: [{names}], position: [{goal}]}}"', timeout=60)
+        assert sent.returncode == 0, sent.stdout
+        assert _wait_until(lambda: 'SOLVED for goal from goal_joints' in _read(log), 120.0), \
+            _read(log)
+        if execute == 'action':
+            # The solver's trajectory topic is remapped away: only the action reaches the plant.
+            assert re.search(r'action server \S*follow_joint_trajectory found', _read(log)), \
+                _read(log)
+
+        def arrived():      # the plant rests at the goal: its joint_states, by the ROS CLI
+            echo = ws.run('ros2 topic echo --once --no-daemon --field position joint_states',
+                          timeout=30)
+            values = [float(v) for v in re.findall(r'-?\d+\.\d+(?:e-?\d+)?', echo.stdout)]
+            return len(values) == 7 and max(
+                abs(v - g) for v, g in zip(values, PANDA_GOAL)) < 1e-3
+        assert _wait_until(arrived, 60.0, interval=1.0), _read(log)
+
+    _launch(ws, log, f'record:=false execute:={execute}',
+            ['/solver_node', '/plant_node'], check, launch_file='panda.launch.py')
 
 
 def test_colcon_test_linters(ws):
