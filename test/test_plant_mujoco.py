@@ -44,7 +44,7 @@ def _params_file(tmp_path, **overrides):
     return path
 
 
-def test_holding_under_gravity_balances_pinocchio_gravity(tmp_path):
+def test_holding_under_gravity_rests_on_pinocchio_gravity_without_sag(tmp_path):
     client = RosClient()
     node = NodeProcess('plant_node', client.namespace, tmp_path, params_file=_params_file(
         tmp_path))
@@ -59,9 +59,10 @@ def test_holding_under_gravity_balances_pinocchio_gravity(tmp_path):
         effort = np.array(msg.effort)
         model = _reduced_pinocchio(_urdf('panda'), PANDA_ARM)
         gravity = pin.computeGeneralizedGravity(model, model.createData(), q)
-        # At rest the PD torque kp (q0 - q) is what holds the arm: Pinocchio's gravity torque.
+        # Holding, the plant commands the holding torque (as an arm's gravity compensation):
+        # it rests at Q0 itself, not sagged by g / kp, on Pinocchio's gravity torque.
         np.testing.assert_allclose(np.array(msg.velocity), 0.0, atol=1e-4)
-        np.testing.assert_allclose(effort, np.multiply(KP, np.subtract(Q0, q)), atol=1e-6)
+        np.testing.assert_allclose(q, Q0, atol=1e-6)
         np.testing.assert_allclose(effort, gravity, rtol=1e-3, atol=1e-3)
         assert np.max(np.abs(gravity)) > 5.0, 'the pose loads the shoulder'
     finally:

@@ -478,6 +478,10 @@ class TrajectoryFollower:
             return None
         return self._trajectory.sample(t_ns)
 
+    def holds(self, t_ns):
+        """Tell whether the reference holds a position at t_ns (a hold, or after the end)."""
+        return self._trajectory is None or self._holding or t_ns >= self._trajectory.end_ns()
+
     def update(self, t_ns, actual_positions, actual_velocities, reference_before=None):
         """
         One control step at t_ns: return the desired Sample; check the tolerances.

@@ -65,10 +65,18 @@ class MujocoEngine:
         self.n_joints = self.arm.n_joints
         self.nx = 2 * self.n_joints
         self.u_max = self.arm.effort_limits.copy()
+        self._held = (None, None)       # (positions' bytes, their holding torque)
 
     def check(self):
         """Return the model's errors: none once MuJoCo compiled it."""
         return []
+
+    def holding_torque(self, q):
+        """Return the torques that hold the joints at positions q at rest (gravity)."""
+        key = np.asarray(q, dtype=float).tobytes()
+        if key != self._held[0]:
+            self._held = (key, self.arm.holding_torque(np.frombuffer(key)))
+        return self._held[1]
 
     def step(self, x, u):
         """Return the interleaved state one time step after x under torque u (clamped)."""

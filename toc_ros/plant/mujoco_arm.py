@@ -200,6 +200,7 @@ class MujocoArm:
         model.opt.integrator = INTEGRATORS[integrator]
         model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self.data = mujoco.MjData(model)
+        self._holding_data = mujoco.MjData(model)      # scratch of holding_torque
         ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in self.joint_names]
         self._qpos = np.array([model.jnt_qposadr[i] for i in ids])
         self._dof = np.array([model.jnt_dofadr[i] for i in ids])
@@ -251,6 +252,15 @@ class MujocoArm:
         """Torques that hold the current positions at rest (MuJoCo's bias force at v = 0)."""
         data = mujoco.MjData(self.model)
         data.qpos[:] = self.data.qpos
+        mujoco.mj_forward(self.model, data)
+        return data.qfrc_bias[self._dof].copy()
+
+    def holding_torque(self, q):
+        """Torques that hold the planned joints at positions q at rest (the others as now)."""
+        data = self._holding_data
+        data.qpos[:] = self.data.qpos
+        data.qpos[self._qpos] = q
+        data.qvel[:] = 0.0
         mujoco.mj_forward(self.model, data)
         return data.qfrc_bias[self._dof].copy()
 

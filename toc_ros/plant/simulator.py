@@ -228,8 +228,23 @@ class PlantSimulator:
             q_ref, dq_ref, u_ff = self._follow_step()
         else:
             q_ref, dq_ref, u_ff = self.target(self.sim_ns)
+        holding = getattr(self.model, 'holding_torque', None)
+        if holding is not None and self.holding():
+            # An arm under gravity rests on its holding torque, as its own gravity
+            # compensation does; PD alone would sag by g / kp (centimetres at the shoulder).
+            u_ff = holding(q_ref)
         u = (u_ff + self.kp * (q_ref - x[0::2]) + self.kd * (dq_ref - x[1::2]))
         return np.clip(u, -self.u_max, self.u_max)
+
+    def holding(self):
+        """Tell whether the reference holds a position now (no trajectory moves it)."""
+        if self.following:
+            return self.follower.holds(self.sim_ns)
+        if self.active is None:
+            return True
+        reference = self.active.reference
+        t = (self.sim_ns - self.active.start_ns) / NS
+        return t >= reference.duration or t < reference.times[0]
 
     def _follow_step(self):
         """Return the follower's reference at this step (it checks tolerances, starts goals)."""
