@@ -39,7 +39,8 @@ import time
 
 import numpy as np
 
-from toc_ros import conversions, goal_requests as goals, progress as schema
+from toc_ros import arm_config, conversions, goal_requests as goals, progress as schema
+from toc_ros.arm_goals import braking_plan as arm_braking_plan
 from toc_ros.config import problem_from_parameters
 from toc_ros.core import ProblemError, Progress, solve, Status
 from toc_ros.core import replan_policy as policy
@@ -172,7 +173,9 @@ class Planner:
             return
         plan, elapsed, problem = stale
         measured = port.snapshot()[1]
-        if measured is not None and self._brake_can_wait(plan, config, measured, elapsed) \
+        # URDF arms have no replan cycles (config.replanning): they stop and plan again.
+        if measured is not None and not config.is_arm \
+                and self._brake_can_wait(plan, config, measured, elapsed) \
                 and self.maybe_replan(config, measured, port.now(), time.monotonic(),
                                       reason=policy.DATA_CHANGE):
             self._log.warning(
@@ -192,9 +195,14 @@ class Planner:
         port = self._port
         measured = port.snapshot()[1]
         names = config.frames.joint_names
-        braking = braking_plan(plan, measured, port.now(), policy.BRAKE_STEP_S)
+        if getattr(plan.model, 'is_arm', False):
+            braking = arm_braking_plan(plan, measured, port.now(), policy.BRAKE_STEP_S)
+        else:
+            braking = braking_plan(plan, measured, port.now(), policy.BRAKE_STEP_S)
         if braking is None:
             stop = JointTrajectory(joint_names=list(names))
+        elif getattr(braking.model, 'is_arm', False):
+            stop = braking.model.trajectory_msg(braking, names, conversions.time_msg(0.0))
         else:
             stop = conversions.trajectory_msg(braking, names, braking.model,
                                               conversions.time_msg(0.0))
@@ -311,11 +319,16 @@ class Planner:
         executing plans are).
         """
         port, plans = self._port, self.plans
-        model = problem.robot_model
+        arm = config.is_arm         # the node's view of the arm (the problem's is the core's)
+        model = config.model if arm else problem.robot_model
         rest = stamp_s is None and policy.at_rest(model, problem.x0)
         lead = config.node.start_lead if rest else 0.0
         names = config.frames.joint_names
-        trajectory = conversions.trajectory_msg(result, names, model, conversions.time_msg(0.0))
+        if arm:
+            trajectory = model.trajectory_msg(result, names, conversions.time_msg(0.0))
+        else:
+            trajectory = conversions.trajectory_msg(result, names, model,
+                                                    conversions.time_msg(0.0))
         now = port.now()
         if request.cycle is not None and time.monotonic() > request.cycle.deadline:
             request.late = True         # over the cycle's budget (the lead): keep the old plan
@@ -339,7 +352,12 @@ class Planner:
             plans.plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
         # The path and the markers only after the trajectory: they are not on its latency.
-        path = conversions.hand_path_msg(result.states, model, config.frames.base_frame, stamp)
+        if arm:
+            path = model.path_msg(result.states, arm_config.settings(config.flat).tip_link,
+                                  config.frames.base_frame, stamp)
+        else:
+            path = conversions.hand_path_msg(result.states, model, config.frames.base_frame,
+                                             stamp)
         request.path = path
         port.publish_path(path)
         if request.cycle is None:
