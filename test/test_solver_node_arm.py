@@ -37,7 +37,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros.core import Status
-from toc_ros.progress import EVENT_REFUSED, EVENT_STOPPED
+from toc_ros.progress import EVENT_REFUSED, EVENT_RESTARTED, EVENT_STOPPED
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -351,4 +351,31 @@ def test_obstacle_on_the_executing_plan_stops_and_replans(panda):
         assert worst >= -1e-6
     else:
         assert result.message, result
+    clear_obstacles(panda)
+
+
+def test_obstacle_change_during_a_solve_restarts_it(panda):
+    settle(panda)
+    clear_obstacles(panda)
+    middle = panda.oracle.tip(0.5 * (np.array(Q0) + np.array(Q2))).translation
+    first = (*middle, 0.05)
+    moved = (middle[0], middle[1] + 0.02, middle[2], 0.06)
+    since = time.monotonic()
+    panda.obstacles.publish(Float64MultiArray(data=list(first)))
+    obstacle_markers(panda, since, 1)
+    since = time.monotonic()
+    panda.goal_joints.publish(JointState(name=PANDA_JOINTS, position=Q2))
+    # Once the solve runs (a detour around the sphere takes seconds), move the sphere.
+    panda.client.wait_for(lambda: [r for r in reports(panda, since) if r.solving], 60.0,
+                          'the solve')
+    panda.obstacles.publish(Float64MultiArray(data=list(moved)))
+    result = final(panda, since, 'goal_joints')
+    events = [r.event for r in reports(panda, since)]
+    if EVENT_RESTARTED not in events:
+        pytest.skip('the solve ended before the obstacle change arrived (fast machine)')
+    assert result.status is Status.SOLVED, result.message
+    plans = [m for m in panda.client.messages('trajectory', since) if m.points]
+    assert len(plans) == 1      # only the plan for the current data was published
+    worst, _ = panda.oracle.check(plans[0], Q0, Q2, [moved], MARGIN)
+    assert worst >= -1e-6, worst
     clear_obstacles(panda)
