@@ -339,8 +339,7 @@ def test_obstacle_on_the_executing_plan_stops_and_replans(panda):
                                           if r.event == EVENT_STOPPED], 30.0, 'the stop')[0]
     assert 'cuts obstacle 0' in stop.message, stop.message
     # The stop is sent at once: the empty trajectory (no measured state: the robot holds).
-    sent = panda.client.wait_for(lambda: [m for m in panda.client.messages('trajectory',
-                                                                           stopped_since)],
+    sent = panda.client.wait_for(lambda: panda.client.messages('trajectory', stopped_since),
                                  30.0, 'the stop trajectory')[0]
     assert not sent.points and list(sent.joint_names) == PANDA_JOINTS
     # The goal is planned again around the new obstacle, or refused with the reason.

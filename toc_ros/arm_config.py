@@ -152,7 +152,8 @@ def arm_model(params):
         try:
             stamp = os.stat(spheres).st_mtime_ns
         except OSError as exc:
-            raise ProblemError(f'robot.collision_spheres: cannot read {spheres!r}: {exc}') from None
+            raise ProblemError(f'robot.collision_spheres: cannot read {spheres!r}: '
+                               f'{exc}') from None
     else:
         stamp = 0
     description = effective_description(params) if name == 'urdf' else ''

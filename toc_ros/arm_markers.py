@@ -22,9 +22,8 @@ state (ns 'arm', one SPHERE each) and the text markers 'obstacles_info' / 'plan_
 obstacles hash and data revision, as for the planar models).
 """
 
-import numpy as np
-
 from geometry_msgs.msg import Point
+import numpy as np
 from std_msgs.msg import ColorRGBA
 from toc_ros import arm_config, progress as schema
 from visualization_msgs.msg import Marker, MarkerArray
