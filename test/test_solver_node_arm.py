@@ -378,3 +378,35 @@ def test_obstacle_change_during_a_solve_restarts_it(panda):
     worst, _ = panda.oracle.check(plans[0], Q0, Q2, [moved], MARGIN)
     assert worst >= -1e-6, worst
     clear_obstacles(panda)
+
+
+def test_cancel_goal_brakes_from_the_measured_state(panda):
+    """Last: from here on the node has a measured state (the others plan from initial_state)."""
+    settle(panda)
+    clear_obstacles(panda)
+    since = time.monotonic()
+    panda.goal_joints.publish(JointState(name=PANDA_JOINTS, position=Q_FAR))
+    plan = plan_after(panda, since, Q_FAR)
+    _, q, dq, _ = panda.oracle.arrays(plan)
+    k = len(q) // 2     # the robot is half-way, moving
+    states = panda.client.node.create_publisher(JointState, panda.client.name('joint_states'), 10)
+    panda.client.wait_for(lambda: states.get_subscription_count() > 0, 30.0, 'joint_states')
+    for _ in range(5):
+        states.publish(JointState(name=PANDA_JOINTS, position=q[k].tolist(),
+                                  velocity=dq[k].tolist()))
+        time.sleep(0.05)
+    cancel = panda.client.node.create_client(Trigger, panda.client.name('solver_node/cancel_goal'))
+    since = time.monotonic()
+    answer = panda.client.call(cancel, Trigger.Request())
+    assert answer.success and 'braking to rest' in answer.message, answer.message
+    stop = panda.client.wait_for(lambda: panda.client.messages('trajectory', since), 30.0,
+                                 'the braking trajectory')[0]
+    times, bq, bdq, effort = panda.oracle.arrays(stop)
+    assert np.allclose(bq[0], q[k], atol=1e-12) and np.allclose(bdq[0], dq[k], atol=1e-12)
+    assert np.allclose(bdq[-1], 0.0, atol=1e-12)
+    deceleration = -dq[k] / times[-1]
+    for qj, vj, uj in zip(bq[:-1], bdq[:-1], effort[:-1]):    # the last repeats the torque
+        tau = pin.rnea(panda.oracle.model, panda.oracle.data, qj, vj, deceleration)
+        assert np.allclose(uj, tau, atol=1e-6)
+    assert np.all(np.abs(effort) <= panda.oracle.effort + 1e-9)
+    assert np.all(bq >= panda.oracle.lower) and np.all(bq <= panda.oracle.upper)

@@ -13,7 +13,13 @@
 # limitations under the License.
 
 """
-solver_node: minimum-time trajectories of the 2-DOF cylindrical robot on request.
+solver_node: minimum-time trajectories of the robot model (robot.model) on request.
+
+URDF arms (robot.model panda, ur5 or urdf) are translated by the arm_* modules: the model and
+its settings arm_config / arm_model (the URDF of robot_description, parameter or topic),
+goals and stale plans arm_goals, obstacle spheres (obstacle_markers, obstacles rows x, y, z,
+r) and the URDF topic arm_inputs, markers arm_markers; they have no replan cycles (see
+docs/ros_interface.md, "URDF arms").  The rest of this text describes the planar models.
 
 Goals arrive on ``goal_pose`` (hand position, inverse kinematics), ``goal_joints`` (joint
 space, by name) or the service ``~/plan`` (nav_msgs/GetPlan, answered when its solve ends).
