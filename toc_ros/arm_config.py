@@ -235,6 +235,11 @@ def arm_errors(params, model):
     if str(params.get('solver.integrator', 'euler')) != 'euler':
         errors.append(f"solver.integrator {params['solver.integrator']!r} is not implemented "
                       "for URDF arms: use 'euler'")
+    if float(params.get('robot.actuator_lag', 0.0)) != 0.0:
+        errors.append('robot.actuator_lag: actuator lag is not modelled for URDF arms (give 0)')
+    if params.get('robot.model_parameters'):
+        errors.append('robot.model_parameters: not used by URDF arms (the URDF is the model; '
+                      'limits: robot.joint_limits)')
     if params.get('replan.estimate'):
         errors.append('replan.estimate: online estimation is not implemented for URDF arms '
                       '(replan cycles are off for arms)')
