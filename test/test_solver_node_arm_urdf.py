@@ -75,10 +75,14 @@ def params_file(path, values):
 class Solver:
     """A solver_node process with its client, goal publisher and ~/ready client."""
 
-    def __init__(self, log_dir, values):
+    def __init__(self, log_dir, values=None, overrides=None):
+        """values: the parameter file's; None: the scenario file with -p overrides."""
         self.client = RosClient()
-        self.node = NodeProcess('solver_node', self.client.namespace, log_dir,
-                                params_file=params_file(log_dir / 'arm.yaml', values))
+        if values is None:
+            self.node = NodeProcess('solver_node', self.client.namespace, log_dir, overrides)
+        else:
+            self.node = NodeProcess('solver_node', self.client.namespace, log_dir,
+                                    params_file=params_file(log_dir / 'arm.yaml', values))
         self.client.collect(DiagnosticStatus, 'solver_node/progress', 100)
         self.client.collect(JointTrajectory, 'trajectory', LATCHED)
         self.goal_joints = self.client.node.create_publisher(
@@ -195,5 +199,47 @@ def test_robot_description_topic_loads_and_reloads(tmp_path):
             'the refusal')[0]
         assert report.message.startswith('robot_description:') and 'parse' in report.message
         assert solver.ask_ready().success
+    finally:
+        solver.close()
+
+
+def test_switch_between_a_planar_model_and_an_arm_at_run_time(tmp_path):
+    from rcl_interfaces.srv import SetParametersAtomically
+    from rclpy.parameter import Parameter
+    solver = Solver(tmp_path, overrides={'solver.N': 40, 'solver.timeout': 300.0,
+                                         'replan.rate': 0.0})
+    client, node = solver.client, solver.node
+    setter = client.node.create_client(SetParametersAtomically,
+                                       client.name('solver_node/set_parameters_atomically'))
+
+    def switch(values):
+        since = time.monotonic()
+        request = SetParametersAtomically.Request(parameters=[
+            Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        result = client.call(setter, request).result
+        assert result.successful, result.reason
+        client.wait_for(lambda: [r for r in reports(solver, since) if r.event == EVENT_READY],
+                        TIMEOUT, 'the new model ready')
+
+    try:
+        node.wait_for_log('ready:')
+        solver.handshake()
+        switch({'robot.model': 'panda', 'joint_names': PANDA_JOINTS, 'initial_state': Q0})
+        result, msg = solver.plan(Q_TURN)
+        assert result.status is Status.SOLVED and result.robot_model == 'panda', result.message
+        ArmOracle(find_panda_urdf().read_text()).check(msg, Q0, Q_TURN)
+        switch({'robot.model': 'cylindrical',
+                'joint_names': ['rotation_joint', 'extension_joint'],
+                'initial_state': [0.2, 0.0, 1.0, 0.0]})
+        since = time.monotonic()
+        solver.goal_joints.publish(JointState(name=['rotation_joint', 'extension_joint'],
+                                              position=[-0.5, 1.0]))
+        result = client.wait_for(lambda: [r for r in reports(solver, since) if r.final],
+                                 TIMEOUT, 'the planar result')[0]
+        assert result.status is Status.SOLVED and result.robot_model == 'cylindrical', result
+        planar = client.wait_for(lambda: [m for m in client.messages('trajectory', since)
+                                          if m.points], 30.0, 'the planar plan')[0]
+        assert list(planar.joint_names) == ['rotation_joint', 'extension_joint']
+        assert np.allclose(planar.points[-1].positions, [-0.5, 1.0], atol=1e-6)
     finally:
         solver.close()
