@@ -195,9 +195,11 @@ def test_parameter_table_lists_every_node_parameter_once():
     from toc_ros import docs_tables
     from toc_ros.config import SCENARIO_TABLE
     from toc_ros.core.settings import parameter_table
+    from toc_ros.arm_config import ArmSettings
     from toc_ros.nodes.parameters import PlantSettings, SolverNodeSettings
     # The names from the dataclass declarations themselves (not the nodes' name lists).
     declared = {p.name for p in SCENARIO_TABLE}
+    declared |= {p.name for p in parameter_table(ArmSettings)}
     declared |= {p.name for p in parameter_table(SolverNodeSettings)}
     declared |= {p.name for p in parameter_table(PlantSettings)}
     table = Path(docs_tables.DOC).read_text().partition(docs_tables.BEGIN)[2].partition(

@@ -24,6 +24,7 @@ from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import DescribeParameters, GetParameters
 from rclpy.parameter import parameter_value_to_python
 from toc_ros import config, solve
+from toc_ros.arm_config import ArmSettings
 from toc_ros.core import PaperOptions, Problem, RobotParams, SolverOptions
 from toc_ros.core.settings import from_parameters, parameter_table, setting
 from toc_ros.nodes import parameters
@@ -121,7 +122,8 @@ def test_node_parameter_names_are_in_the_table():
     robot = {p.name for p in parameter_table(RobotParams, 'robot.')}
     assert robot <= set(PLANT_NAMES) and robot <= set(parameters.SOLVER_NODE_NAMES)
     assert set(parameters.SOLVER_NODE_NAMES) == set(config.DEFAULTS) | {
-        p.name for p in parameter_table(parameters.SolverNodeSettings)}
+        p.name for p in parameter_table(parameters.SolverNodeSettings)} | {
+        p.name for p in parameter_table(ArmSettings)}
 
 
 @pytest.mark.slow

@@ -28,6 +28,7 @@ from typing import Tuple
 
 import yaml
 
+from . import arm_config
 from .core.model import RobotParams
 from .core.models import load_model, ModelChoice, ModelError, with_actuator_lag
 from .core.problem import Problem, ProblemError, SolverOptions
@@ -222,8 +223,11 @@ def model_from_parameters(params):
     Return the RobotModel of flat parameters (robot.model, robot.model_parameters, robot.*).
 
     Built once per (model, parameters, file modification time): a model file is derived and
-    compiled at its first use.  Raises ProblemError with the reason for a bad model.
+    compiled at its first use.  Raises ProblemError with the reason for a bad model.  A URDF
+    arm (robot.model panda, ur5 or urdf) is toc_ros.arm_config's.
     """
+    if arm_config.is_arm(params):
+        return arm_config.arm_model(params)
     choice = model_choice(params)
     model = _joint_model(choice, params)
     try:
@@ -249,6 +253,8 @@ def _joint_model(choice, params):
 
 def problem_from_parameters(params, x0=None, x_goal=None, obstacles=None):
     """Problem from flat parameters; x0, x_goal, obstacles override the parameter values."""
+    if arm_config.is_arm(params):
+        return arm_config.arm_problem(params, x0, x_goal, obstacles)
     overrides = {k: tuple(float(v) for v in value)
                  for k, value in (('x0', x0), ('x_goal', x_goal)) if value is not None}
     if obstacles is not None:

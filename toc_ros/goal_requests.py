@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from toc_ros import arm_goals
 from toc_ros.config import problem_from_parameters
 from toc_ros.core import ProblemError, replan_policy as policy, Status
 from toc_ros.core.executing_plan import goal_warm_start, violation
@@ -48,6 +49,8 @@ def recovery_params(config, start):
 
 def plan_violation(plan, config, elapsed):
     """Return what the rest of an executing plan violates under config, or None."""
+    if config.is_arm:
+        return arm_goals.plan_violation(plan, config, elapsed)
     try:
         problem = problem_from_parameters(config.flat, x0=plan.states[0], x_goal=plan.goal)
     except ProblemError as exc:
@@ -83,8 +86,11 @@ def goal_refusal(config, start, start_source, goal, source):
     Return why a joint goal is refused from start under config, or None when it is taken.
 
     Checked: the cylindrical extension against extension_limits, then the problem from the
-    start (a replan after a stop: with the recovery margin) to the goal.
+    start (a replan after a stop: with the recovery margin) to the goal.  URDF arms:
+    arm_goals.goal_refusal (their limits and collisions).
     """
+    if config.is_arm:
+        return arm_goals.goal_refusal(config, start, start_source, goal)
     low, high = config.node.extension_limits
     if config.robot.name == 'cylindrical' and len(goal) == 4 and not low <= goal[2] <= high:
         return (f'goal extension q2 = {goal[2]:.6g} m is outside extension_limits '
@@ -108,6 +114,8 @@ def goal_problem(config, start, goal, source, plan, now):
     goal in fast mode).  Raises ProblemError (TypeError, ValueError) for data that do not make
     a problem.
     """
+    if config.is_arm:
+        return arm_goals.goal_problem(config, start, goal), None, None
     flat, margin = config.flat, None
     if source == REPLAN:
         recovery = recovery_params(config, start)

@@ -41,7 +41,9 @@ class KernelLoader:
         self._started = clock()
 
     def start(self):
-        """Load the current model's kernels in the background."""
+        """Load the current model's kernels in the background (a pending model: none)."""
+        if getattr(self.model, 'pending', False):
+            return      # an arm waiting for its URDF: ready once one arrives (switch)
         threading.Thread(target=self._load, name='warm_up', daemon=True).start()
 
     def switch(self, model):
@@ -57,6 +59,8 @@ class KernelLoader:
         """Return (ready, the text of the node's ~/ready answer)."""
         if self.ready.is_set():
             return True, f'ready: numba kernels loaded in {self.load_s:.2f} s'
+        if getattr(self.model, 'pending', False):
+            return False, self.model.reason
         return False, (f'loading the numba kernels ({self._clock() - self._started:.1f} s so '
                        'far); goals are queued until then')
 
@@ -64,8 +68,11 @@ class KernelLoader:
         started = self._clock()
         model = self.model
         try:
-            # The paper's model: every kernel of the package (None); others: their own.
-            warm_up(None if isinstance(model, CylindricalRobot) else [model])
+            if hasattr(model, 'warm_up'):
+                model.warm_up()     # a URDF arm: its own solver's kernels
+            else:
+                # The paper's model: every kernel of the package (None); others: their own.
+                warm_up(None if isinstance(model, CylindricalRobot) else [model])
         except Exception as exc:  # noqa: B902 - reported; solves then compile on demand
             self._on_error(exc)
         self.load_s = self._clock() - started

@@ -82,11 +82,12 @@ class MarkerObstacles:
         """Return the obstacle rows: (x, y, z, r) [m] ordered by (ns, id)."""
         return tuple(self._spheres[key] for key in sorted(self._spheres))
 
-    def apply(self, msg):
+    def apply(self, msg, max_count=None):
         """
         Apply a MarkerArray; return the new rows, or raise ConversionError (set unchanged).
 
-        An unknown action is refused as well.
+        An unknown action is refused as well, and so is a set of more than max_count spheres
+        (None: no limit).
         """
         spheres = dict(self._spheres)
         for marker in msg.markers:
@@ -98,6 +99,9 @@ class MarkerObstacles:
                 spheres[_key(marker)] = _sphere(marker, self.base_frame)
             else:
                 raise ConversionError(f'{_name(marker)}: unknown action {marker.action}')
+        if max_count is not None and len(spheres) > max_count:
+            raise ConversionError(f'{len(spheres)} obstacles exceed obstacles.max_count = '
+                                  f'{max_count}')
         rows = tuple(spheres[key] for key in sorted(spheres))
         try:
             check_obstacles(rows)    # the arms' one obstacle check (finite, radius >= 0)
@@ -105,3 +109,7 @@ class MarkerObstacles:
             raise ConversionError(str(exc)) from None
         self._spheres = spheres
         return rows
+
+    def clear(self):
+        """Forget every marker (the obstacle set was replaced another way)."""
+        self._spheres = {}

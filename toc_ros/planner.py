@@ -40,7 +40,8 @@ import time
 
 import numpy as np
 
-from toc_ros import conversions, goal_requests as goals, progress as schema
+from toc_ros import arm_config, conversions, goal_requests as goals, progress as schema
+from toc_ros.arm_goals import braking_plan as arm_braking_plan
 from toc_ros.config import problem_from_parameters
 from toc_ros.core import ProblemError, Progress, solve, Status
 from toc_ros.core import replan_policy as policy
@@ -190,7 +191,8 @@ class Planner:
         if stale is None:
             return
         plan, _, problem = stale
-        if self._replan_before_braking(plan, config):
+        # URDF arms have no replan cycles (config.replanning): they stop and plan again.
+        if not config.is_arm and self._replan_before_braking(plan, config):
             self._log.warning(
                 f'the executing trajectory {problem} under data revision {revision}: '
                 'replanning from the current state')
@@ -241,9 +243,14 @@ class Planner:
         # From where the robot is now: it follows plan until the stop reaches it.
         measured = policy.state_now(plan, port.snapshot()[1], port.measured_time(), now)
         names = config.frames.joint_names
-        braking = braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
+        if getattr(plan.model, 'is_arm', False):
+            braking = arm_braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
+        else:
+            braking = braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
         if braking is None:
             stop = JointTrajectory(joint_names=list(names))
+        elif getattr(braking.model, 'is_arm', False):
+            stop = braking.model.trajectory_msg(braking, names, conversions.time_msg(0.0))
         else:
             stop = conversions.trajectory_msg(braking, names, braking.model,
                                               conversions.time_msg(0.0))
@@ -369,11 +376,16 @@ class Planner:
         executing plans are).
         """
         port, plans = self._port, self.plans
-        model = problem.robot_model
+        arm = config.is_arm         # the node's view of the arm (the problem's is the core's)
+        model = config.model if arm else problem.robot_model
         rest = stamp_s is None and policy.at_rest(model, problem.x0)
         lead = config.node.start_lead if rest else 0.0
         names = config.frames.joint_names
-        trajectory = conversions.trajectory_msg(result, names, model, conversions.time_msg(0.0))
+        if arm:
+            trajectory = model.trajectory_msg(result, names, conversions.time_msg(0.0))
+        else:
+            trajectory = conversions.trajectory_msg(result, names, model,
+                                                    conversions.time_msg(0.0))
         now = port.now()
         if request.cycle is not None and time.monotonic() > request.cycle.deadline:
             request.late = True         # over the cycle's budget (the lead): keep the old plan
@@ -399,7 +411,12 @@ class Planner:
             plans.plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
         # The path and the markers only after the trajectory: they are not on its latency.
-        path = conversions.hand_path_msg(result.states, model, config.frames.base_frame, stamp)
+        if arm:
+            path = model.path_msg(result.states, arm_config.settings(config.flat).tip_link,
+                                  config.frames.base_frame, stamp)
+        else:
+            path = conversions.hand_path_msg(result.states, model, config.frames.base_frame,
+                                             stamp)
         request.path = path
         port.publish_path(path)
         if request.cycle is None:

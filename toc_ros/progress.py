@@ -214,13 +214,12 @@ def progress_from_msg(msg):
 
 def obstacles_hash(rows, margin):
     """
-    Short hash of an obstacle set (rows x, y, radius R') and its margin, as ~/progress has it.
+    Short hash of an obstacle set (rows x, y, radius R'; arms: x, y, z, r) and its margin.
 
-    Values are rounded to 1e-9 m first, so that a client computes the same hash from the
-    numbers it sent.
+    As ~/progress has it.  Values are rounded to 1e-9 m first, so that a client computes the
+    same hash from the numbers it sent.
     """
-    text = ';'.join(f'{float(x) + 0.0:.9f},{float(y) + 0.0:.9f},{float(r) + 0.0:.9f}'
-                    for x, y, r in rows)
+    text = ';'.join(','.join(f'{float(v) + 0.0:.9f}' for v in row) for row in rows)
     text += f'|{float(margin):.9f}'
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 

@@ -124,8 +124,8 @@ def state_now(plan, measured, measured_time, now):
     """
     model = None if plan is None else plan.model
     if measured is None or measured_time is None or model is None \
-            or np.shape(measured) != (model.nx,):
-        return measured
+            or getattr(model, 'is_arm', False) or np.shape(measured) != (model.nx,):
+        return measured         # (URDF arms are not predicted: no rollout kernel here)
     t0, t1 = plan.elapsed(state_time(measured_time, now)), plan.elapsed(now)
     if t0 < 0.0 or not t1 > t0:
         return measured

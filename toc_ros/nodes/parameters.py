@@ -29,6 +29,7 @@ from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 from rclpy.parameter import Parameter
 
+from toc_ros.arm_config import ArmSettings
 from toc_ros.config import SCENARIO_TABLE
 from toc_ros.core.settings import parameter_table, setting
 
@@ -156,20 +157,19 @@ class PlantSettings:
         'builtin', "the plant's dynamics: builtin (the planner's model, robot.*), or mujoco (the "
         'URDF in robot_description simulated by MuJoCo: joint_names planned, the others '
         'locked; needs the mujoco package)', choices=('builtin', 'mujoco'))
-    robot_description: str = setting(
-        '', 'URDF of the arm for engine mujoco (the robot_state_publisher parameter of the '
-        'same name)')
 
 
 # Every flat parameter of the nodes: name -> settings.Parameter (default, type, range, text).
 TABLE = {p.name: p for p in (list(SCENARIO_TABLE) + parameter_table(SolverNodeSettings)
-                             + parameter_table(PlantSettings))}
+                             + parameter_table(ArmSettings) + parameter_table(PlantSettings))}
 SOLVER_NODE_NAMES = [p.name for p in SCENARIO_TABLE] + [
-    p.name for p in parameter_table(SolverNodeSettings)]
+    p.name for p in parameter_table(SolverNodeSettings) + parameter_table(ArmSettings)]
 # The plant simulates the robot of the scenario: every robot.* setting, so a new robot
-# parameter reaches it without an edit here.
+# parameter reaches it without an edit here; of the arm settings the URDF (engine mujoco)
+# and the tip link (payload_mass_offset).
 PLANT_NODE_NAMES = [p.name for p in SCENARIO_TABLE if p.name.startswith('robot.')] + [
-    'joint_names', 'initial_state'] + [p.name for p in parameter_table(PlantSettings)]
+    'joint_names', 'initial_state'] + [p.name for p in parameter_table(PlantSettings)] + [
+    'robot_description', 'robot.tip_link']
 
 
 def default(name):

@@ -13,7 +13,13 @@
 # limitations under the License.
 
 """
-solver_node: minimum-time trajectories of the 2-DOF cylindrical robot on request.
+solver_node: minimum-time trajectories of the robot model (robot.model) on request.
+
+URDF arms (robot.model panda, ur5 or urdf) are translated by the arm_* modules: the model and
+its settings arm_config / arm_model (the URDF of robot_description, parameter or topic),
+goals and stale plans arm_goals, obstacle spheres (obstacle_markers, obstacles rows x, y, z,
+r) and the URDF topic arm_inputs, markers arm_markers; they have no replan cycles (see
+docs/ros_interface.md, "URDF arms").  The rest of this text describes the planar models.
 
 Goals arrive on ``goal_pose`` (hand position, inverse kinematics), ``goal_joints`` (joint
 space, by name) or the service ``~/plan`` (nav_msgs/GetPlan, answered when its solve ends).
@@ -96,9 +102,12 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
-from toc_ros import conversions, execution, goal_requests as goals, progress as schema
+from toc_ros import arm_config, arm_goals, conversions, execution, goal_requests as goals
+from toc_ros import progress as schema
+from toc_ros.arm_inputs import ArmInputs
+from toc_ros.arm_markers import arm_markers
 from toc_ros.core import replan_policy as policy
 from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
@@ -139,7 +148,8 @@ class SolverNode(Node):
     def __init__(self, **kwargs):
         super().__init__('solver_node', **kwargs)
         parameters.declare(self, PARAMETER_NAMES)
-        flat = parameters.values(self, PARAMETER_NAMES)
+        # With the values that topics fill (an arm's obstacle spheres, URDF): none yet.
+        flat = dict(parameters.values(self, PARAMETER_NAMES), **arm_config.TOPIC_DEFAULTS)
         errors = parameter_errors(flat)
         if errors:
             raise parameters.ParameterError('; '.join(errors))
@@ -155,6 +165,7 @@ class SolverNode(Node):
         self._arm_drawn = None              # state drawn by the last markers
         self._publish_lock = threading.Lock()
         self._estimate = policy.OnlineEstimate()    # replan.estimate: fed by joint_states
+        self._arm_inputs = ArmInputs()      # URDF arms: obstacle markers, robot_description
         self._kernels = KernelLoader(self._config.model, self._on_kernels_loaded,
                                      self._on_kernels_failed)
         self._planner = Planner(self, self._config.planning_data(), self._kernels.ready)
@@ -176,6 +187,11 @@ class SolverNode(Node):
                                  callback_group=inputs)
         self.create_subscription(Float64MultiArray, 'obstacles', self._on_obstacles, 10,
                                  callback_group=inputs)
+        self.create_subscription(MarkerArray, 'obstacle_markers', self._on_obstacle_markers,
+                                 10, callback_group=inputs)
+        # As robot_state_publisher publishes it: the latest URDF, kept for late joiners.
+        self.create_subscription(String, 'robot_description', self._on_robot_description,
+                                 latched, callback_group=inputs)
         # Depth 1: only the newest state matters; a backlog would start replans from old ones.
         self.create_subscription(JointState, 'joint_states', self._on_joint_states,
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE),
@@ -209,6 +225,13 @@ class SolverNode(Node):
     def _on_kernels_loaded(self, elapsed):
         self.get_logger().info(f'numba kernels loaded in {elapsed:.2f} s')
         config = self.settings()
+        if config.is_arm and config.node.replan_rate > 0.0:
+            note = (f'replan.rate {config.node.replan_rate:g} Hz: no replan cycles for URDF '
+                    'arms (their solver has no warm start, a cold solve takes longer than a '
+                    'cycle); each goal is planned once, new obstacles stop and replan it')
+            self.get_logger().warning(note)
+            self.report(schema.ProgressReport(message=note, level=schema.DiagnosticStatus.WARN,
+                                              event=schema.EVENT_IDLE))
         self.report(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
             event=schema.EVENT_READY, **config.model_keys()))
@@ -346,7 +369,7 @@ class SolverNode(Node):
             self._arm_dirty = True   # obstacles or frames may have changed
         if any(p.name.startswith('execute.') for p in changed):
             self._configure_execution(config.node)
-        if any(p.name.startswith('robot.') for p in changed) \
+        if any(p.name.startswith('robot.') or p.name == 'robot_description' for p in changed) \
                 and self._kernels.switch(config.model):
             self.get_logger().info(f'robot model changed: loading the kernels of {config.model!r}')
         self._planner.data_changed(config)
@@ -414,6 +437,8 @@ class SolverNode(Node):
         """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
         start = goal_start(config, self.snapshot()[1], self._planner.plans.current()[0],
                            self.now(), self.measured_time())[0]
+        if config.is_arm:
+            return arm_goals.pose_goal(msg, config, start)
         return conversions.pose_to_joint_goal(
             msg, config.frames.base_frame, config.model, tuple(config.node.extension_limits),
             config.node.ik_branch, seed=config.model.positions(start))
@@ -422,12 +447,50 @@ class SolverNode(Node):
         self._planner.submit(lambda config: self._pose_goal(msg, config), 'goal_pose')
 
     def _on_goal_joints(self, msg):
-        self._planner.submit(lambda config: conversions.joint_state_to_state(
-            msg, config.frames.joint_names), 'goal_joints')
+        self._planner.submit(lambda config: arm_goals.joint_goal(msg, config) if config.is_arm
+                             else conversions.joint_state_to_state(
+                                 msg, config.frames.joint_names), 'goal_joints')
+
+    def _take_topic_value(self, source, translate):
+        """Apply a topic's flat value (arm_inputs) like a parameter change, or refuse it."""
+        with self._lock:
+            config = self._config
+        try:
+            update = translate(config)
+        except conversions.ConversionError as exc:
+            self._planner.refuse(source, str(exc))
+            return
+        if update is None:
+            return
+        key, value = update
+        errors, config = checked(dict(config.flat, **{key: value}))
+        if errors:
+            self._planner.refuse(source, '; '.join(errors))
+            return
+        with self._lock:
+            self._config = config
+            self._arm_dirty = True
+        if self._kernels.switch(config.model):
+            self.get_logger().info(f'{source}: loading the new robot model')
+        self.get_logger().info(f'{source}: ' + (f'{len(value)} obstacle sphere(s)'
+                                                if key == arm_config.SPHERES else 'new URDF'))
+        self._planner.data_changed(config)
+
+    def _on_obstacle_markers(self, msg):
+        self._take_topic_value('obstacle_markers',
+                               lambda config: self._arm_inputs.from_markers(msg, config))
+
+    def _on_robot_description(self, msg):
+        self._take_topic_value('robot_description',
+                               lambda config: self._arm_inputs.from_description(msg, config))
 
     def _on_obstacles(self, msg):
         with self._lock:
-            limit = self._config.node.max_count
+            limit, arm = self._config.node.max_count, self._config.is_arm
+        if arm:     # rows (x, y, z, r)
+            self._take_topic_value('obstacles',
+                                   lambda config: self._arm_inputs.from_array(msg, config))
+            return
         count = obstacle_count(msg)
         if count > limit:    # refused before any per-obstacle work
             self._planner.refuse('obstacles',
@@ -453,7 +516,8 @@ class SolverNode(Node):
         start, start_source, _ = goal_start(config, measured, self._planner.plans.current()[0],
                                             self.now(), self.measured_time())
         try:
-            why = ignored_start(request.start, config, start)
+            why = (arm_goals.ignored_start(request.start, config, measured) if config.is_arm
+                   else ignored_start(request.start, config, start))
         except (ValueError, IndexError) as exc:      # a model without a hand position
             why = f'cannot be compared with the measured state ({exc})'
         if why is not None:
@@ -516,6 +580,10 @@ class SolverNode(Node):
             self._arm_dirty = False
             self._arm_drawn = arm
         path_states, plan_info, revision = self._planner.plans.drawing()
+        if config.is_arm:
+            self._marker_pub.publish(arm_markers(config, self.get_clock().now().to_msg(),
+                                                 path_states, arm, plan_info, revision))
+            return
         if arm is None:
             arm = np.asarray(config.problem.x0, dtype=float)
         rows, margin = config.problem.obstacles, config.problem.margin

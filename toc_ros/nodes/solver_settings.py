@@ -25,6 +25,7 @@ per accepted change, so that the node reads typed fields instead of looking name
 from dataclasses import dataclass
 from typing import Any, Dict
 
+from toc_ros import arm_config
 from toc_ros.config import (Frames, model_choice, model_from_parameters,
                             options_from_parameters, problem_from_parameters)
 from toc_ros.core import ModelError, ProblemError
@@ -59,7 +60,8 @@ class SolverNodeConfig:
         try:
             node = from_parameters(SolverNodeSettings, params)
             frames = from_parameters(Frames, params)
-            problem = from_parameters(Problem, params)
+            problem = (arm_config.arm_problem(params, strict=False) if arm_config.is_arm(params)
+                       else from_parameters(Problem, params))
         except (TypeError, ValueError) as exc:
             raise ProblemError(str(exc))
         return cls(flat=params, node=node, frames=frames, robot=model_choice(params),
@@ -68,8 +70,18 @@ class SolverNodeConfig:
 
     @property
     def replanning(self):
-        """Tell whether replan cycles run while a plan executes (fast mode, rate > 0)."""
-        return self.node.replan_rate > 0.0 and self.options.mode == 'fast'
+        """
+        Tell whether replan cycles run while a plan executes (fast mode, rate > 0).
+
+        Never for URDF arms: their solver has no warm start, and a cold solve takes longer
+        than a cycle's lead (the node says so when replan.rate > 0).
+        """
+        return self.node.replan_rate > 0.0 and self.options.mode == 'fast' and not self.is_arm
+
+    @property
+    def is_arm(self):
+        """Tell whether the model is a URDF arm (robot.model panda, ur5 or urdf)."""
+        return getattr(self.model, 'is_arm', False)
 
     def model_keys(self):
         """Return the robot-model values of progress reports (what was planned for)."""
@@ -83,8 +95,11 @@ class SolverNodeConfig:
 
 def planning_data(params):
     """Return the flat values a plan depends on beyond its goal (one revision's data)."""
-    return {k: v for k, v in params.items()
+    data = {k: v for k, v in params.items()
             if k.startswith(PLANNING_PREFIXES) and k != 'obstacles.max_count'}
+    if arm_config.is_arm(params):       # the URDF an arm model is built from
+        data['robot_description'] = arm_config.effective_description(params)
+    return data
 
 
 def parameter_errors(params):
@@ -103,6 +118,8 @@ def checked(params):
         model = model_from_parameters(params)
     except ProblemError as exc:
         return [str(exc)], None
+    if getattr(model, 'is_arm', False):
+        return _checked_arm(params, model)
     errors = parameters.joint_name_errors(params['joint_names'], model.n_joints, model.name)
     if params['replan.estimate']:
         try:
@@ -139,6 +156,22 @@ def checked(params):
     config = None
     if not errors:
         try:    # the typed settings of an accepted set must build
+            config = SolverNodeConfig.from_flat(params)
+        except (ProblemError, TypeError, ValueError) as exc:
+            errors.append(str(exc))
+    return errors, config
+
+
+def _checked_arm(params, model):
+    """Return (errors, the SolverNodeConfig or None) of a candidate set for a URDF arm."""
+    errors = arm_config.arm_errors(params, model)
+    try:
+        options_from_parameters(params).validate()
+    except (ProblemError, TypeError, ValueError) as exc:
+        errors.append(str(exc))
+    config = None
+    if not errors:
+        try:
             config = SolverNodeConfig.from_flat(params)
         except (ProblemError, TypeError, ValueError) as exc:
             errors.append(str(exc))

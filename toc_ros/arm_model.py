@@ -1,0 +1,238 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A URDF arm as solver_node plans for it: the core's ArmRobot plus what the node reads of a model.
+
+States are the core's arm states x = (q_1..q_n, dq_1..dq_n), positions first; joint_states
+arrive as (q1, dq1, q2, dq2, ...) and ``full_state`` reorders them.  The messages of an arm
+plan are built here: the JointTrajectory (accelerations from pinocchio.aba of the plan's
+torques), the tip link's path, the braking stop.  Pinocchio's Data is not thread-safe, so
+every function here uses its own (the solver thread and the node's thread both call them).
+"""
+
+import dataclasses
+import math
+
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+import numpy as np
+import pinocchio as pin
+
+from toc_ros import conversions
+from toc_ros.core import SolverOptions
+from toc_ros.core.arms import ArmError, default_spheres, load_arm, load_spheres
+from toc_ros.core.arms.arm_solve import ArmRobot
+from toc_ros.core.problem import Problem, ProblemError
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+DEFAULT_TIPS = {'panda': 'panda_hand', 'ur5': 'tool0'}
+# Braking: the stop's duration is searched on this geometric grid [s] (shortest first).
+BRAKE_DURATIONS_S = np.geomspace(0.01, 20.0, 60)
+
+
+class PendingArm:
+    """robot.model urdf before any URDF arrived: goals are refused, ~/ready stays false."""
+
+    is_arm = True
+    pending = True
+    name = 'urdf'
+    reason = ('robot.model urdf: no URDF yet (robot_description parameter empty, nothing '
+              'received on the robot_description topic)')
+
+    def __init__(self, joint_names):
+        """joint_names: the planned joints (their count sizes the measured states)."""
+        self.joint_names = tuple(joint_names)
+        self.n_joints = len(self.joint_names)
+        self.nx = 2 * self.n_joints
+        self.kernels = self
+
+    @property
+    def joint_model(self):
+        """Return the model of the joints (itself)."""
+        return self
+
+    def full_state(self, x, effort=None):
+        """Return (q, dq) from a joint state (q1, dq1, q2, dq2, ...)."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        return np.concatenate([x[0::2], x[1::2]])
+
+
+class ArmPlanModel(PendingArm):
+    """A loaded arm: ArmRobot (model, limits, spheres) and its tip link."""
+
+    pending = False
+
+    def __init__(self, name, robot):
+        """name: robot.model ('panda', 'ur5', 'urdf'); robot: the core's ArmRobot."""
+        super().__init__(robot.arm.joint_names)
+        self.name = name
+        self.robot = robot
+        self.arm = robot.arm
+        self.nu = self.n_joints
+        self.u_max = self.arm.effort.copy()
+
+    def positions(self, states):
+        """Return q of states (..., 2 n)."""
+        return np.asarray(states, dtype=float)[..., :self.n_joints]
+
+    def velocities(self, states):
+        """Return dq of states (..., 2 n)."""
+        return np.asarray(states, dtype=float)[..., self.n_joints:]
+
+    def joint_states(self, states):
+        """Return the states as compared between plans (the arm's own layout)."""
+        return np.asarray(states, dtype=float)
+
+    def state(self, q, dq=None):
+        """Return (q, dq) (default dq = 0)."""
+        q = np.asarray(q, dtype=float).reshape(-1)
+        return np.concatenate([q, np.zeros_like(q) if dq is None else
+                               np.asarray(dq, dtype=float).reshape(-1)])
+
+    def tip_frame(self, link):
+        """Return (link name, frame id) of the tip: link, else the model's default."""
+        link = link or DEFAULT_TIPS.get(self.name) or self._last_child()
+        return link, self.arm.frame_id(link)
+
+    def _last_child(self):
+        """Return the child link of the last planned joint."""
+        last = self.arm.joint_names[-1]
+        return next(child for child, (_, joint, _) in self.arm.links.items() if joint == last)
+
+    def tip_poses(self, qs, link):
+        """Return the tip's poses (pin.SE3) in the base frame for configurations qs (M, n)."""
+        _, frame = self.tip_frame(link)
+        model = self.arm.model
+        data = model.createData()
+        poses = []
+        for q in np.asarray(qs, dtype=float).reshape(-1, self.n_joints):
+            pin.framesForwardKinematics(model, data, q)
+            poses.append(pin.SE3(data.oMf[frame]))
+        return poses
+
+    def private_robot(self):
+        """Return the ArmRobot with a Data of its own (for use off the solver thread)."""
+        own = dataclasses.replace(self.arm, data=self.arm.model.createData())
+        return ArmRobot(own, self.robot.spheres, self.robot.self_collision)
+
+    def warm_up(self):
+        """Compile (or load from the cache) the arm solver's kernels with a tiny solve."""
+        from toc_ros.core import solve
+        arm = self.arm
+        middle = np.where(arm.continuous, 0.0, 0.5 * (arm.lower + arm.upper))
+        goal = np.clip(middle + 0.05, arm.lower, arm.upper)
+        # An obstacle far away: the sphere kernels compile too, without constraining.
+        obstacles = ((100.0, 0.0, 0.0, 0.1),) if self.robot.spheres is not None else ()
+        solve(Problem(model=self.robot, x0=tuple(self.state(middle)),
+                      x_goal=tuple(self.state(goal)), obstacles=obstacles, n_intervals=10),
+              SolverOptions(mode='fast', max_iterations=3))
+
+    def accelerations(self, states, controls):
+        """Return ddq = ABA(q, dq, u) at every node (the last node repeats the last u)."""
+        model = self.arm.model
+        data = model.createData()
+        n = self.n_joints
+        out = np.empty((states.shape[0], n))
+        for k, x in enumerate(states):
+            u = controls[min(k, controls.shape[0] - 1)]
+            out[k] = pin.aba(model, data, x[:n], x[n:], u)
+        return out
+
+    def trajectory_msg(self, result, joint_names, stamp):
+        """
+        Build the JointTrajectory of an arm plan (a result or an ExecutingPlan).
+
+        Every node at its time: positions, velocities, accelerations of the plan's torques
+        (ABA), effort = the torque held from that node (the last repeats the last one).
+        """
+        states = np.asarray(result.states, dtype=float)
+        controls = np.asarray(result.controls, dtype=float)
+        acc = self.accelerations(states, controls)
+        msg = JointTrajectory()
+        msg.header.stamp = stamp
+        msg.joint_names = list(joint_names)
+        last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
+        times = np.asarray(result.time_grid, dtype=float)
+        msg.points = [
+            JointTrajectoryPoint(positions=q, velocities=dq, accelerations=ddq, effort=u,
+                                 time_from_start=conversions.duration_msg(t))
+            for q, dq, ddq, u, t in zip(self.positions(states).tolist(),
+                                        self.velocities(states).tolist(), acc.tolist(),
+                                        controls[last].tolist(), times.tolist())]
+        return msg
+
+    def path_msg(self, states, link, frame_id, stamp):
+        """Return the nav_msgs/Path of the tip link (position and orientation) along states."""
+        msg = Path()
+        msg.header.frame_id = frame_id
+        msg.header.stamp = stamp
+        for pose in self.tip_poses(self.positions(states), link):
+            entry = PoseStamped(header=msg.header)
+            p = pose.translation
+            entry.pose.position.x, entry.pose.position.y, entry.pose.position.z = (
+                float(p[0]), float(p[1]), float(p[2]))
+            x, y, z, w = pin.Quaternion(pose.rotation).coeffs()
+            o = entry.pose.orientation
+            o.x, o.y, o.z, o.w = float(x), float(y), float(z), float(w)
+            msg.poses.append(entry)
+        return msg
+
+    def brake(self, x, dt):
+        """
+        Return (times, states, controls) of a stop from x, or None when none is found.
+
+        Every joint decelerates uniformly to rest over the same duration T (dq(t) =
+        dq0 (1 - t / T)); T is the shortest of BRAKE_DURATIONS_S whose inverse-dynamics
+        torques stay within the effort limits and whose positions stay within the joint
+        limits at every node dt apart.  A stop that cannot keep both (e.g. fast towards a
+        limit) is None: the caller sends the empty trajectory (the controller holds).
+        """
+        x = np.asarray(x, dtype=float).reshape(-1)
+        n = self.n_joints
+        q0, dq0 = x[:n], x[n:]
+        model = self.arm.model
+        data = model.createData()
+        lower = np.where(self.arm.continuous, -np.inf, self.arm.lower)
+        upper = np.where(self.arm.continuous, np.inf, self.arm.upper)
+        for duration in BRAKE_DURATIONS_S:
+            steps = max(2, int(math.ceil(duration / dt)))
+            times = np.linspace(0.0, duration, steps + 1)
+            s = times[:, None]
+            q = q0 + dq0 * (s - s * s / (2.0 * duration))
+            dq = dq0 * (1.0 - s / duration)
+            if np.any(q < lower - 1e-9) or np.any(q > upper + 1e-9):
+                return None     # longer stops travel further: none keeps the limits
+            ddq = -dq0 / duration
+            tau = np.array([pin.rnea(model, data, q[k], dq[k], ddq) for k in range(steps)])
+            if np.all(np.abs(tau) <= self.arm.effort[None, :]):
+                return times, np.hstack([q, dq]), tau
+        return None
+
+
+def build_arm(name, description, joints, locked, limits, spheres_path):
+    """
+    Return the ArmPlanModel of a URDF arm (ProblemError with the reason).
+
+    name: 'panda', 'ur5' or 'urdf' (then description is the URDF text); joints: the planned
+    joints; spheres_path: a sphere file, or None for the shipped set of panda / ur5.
+    """
+    source = description if name == 'urdf' else name
+    try:
+        arm = load_arm(source, joints=list(joints), locked=locked or None, limits=limits or None)
+        spheres = (load_spheres(spheres_path, arm) if spheres_path
+                   else default_spheres(arm, self_collision=True))
+    except (ArmError, OSError) as exc:
+        raise ProblemError(f'robot.model {name}: {exc}') from None
+    return ArmPlanModel(name, ArmRobot(arm, spheres))
