@@ -39,7 +39,8 @@ from toc_ros.core.models import CylindricalRobot
 from toc_ros.execution_state import ExecutionState
 from toc_ros.nodes import parameters
 from toc_ros.nodes.solver_settings import SolverNodeConfig
-from toc_ros.planner import BRAKING_REST, CYCLE_SOURCE, Planner, start_state
+from toc_ros.goal_requests import BRAKING_REST, start_state
+from toc_ros.planner import CYCLE_SOURCE, Planner
 from toc_ros.solve_progress import SolveProgress
 
 X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)

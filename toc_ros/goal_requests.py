@@ -38,6 +38,29 @@ from toc_ros.core.result import CLEARANCE_TOL
 START_TOLERANCE_M = 1e-3
 # The source of the goals that the node plans again after stopping a plan.
 REPLAN = 'replan'
+# The start_source of a goal solved while the robot brakes.
+BRAKING_REST = 'braking stop (its rest)'
+
+
+def start_state(config, measured):
+    """Return (start state, its source): the measured state, else initial_state."""
+    if measured is not None:
+        return measured, 'joint_states'
+    return np.asarray(config.problem.x0, dtype=float), 'initial_state'
+
+
+def goal_start(config, measured, executing, now, measured_time=None):
+    """
+    Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
+
+    While a braking stop executes that the measured state (at measured_time) follows, the
+    stop's rest (policy.braking_rest_start); else start_state.
+    """
+    rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0],
+                                     measured, measured_time)
+    if rest is not None:
+        return rest[0], BRAKING_REST, rest[1]
+    return (*start_state(config, measured), None)
 
 
 def recovery_params(config, start):

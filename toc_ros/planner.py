@@ -54,30 +54,6 @@ from trajectory_msgs.msg import JointTrajectory
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 
 
-BRAKING_REST = 'braking stop (its rest)'     # start_source of a goal solved while braking
-
-
-def start_state(config, measured):
-    """Return (start state, its source): the measured state, else initial_state."""
-    if measured is not None:
-        return measured, 'joint_states'
-    return np.asarray(config.problem.x0, dtype=float), 'initial_state'
-
-
-def goal_start(config, measured, executing, now, measured_time=None):
-    """
-    Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
-
-    While a braking stop executes that the measured state (at measured_time) follows, the
-    stop's rest (policy.braking_rest_start); else start_state.
-    """
-    rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0],
-                                     measured, measured_time)
-    if rest is not None:
-        return rest[0], BRAKING_REST, rest[1]
-    return (*start_state(config, measured), None)
-
-
 class Planner:
     """Solves goals and replan cycles for a node's port; see the module docstring."""
 
@@ -95,8 +71,9 @@ class Planner:
     def submit(self, make_goal, source):
         """Check a goal against the current start state and obstacles, then queue it."""
         config, measured = self._port.snapshot()
-        start, start_source, _ = goal_start(config, measured, self.plans.current()[0],
-                                            self._port.now(), self._port.measured_time())
+        start, start_source, _ = goals.goal_start(
+            config, measured, self.plans.current()[0], self._port.now(),
+            self._port.measured_time())
         try:
             goal = make_goal(config)
         except conversions.ConversionError as exc:
@@ -304,8 +281,8 @@ class Planner:
         port = self._port
         config, measured = port.snapshot()
         executing, revision = self.plans.current()
-        start, start_source, not_before = goal_start(config, measured, executing, port.now(),
-                                                     port.measured_time())
+        start, start_source, not_before = goals.goal_start(
+            config, measured, executing, port.now(), port.measured_time())
         try:
             problem, guess, margin = goals.goal_problem(
                 config, start, request.goal, request.source,

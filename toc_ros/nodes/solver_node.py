@@ -113,7 +113,7 @@ from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
 from toc_ros.nodes.solver_settings import checked, parameter_errors, SolverNodeConfig
-from toc_ros.planner import goal_start, Planner
+from toc_ros.planner import Planner
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
@@ -435,8 +435,8 @@ class SolverNode(Node):
 
     def _pose_goal(self, msg, config):
         """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
-        start = goal_start(config, self.snapshot()[1], self._planner.plans.current()[0],
-                           self.now(), self.measured_time())[0]
+        start = goals.goal_start(config, self.snapshot()[1], self._planner.plans.current()[0],
+                                 self.now(), self.measured_time())[0]
         if config.is_arm:
             return arm_goals.pose_goal(msg, config, start)
         return conversions.pose_to_joint_goal(
@@ -513,8 +513,8 @@ class SolverNode(Node):
         config, measured = self.snapshot()
         response.plan.header.frame_id = config.frames.base_frame
         response.plan.header.stamp = self.get_clock().now().to_msg()
-        start, start_source, _ = goal_start(config, measured, self._planner.plans.current()[0],
-                                            self.now(), self.measured_time())
+        start, start_source, _ = goals.goal_start(
+            config, measured, self._planner.plans.current()[0], self.now(), self.measured_time())
         try:
             why = (arm_goals.ignored_start(request.start, config, measured) if config.is_arm
                    else ignored_start(request.start, config, start))
