@@ -38,7 +38,7 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from .spheres import sphere_kinematics_batch
+from . import kernels
 
 FD_STEP = 1e-6
 
@@ -54,7 +54,7 @@ class ArmEvaluator:
         self.n_int = n_intervals
         self.effort = arm.effort.copy()
         self.spheres = spheres
-        obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
+        obstacles = np.ascontiguousarray(np.asarray(obstacles, dtype=float).reshape(-1, 4))
         self.obstacles = obstacles
         if spheres is not None:
             self.radius = spheres.radii[:, None] + obstacles[None, :, 3] + margin   # (S, O)
@@ -178,46 +178,21 @@ class ArmEvaluator:
         (g (K, S * O + P), dg/dq, curvature (K, n, n) of sum_p weights_p g_p or None).
 
         Rows: sphere-obstacle pairs (sphere-major), then self-collision pairs; each row is
-        (d^2 - R^2) / (2 R).  The curvature: exact J^T J terms plus forward differences of
-        the sphere Jacobians for the second derivatives of the centres.
+        (d^2 - R^2) / (2 R).  One compiled call (kernels.sphere_rows): kinematics, rows,
+        gradients and the exact curvature (J^T J terms and the centres' second derivatives).
         """
         count, n = qs.shape
         if not self.n_pairs:
             return np.zeros((count, 0)), np.zeros((count, 0, n)), None
-        centres, jac = sphere_kinematics_batch(self.spheres, qs)
-        n_obs = self.n_obstacle_rows
-        diff = centres[:, :, None, :] - self.obstacles[None, None, :, :3]      # (K, S, O, 3)
-        sq = np.einsum('ksoj,ksoj->kso', diff, diff)
-        values = [((sq - self.radius ** 2) / (2.0 * self.radius)).reshape(count, -1)]
-        a, b = self.pairs[:, 0], self.pairs[:, 1]
-        gap = centres[:, a] - centres[:, b]                                     # (K, P, 3)
-        values.append((np.einsum('kpj,kpj->kp', gap, gap) - self.pair_radius ** 2)
-                      / (2.0 * self.pair_radius))
-        values = np.concatenate(values, axis=1)
-        if not gradients:
-            return values, None, None
-        scaled = diff / self.radius[None, :, :, None]
-        gap_scaled = gap / self.pair_radius[None, :, None]
-        jac_gap = jac[:, a] - jac[:, b]                                         # (K, P, 3, n)
-        grads = np.concatenate([np.einsum('ksoj,ksjn->kson', scaled, jac).reshape(count, -1, n),
-                                np.einsum('kpj,kpjn->kpn', gap_scaled, jac_gap)], axis=1)
-        if weights is None:
-            return values, grads, None
-        w = weights[:, :n_obs].reshape(count, *self.radius.shape)
-        w_pair = weights[:, n_obs:]
-        # sum_p w_p (J^T J) / R  +  sum_p w_p (p - c)/R . d2 p  (c: obstacle or other sphere).
-        jtj = (np.einsum('kso,ksjn,ksjm->knm', w / self.radius[None], jac, jac)
-               + np.einsum('kp,kpjn,kpjm->knm', w_pair / self.pair_radius[None], jac_gap,
-                           jac_gap))
-        direction = np.einsum('kso,ksoj->ksj', w, scaled)                     # (K, S, 3)
-        weighted_gap = w_pair[:, :, None] * gap_scaled
-        np.add.at(direction, (slice(None), a), weighted_gap)
-        np.add.at(direction, (slice(None), b), -weighted_gap)
-        base = np.einsum('ksj,ksjn->kn', direction, jac)
-        shifted = np.repeat(qs, n, axis=0) + FD_STEP * np.tile(np.eye(n), (count, 1))
-        _, jac_p = sphere_kinematics_batch(self.spheres, shifted)
-        jac_p = jac_p.reshape(count, n, *jac_p.shape[1:])                   # (K, i, S, 3, n)
-        moved = np.einsum('ksj,kisjn->kin', direction, jac_p)
-        second = (moved - base[:, None, :]) / FD_STEP
-        second = 0.5 * (second + np.transpose(second, (0, 2, 1)))
-        return values, grads, jtj + second
+        qs = np.ascontiguousarray(qs, dtype=float)
+        level = 0 if not gradients else (1 if weights is None else 2)
+        values = np.empty((count, self.n_pairs))
+        grads = np.empty((count, self.n_pairs, n) if level else (0, 0, 0))
+        curvature = np.empty((count, n, n) if level == 2 else (0, 0, 0))
+        w = (np.ascontiguousarray(weights, dtype=float) if level == 2
+             else np.zeros((0, 0)))
+        spheres = self.spheres
+        kernels.sphere_rows(qs, *spheres.chain, spheres.joint_ids, spheres.joint_offsets,
+                            spheres.support, self.obstacles, self.radius, self.pairs,
+                            self.pair_radius, w, level, values, grads, curvature)
+        return values, (grads if level else None), (curvature if level == 2 else None)

@@ -30,7 +30,9 @@ every reduced Hessian R_k + B_k^T P B_k is positive definite, the final-time cur
 is positive and the terminal Schur complement is negative definite; otherwise the kernel
 returns the failing test's code and the caller adds a multiple of the identity to H.
 
-No numpy linear algebra inside the kernels (numba's np.dot/np.linalg need SciPy): small loops.
+No numpy linear algebra inside the kernels: numba's np.dot and np.linalg call SciPy's BLAS and
+LAPACK, and SciPy is not a dependency of toc_ros; the loops below run along contiguous rows
+(they vectorise) and skip the structural zeros of the Euler steps' A and B.
 """
 
 import math
@@ -66,19 +68,45 @@ def _cholesky(a, out, m):
 
 
 @njit(cache=True)
-def _chol_solve_columns(lower, b, m, ncol):
-    """Solve (L L^T) y = b in place for every column of b (m x ncol)."""
-    for c in range(ncol):
-        for i in range(m):
-            acc = b[i, c]
-            for k in range(i):
-                acc -= lower[i, k] * b[k, c]
-            b[i, c] = acc / lower[i, i]
-        for i in range(m - 1, -1, -1):
-            acc = b[i, c]
-            for k in range(i + 1, m):
-                acc -= lower[k, i] * b[k, c]
-            b[i, c] = acc / lower[i, i]
+def _chol_solve_rows(lower, b, m, ncol):
+    """
+    Solve (L L^T) Y = B in place for every column of B (m x ncol).
+
+    Row operations (the inner loops run along B's contiguous rows, so they vectorise); each
+    column sees the same operations in the same order as a column-by-column substitution.
+    """
+    for i in range(m):
+        for k in range(i):
+            lik = lower[i, k]
+            for c in range(ncol):
+                b[i, c] -= lik * b[k, c]
+        lii = lower[i, i]
+        for c in range(ncol):
+            b[i, c] /= lii
+    for i in range(m - 1, -1, -1):
+        for k in range(i + 1, m):
+            lki = lower[k, i]
+            for c in range(ncol):
+                b[i, c] -= lki * b[k, c]
+        lii = lower[i, i]
+        for c in range(ncol):
+            b[i, c] /= lii
+
+
+@njit(cache=True)
+def _add_transposed_product(out, left, right, rows):
+    """
+    Add left[:rows]^T right[:rows] to out (left (rows, p), right (rows, q), out (p, q)).
+
+    Terms with a zero factor of left are skipped (an Euler step's A and B are about half
+    zeros); adding an exact zero product would not change any finite sum.
+    """
+    for m in range(rows):
+        for i in range(left.shape[1]):
+            s = left[m, i]
+            if s != 0.0:
+                for j in range(right.shape[1]):
+                    out[i, j] += s * right[m, j]
 
 
 @njit(cache=True)
@@ -101,88 +129,62 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     nu_ = b_mat.shape[2]
     nxi = nx + 1
     ncol = 1 + nx
-    pa = np.zeros((nxi, nxi))
-    pb = np.zeros((nxi, nu_))
-    qxx = np.zeros((nxi, nxi))
-    qux = np.zeros((nu_, nxi))
-    quu = np.zeros((nu_, nu_))
+    abar = np.zeros((nxi, nxi))         # [[A, c], [0, 1]]
+    bbar = np.zeros((nxi, nu_))         # [B; 0]
+    abar[nx, nx] = 1.0
+    w = np.empty((nxi, nxi))            # Abar^T P
+    pa = np.empty((nxi, nxi))           # P Abar
+    v = np.empty((nu_, nxi))            # Bbar^T P
+    pb = np.empty((nxi, nu_))           # P Bbar
+    qxx = np.empty((nxi, nxi))
+    qux = np.empty((nu_, nxi))
+    quu = np.empty((nu_, nu_))
     low = np.zeros((nu_, nu_))
-    r = np.zeros((nxi, ncol))
-    qx = np.zeros((nxi, ncol))
-    qu = np.zeros((nu_, ncol))
+    r = np.empty((nxi, ncol))
+    qx = np.empty((nxi, ncol))
+    qu = np.empty((nu_, ncol))
     # Terminal value: rho |dx_N|^2 / 2 + nu . dx_N (columns 1.. are the nu directions).
-    for i in range(nxi):
-        for j in range(nxi):
-            pp[n, i, j] = 0.0
-        for c in range(ncol):
-            pc[n, i, c] = 0.0
+    pp[n] = 0.0
+    pc[n] = 0.0
     for i in range(nx):
         pp[n, i, i] = rho
         pc[n, i, 1 + i] = 1.0
     for k in range(n - 1, -1, -1):
         p = pp[k + 1]
-        # pa = P Abar, Abar = [[A, c], [0, 1]]; pb = P Bbar, Bbar = [B; 0].
-        for i in range(nxi):
+        for i in range(nx):
             for j in range(nx):
-                acc = 0.0
-                for m in range(nx):
-                    acc += p[i, m] * a_mat[k, m, j]
-                pa[i, j] = acc
-            acc = p[i, nx]
-            for m in range(nx):
-                acc += p[i, m] * c_vec[k, m]
-            pa[i, nx] = acc
+                abar[i, j] = a_mat[k, i, j]
+            abar[i, nx] = c_vec[k, i]
             for j in range(nu_):
-                acc = 0.0
-                for m in range(nx):
-                    acc += p[i, m] * b_mat[k, m, j]
-                pb[i, j] = acc
-        # Qxx = H + Abar^T P Abar.
+                bbar[i, j] = b_mat[k, i, j]
+        # P is symmetric: P Abar = (Abar^T P)^T, P Bbar = (Bbar^T P)^T.
+        w[:] = 0.0
+        _add_transposed_product(w, abar, p, nxi)
+        v[:] = 0.0
+        _add_transposed_product(v, bbar, p, nx)
         for i in range(nxi):
             for j in range(nxi):
-                if i < nx:
-                    acc = 0.0
-                    for m in range(nx):
-                        acc += a_mat[k, m, i] * pa[m, j]
-                else:
-                    acc = pa[nx, j]
-                    for m in range(nx):
-                        acc += c_vec[k, m] * pa[m, j]
-                qxx[i, j] = hxx[k, i, j] + acc
-        for i in range(nu_):
-            for j in range(nxi):
-                acc = 0.0
-                for m in range(nx):
-                    acc += b_mat[k, m, i] * pa[m, j]
-                qux[i, j] = hux[k, i, j] + acc
+                pa[i, j] = w[j, i]
             for j in range(nu_):
-                acc = 0.0
-                for m in range(nx):
-                    acc += b_mat[k, m, i] * pb[m, j]
-                quu[i, j] = huu[k, i, j] + acc
-        # r = p + P dbar (first column only).
+                pb[i, j] = v[j, i]
+        # Qxx = H + Abar^T P Abar, Qux = Hux + Bbar^T P Abar, Quu = Huu + Bbar^T P Bbar.
+        qxx[:] = hxx[k]
+        _add_transposed_product(qxx, abar, pa, nxi)
+        qux[:] = hux[k]
+        _add_transposed_product(qux, bbar, pa, nx)
+        quu[:] = huu[k]
+        _add_transposed_product(quu, bbar, pb, nx)
+        # r = p + P dbar (first column only); qx = g + Abar^T r, qu = g + Bbar^T r.
+        r[:] = pc[k + 1]
         for i in range(nxi):
-            for c in range(ncol):
-                r[i, c] = pc[k + 1, i, c]
             acc = 0.0
             for m in range(nx):
                 acc += p[i, m] * d_vec[k, m]
             r[i, 0] += acc
-        for c in range(ncol):
-            for i in range(nx):
-                acc = 0.0
-                for m in range(nx):
-                    acc += a_mat[k, m, i] * r[m, c]
-                qx[i, c] = acc
-            acc = r[nx, c]
-            for m in range(nx):
-                acc += c_vec[k, m] * r[m, c]
-            qx[nx, c] = acc
-            for i in range(nu_):
-                acc = 0.0
-                for m in range(nx):
-                    acc += b_mat[k, m, i] * r[m, c]
-                qu[i, c] = acc
+        qx[:] = 0.0
+        _add_transposed_product(qx, abar, r, nxi)
+        qu[:] = 0.0
+        _add_transposed_product(qu, bbar, r, nx)
         for i in range(nxi):
             qx[i, 0] += gx[k, i]
         for i in range(nu_):
@@ -190,56 +192,61 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
         if not _cholesky(quu, low, nu_):
             return REDUCED_HESSIAN_INDEFINITE, 0.0
         # gain = -Quu^-1 Qux, ff = -Quu^-1 qu.
+        gk = gain[k]
+        fk = ff[k]
         for i in range(nu_):
             for j in range(nxi):
-                gain[k, i, j] = -qux[i, j]
+                gk[i, j] = -qux[i, j]
             for c in range(ncol):
-                ff[k, i, c] = -qu[i, c]
-        _chol_solve_columns(low, gain[k], nu_, nxi)
-        _chol_solve_columns(low, ff[k], nu_, ncol)
-        for i in range(nxi):
-            for j in range(nxi):
-                acc = qxx[i, j]
-                for m in range(nu_):
-                    acc += qux[m, i] * gain[k, m, j]
-                pp[k, i, j] = acc
-            for c in range(ncol):
-                acc = qx[i, c]
-                for m in range(nu_):
-                    acc += qux[m, i] * ff[k, m, c]
-                pc[k, i, c] = acc
+                fk[i, c] = -qu[i, c]
+        _chol_solve_rows(low, gk, nu_, nxi)
+        _chol_solve_rows(low, fk, nu_, ncol)
+        # P_k = Qxx + Qux^T gain, p_k = qx + Qux^T ff.
+        pk = pp[k]
+        pk[:] = qxx
+        _add_transposed_product(pk, qux, gk, nu_)
+        ck = pc[k]
+        ck[:] = qx
+        _add_transposed_product(ck, qux, fk, nu_)
         for i in range(nxi):
             for j in range(i):
-                s = 0.5 * (pp[k, i, j] + pp[k, j, i])
-                pp[k, i, j] = s
-                pp[k, j, i] = s
+                s = 0.5 * (pk[i, j] + pk[j, i])
+                pk[i, j] = s
+                pk[j, i] = s
     ptt = pp[0, nx, nx]
     if not ptt > 0.0:
         return FINAL_TIME_CURVATURE, 0.0
     # Forward sweep, affine in nu: xi_k = Xi_k [1; nu], u_k = U_k [1; nu].
-    for i in range(nxi):
-        for c in range(ncol):
-            xi[0, i, c] = 0.0
+    xi[0] = 0.0
     for c in range(ncol):
         xi[0, nx, c] = -pc[0, nx, c] / ptt
     for k in range(n):
+        uk = uu[k]
+        uk[:] = ff[k]
+        gk = gain[k]
+        xk = xi[k]
         for i in range(nu_):
-            for c in range(ncol):
-                acc = ff[k, i, c]
-                for j in range(nxi):
-                    acc += gain[k, i, j] * xi[k, j, c]
-                uu[k, i, c] = acc
-        for c in range(ncol):
-            for i in range(nx):
-                acc = c_vec[k, i] * xi[k, nx, c]
-                for j in range(nx):
-                    acc += a_mat[k, i, j] * xi[k, j, c]
-                for j in range(nu_):
-                    acc += b_mat[k, i, j] * uu[k, j, c]
-                xi[k + 1, i, c] = acc
-            xi[k + 1, nx, c] = xi[k, nx, c]
+            for j in range(nxi):
+                s = gk[i, j]
+                for c in range(ncol):
+                    uk[i, c] += s * xk[j, c]
+        xn = xi[k + 1]
         for i in range(nx):
-            xi[k + 1, i, 0] += d_vec[k, i]
+            for c in range(ncol):
+                xn[i, c] = c_vec[k, i] * xk[nx, c]
+            for j in range(nx):
+                s = a_mat[k, i, j]
+                if s != 0.0:
+                    for c in range(ncol):
+                        xn[i, c] += s * xk[j, c]
+            for j in range(nu_):
+                s = b_mat[k, i, j]
+                if s != 0.0:
+                    for c in range(ncol):
+                        xn[i, c] += s * uk[j, c]
+            xn[i, 0] += d_vec[k, i]
+        for c in range(ncol):
+            xn[nx, c] = xk[nx, c]
     # dx_N = Xi_N[:nx, 0] + M nu = 0, M = -(terminal Schur complement): negative definite.
     m_mat = np.empty((nx, nx))
     neg = np.empty((nx, nx))
@@ -255,7 +262,7 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     if not _cholesky(neg, low_t, nx):
         return TERMINAL_SCHUR_INDEFINITE, 0.0
     # M is symmetric up to rounding: solve with its symmetric part (-neg).
-    _chol_solve_columns(low_t, rhs, nx, 1)
+    _chol_solve_rows(low_t, rhs, nx, 1)
     for i in range(nx):
         nu[i] = rhs[i, 0]       # (-M) nu = dx_N(nu = 0)  =>  dx_N = 0
     coef = np.empty(ncol)
@@ -270,7 +277,7 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
             for c in range(ncol):
                 acc += xi[n, i, c] * coef[c]
             rhs[i, 0] = acc
-        _chol_solve_columns(low_t, rhs, nx, 1)
+        _chol_solve_rows(low_t, rhs, nx, 1)
         for i in range(nx):
             nu[i] += rhs[i, 0]
             coef[1 + i] = nu[i]
