@@ -39,6 +39,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import kernels
+from .ipm_kernels import euler_terms
 
 FD_STEP = 1e-6
 
@@ -50,6 +51,7 @@ class ArmEvaluator:
         self.arm = arm
         self.model = arm.model
         self.data = arm.model.createData()
+        self.pool = pin.ModelPool(arm.model, 1)
         self.n = arm.n
         self.n_int = n_intervals
         self.effort = arm.effort.copy()
@@ -76,14 +78,19 @@ class ArmEvaluator:
     def accelerations(self, states, controls):
         """Return the ABA joint accelerations, (K, n), at states (K, 2n) and scaled controls."""
         n = self.n
-        out = np.empty((states.shape[0], n))
+        # One batched call (one thread: deterministic, and no waiting for a busy core):
+        # Pinocchio's abaInParallel is ABA in the WORLD convention, bit for bit the ddq that
+        # computeABADerivatives leaves in data, so the line search sees the same dynamics as
+        # the Newton steps.
+        q = np.asfortranarray(states[:, :n].T)
+        dq = np.asfortranarray(states[:, n:].T)
+        tau = np.asfortranarray((self.effort * controls).T)
+        out = np.empty((n, states.shape[0]), order='F')
         started = time.perf_counter()
-        for k in range(states.shape[0]):
-            out[k] = pin.aba(self.model, self.data, states[k, :n], states[k, n:],
-                             self.effort * controls[k])
+        pin.abaInParallel(1, self.pool, q, dq, tau, out)
         self.pin_time += time.perf_counter() - started
         self.pin_calls += states.shape[0]
-        return out
+        return out.T
 
     def defects(self, x, v, t_f):
         """Euler defects x_k + h f(x_k, u_k) - x_{k+1}, (N, 2n)."""
@@ -109,30 +116,29 @@ class ArmEvaluator:
         """
         n, nx, n_int = self.n, 2 * self.n, self.n_int
         h = t_f / n_int
-        model, data = self.model, self.data
         acc = np.empty((n_int, n))
         d_q = np.empty((n_int, n, n))
         d_v = np.empty((n_int, n, n))
         minv = np.empty((n_int, n, n))
         tau = v * self.effort[None, :]
+        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
+        # data's ddq, ddq_dq, ddq_dv and Minv are numpy views of Pinocchio's own buffers:
+        # copying them from the views skips the tuple of fresh arrays each call returns.
+        out_a, out_q, out_v, out_m = data.ddq, data.ddq_dq, data.ddq_dv, data.Minv
         started = time.perf_counter()
-        # Only the Pinocchio calls in the loop; everything else is batched below.
         for k in range(n_int):
-            d_q[k], d_v[k], minv[k] = pin.computeABADerivatives(model, data, x[k, :n],
-                                                                x[k, n:], tau[k])
-            acc[k] = data.ddq
+            derivatives(model, data, x[k, :n], x[k, n:], tau[k])
+            acc[k] = out_a
+            d_q[k] = out_q
+            d_v[k] = out_v
+            minv[k] = out_m
         self.pin_time += time.perf_counter() - started
         calls = n_int
-        f = np.concatenate([x[:-1, n:], acc], axis=1)
-        out = {'defect': x[:-1] + h * f - x[1:], 'c': f / n_int,
-               'a': np.zeros((n_int, nx, nx)), 'b': np.zeros((n_int, nx, n)),
+        out = {'defect': np.empty((n_int, nx)), 'c': np.empty((n_int, nx)),
+               'a': np.empty((n_int, nx, nx)), 'b': np.empty((n_int, nx, n)),
                'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
-        idx = np.arange(nx)
-        out['a'][:, idx, idx] = 1.0
-        out['a'][:, np.arange(n), n + np.arange(n)] += h
-        out['a'][:, n:, :n] += h * d_q
-        out['a'][:, n:, n:] += h * d_v
-        out['b'][:, n:, :] = h * minv * self.effort[None, None, :]
+        euler_terms(x, v, t_f, acc, d_q, d_v, minv, self.effort, out['defect'], out['a'],
+                    out['b'], out['c'])
         if hessian in ('cross', 'exact'):
             lam_q, lam_v = lam[1:, :n], lam[1:, n:]
             # d2 (lam . step) / dT d(x, v) = lam . df/d(x, v) / N.
