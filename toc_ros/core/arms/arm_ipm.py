@@ -57,7 +57,8 @@ from . import ipm_kernels, riccati
 
 T_LOW = 1e-3
 T_HIGH = 100.0
-MU_INIT = 0.1
+MU_INIT = 1e-4
+MU_INIT_RETRY = 0.1
 KAPPA_EPS = 10.0
 KAPPA_SIGMA = 1e10
 S_MAX = 100.0
@@ -82,7 +83,8 @@ class ArmIpmResult:
 class ArmInteriorPoint:
     """One minimum-time problem for an ArmEvaluator; run() iterates from a start point."""
 
-    def __init__(self, evaluator, x0, x_goal, tol=1e-8, constr_tol=1e-9, hessian='none'):
+    def __init__(self, evaluator, x0, x_goal, tol=1e-8, constr_tol=1e-9, hessian='none',
+                 mu_init=MU_INIT):
         self.ev = evaluator
         n = evaluator.n
         arm = evaluator.arm
@@ -97,6 +99,7 @@ class ArmInteriorPoint:
         self.hessian = hessian
         self.constr_tol = constr_tol
         self.mu_min = tol / 10.0
+        self.mu_init = mu_init
         n_int, nx = self.n_int, self.nx
         self.work = (np.zeros((n_int + 1, nx + 1, nx + 1)), np.zeros((n_int + 1, nx + 1, 1 + nx)),
                      np.zeros((n_int, n, nx + 1)), np.zeros((n_int, n, 1 + nx)),
@@ -120,7 +123,7 @@ class ArmInteriorPoint:
         self.x = x
         self.v = np.clip(np.asarray(controls, dtype=float) / self.ev.effort, -0.99, 0.99)
         self.t = float(min(max(t_f, 10 * T_LOW), 0.5 * T_HIGH))
-        self.mu = MU_INIT
+        self.mu = self.mu_init
         g = self.ev.clearances(self.x[1:-1, :self.n])
         self.s = np.maximum(g, 1e-2)
         self.z = self.mu / self.s
