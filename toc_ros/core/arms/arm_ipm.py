@@ -101,9 +101,7 @@ class ArmInteriorPoint:
         self.mu_min = tol / 10.0
         self.mu_init = mu_init
         n_int, nx = self.n_int, self.nx
-        self.work = (np.zeros((n_int + 1, nx + 1, nx + 1)), np.zeros((n_int + 1, nx + 1, 1 + nx)),
-                     np.zeros((n_int, n, nx + 1)), np.zeros((n_int, n, 1 + nx)),
-                     np.zeros((n_int + 1, nx + 1, 1 + nx)), np.zeros((n_int, n, 1 + nx)))
+        self.work = riccati.work_arrays(n_int, nx, n)
         self.linalg_time = 0.0
         self.factorizations = 0
         self._no_curvature = np.zeros((0, 0, 0))

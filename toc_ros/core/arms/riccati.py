@@ -110,6 +110,22 @@ def _add_transposed_product(out, left, right, rows):
 
 
 @njit(cache=True)
+def padded(size):
+    """Return size rounded up to a multiple of 8."""
+    return (size + 7) // 8 * 8
+
+
+@njit(cache=True)
+def work_arrays(n_int, nx, nu):
+    """Zeroed work arrays (pp, pc, gain, ff, xi, uu) of riccati_solve, rows padded."""
+    nxp = padded(nx + 1)
+    ncp = padded(1 + nx)
+    return (np.zeros((n_int + 1, nxp, nxp)), np.zeros((n_int + 1, nxp, ncp)),
+            np.zeros((n_int, nu, nxp)), np.zeros((n_int, nu, ncp)),
+            np.zeros((n_int + 1, nxp, ncp)), np.zeros((n_int, nu, ncp)))
+
+
+@njit(cache=True)
 def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
                   pp, pc, gain, ff, xi, uu, dx, du, lam, nu):
     """
@@ -119,8 +135,9 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     hxx (N, nx + 1, nx + 1), hux (N, nu, nx + 1), huu (N, nu, nu), gx (N, nx + 1), gu (N, nu):
     Hessian and gradient blocks over (xi_k, u_k); rho > 0: curvature put on dx_N (dx_N = 0 is
     imposed, so it changes only the multipliers' intermediate values, not the step).
-    Work: pp (N + 1, nx + 1, nx + 1), pc (N + 1, nx + 1, 1 + nx), gain (N, nu, nx + 1),
-    ff (N, nu, 1 + nx), xi (N + 1, nx + 1, 1 + nx), uu (N, nu, 1 + nx).
+    Work: pp, pc, gain, ff, xi, uu from work_arrays(N, nx, nu) (rows padded to a multiple of
+    8); work arrays of other shapes (e.g. the unpadded (N + 1, nx + 1, nx + 1), ...) are
+    replaced by fresh ones.
     Out: dx (N + 1, nx), du (N, nu), lam (N + 1, nx) (multiplier of the step into x_k, the
     derivative of the cost-to-go), nu (nx,) terminal multipliers.
     """
@@ -129,20 +146,27 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     nu_ = b_mat.shape[2]
     nxi = nx + 1
     ncol = 1 + nx
-    abar = np.zeros((nxi, nxi))         # [[A, c], [0, 1]]
-    bbar = np.zeros((nxi, nu_))         # [B; 0]
+    # Rows padded with zeros to a multiple of 8: loops of a fixed multiple of the vector width
+    # run vectorised, where 15 would fall to the scalar remainder loop.
+    nxp = padded(nxi)
+    ncp = padded(ncol)
+    if (pp.shape[1] != nxp or pc.shape[2] != ncp or gain.shape[2] != nxp
+            or ff.shape[2] != ncp or xi.shape[1] != nxp or uu.shape[2] != ncp):
+        pp, pc, gain, ff, xi, uu = work_arrays(n, nx, nu_)
+    abar = np.zeros((nxp, nxp))         # [[A, c], [0, 1]]
+    bbar = np.zeros((nxp, nu_))         # [B; 0]
     abar[nx, nx] = 1.0
-    w = np.empty((nxi, nxi))            # Abar^T P
-    pa = np.empty((nxi, nxi))           # P Abar
-    v = np.empty((nu_, nxi))            # Bbar^T P
-    pb = np.empty((nxi, nu_))           # P Bbar
-    qxx = np.empty((nxi, nxi))
-    qux = np.empty((nu_, nxi))
+    w = np.empty((nxp, nxp))            # Abar^T P
+    pa = np.empty((nxp, nxp))           # P Abar
+    v = np.empty((nu_, nxp))            # Bbar^T P
+    pb = np.empty((nxp, nu_))           # P Bbar
+    qxx = np.zeros((nxp, nxp))
+    qux = np.zeros((nu_, nxp))
     quu = np.empty((nu_, nu_))
     low = np.zeros((nu_, nu_))
-    r = np.empty((nxi, ncol))
-    qx = np.empty((nxi, ncol))
-    qu = np.empty((nu_, ncol))
+    r = np.empty((nxp, ncp))
+    qx = np.empty((nxp, ncp))
+    qu = np.empty((nu_, ncp))
     # Terminal value: rho |dx_N|^2 / 2 + nu . dx_N (columns 1.. are the nu directions).
     pp[n] = 0.0
     pc[n] = 0.0
@@ -162,15 +186,15 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
         _add_transposed_product(w, abar, p, nxi)
         v[:] = 0.0
         _add_transposed_product(v, bbar, p, nx)
-        for i in range(nxi):
-            for j in range(nxi):
+        for i in range(nxp):
+            for j in range(nxp):
                 pa[i, j] = w[j, i]
             for j in range(nu_):
                 pb[i, j] = v[j, i]
         # Qxx = H + Abar^T P Abar, Qux = Hux + Bbar^T P Abar, Quu = Huu + Bbar^T P Bbar.
-        qxx[:] = hxx[k]
+        qxx[:nxi, :nxi] = hxx[k]
         _add_transposed_product(qxx, abar, pa, nxi)
-        qux[:] = hux[k]
+        qux[:, :nxi] = hux[k]
         _add_transposed_product(qux, bbar, pa, nx)
         quu[:] = huu[k]
         _add_transposed_product(quu, bbar, pb, nx)
@@ -195,12 +219,12 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
         gk = gain[k]
         fk = ff[k]
         for i in range(nu_):
-            for j in range(nxi):
+            for j in range(nxp):
                 gk[i, j] = -qux[i, j]
-            for c in range(ncol):
+            for c in range(ncp):
                 fk[i, c] = -qu[i, c]
-        _chol_solve_rows(low, gk, nu_, nxi)
-        _chol_solve_rows(low, fk, nu_, ncol)
+        _chol_solve_rows(low, gk, nu_, nxp)
+        _chol_solve_rows(low, fk, nu_, ncp)
         # P_k = Qxx + Qux^T gain, p_k = qx + Qux^T ff.
         pk = pp[k]
         pk[:] = qxx
@@ -228,25 +252,26 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
         for i in range(nu_):
             for j in range(nxi):
                 s = gk[i, j]
-                for c in range(ncol):
+                for c in range(ncp):
                     uk[i, c] += s * xk[j, c]
         xn = xi[k + 1]
         for i in range(nx):
-            for c in range(ncol):
+            for c in range(ncp):
                 xn[i, c] = c_vec[k, i] * xk[nx, c]
             for j in range(nx):
                 s = a_mat[k, i, j]
                 if s != 0.0:
-                    for c in range(ncol):
+                    for c in range(ncp):
                         xn[i, c] += s * xk[j, c]
             for j in range(nu_):
                 s = b_mat[k, i, j]
                 if s != 0.0:
-                    for c in range(ncol):
+                    for c in range(ncp):
                         xn[i, c] += s * uk[j, c]
             xn[i, 0] += d_vec[k, i]
-        for c in range(ncol):
-            xn[nx, c] = xk[nx, c]
+        for i in range(nx, nxp):
+            for c in range(ncp):
+                xn[i, c] = xk[i, c]
     # dx_N = Xi_N[:nx, 0] + M nu = 0, M = -(terminal Schur complement): negative definite.
     m_mat = np.empty((nx, nx))
     neg = np.empty((nx, nx))
