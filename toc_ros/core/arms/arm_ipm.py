@@ -147,7 +147,7 @@ class ArmInteriorPoint:
 
     # Residuals -----------------------------------------------------------------------------
     def _bounds(self):
-        """The bound arguments shared by the compiled kernels."""
+        """Return the bound arguments shared by the compiled kernels."""
         return self.lx, self.ux, self.has_l, self.has_u, T_LOW, T_HIGH
 
     def _errors(self, terms, grads, g):

@@ -162,9 +162,9 @@ def complementarity(x_inner, v, t, s, z, zlx, zux, zlv, zuv, zlt, zut, lx, ux, h
 def qp_blocks(model_hxx, grads, values, curvature, s, z, x_inner, v, t, zlx, zux, zlv, zuv,
               zlt, zut, lx, ux, has_l, has_u, t_low, t_high, mu, hxx, gx, huu_diag, gu):
     """
-    Fill the condensed barrier QP's blocks: hxx (N, nx + 1, nx + 1), gx (N, nx + 1),
-    huu_diag (N, n), gu (N, n).
+    Fill the condensed barrier QP's blocks hxx, gx, huu_diag and gu.
 
+    Shapes: hxx (N, nx + 1, nx + 1), gx (N, nx + 1), huu_diag (N, n), gu (N, n).
     hxx = the model's curvature + the bound duals' Sigma = z / slack on x and T + the sphere
     rows' Gauss-Newton term J^T (z / s) J minus the rows' own curvature (curvature: of
     sum_p z_p g_p); gradients of the barrier problem (cost T) with the sphere residuals
@@ -195,7 +195,8 @@ def qp_blocks(model_hxx, grads, values, curvature, s, z, x_inner, v, t, zlx, zux
                 for j in range(n):
                     acc = 0.0
                     for p in range(n_rows):
-                        acc += grads[k - 1, p, i] * (z[k - 1, p] / s[k - 1, p]) * grads[k - 1, p, j]
+                        acc += (grads[k - 1, p, i] * (z[k - 1, p] / s[k - 1, p])
+                                * grads[k - 1, p, j])
                     hxx[k, i, j] += acc - curvature[k - 1, i, j]
             for j in range(n):
                 acc = 0.0
