@@ -15,17 +15,21 @@
 """
 Model evaluations of the arm interior point: Euler steps, their derivatives, sphere clearances.
 
-Pinocchio cannot be called from compiled code, so every node's dynamics derivatives are one
-pinocchio.computeABADerivatives call from Python; the sphere kinematics of all nodes is one
-compiled batch call (kernels.py).
+Pinocchio cannot be called from compiled code, and its Python bindings have no batched
+derivative call, so every interval's dynamics derivatives are one
+pinocchio.computeABADerivatives call from Python (its outputs copied from views of the
+data's buffers, the Euler blocks then assembled in one compiled call, ipm_kernels.py); the
+line search's accelerations are one batched pinocchio.abaInParallel call on one thread; the
+sphere kinematics, rows, gradients and curvature of all nodes are one compiled call
+(kernels.sphere_rows, with the centres' exact second derivatives).
 
-Second-order information is exact up to a forward difference of Pinocchio's analytical
-derivatives: the Hessian of lam_v . ABA(q, v, tau) is the forward difference, along each
-coordinate of q and v, of its gradient (lam_v . da/dq, lam_v . da/dv, M^-1 lam_v); ABA is
-affine in tau, so no tau direction is needed (2 n extra derivative calls per node).  The
-sphere constraints' curvature is the same forward difference of the batched sphere Jacobians.
-The Hessian only shapes the Newton steps: the convergence test uses the exact first
-derivatives, so the accuracy of this difference cannot make a non-optimal point look optimal.
+With hessian='exact' the dynamics' curvature is exact up to a forward difference of
+Pinocchio's analytical derivatives: the Hessian of lam_v . ABA(q, v, tau) is the forward
+difference, along each coordinate of q and v, of its gradient (lam_v . da/dq, lam_v . da/dv,
+M^-1 lam_v); ABA is affine in tau, so no tau direction is needed (2 n extra derivative calls
+per node).  The Hessian only shapes the Newton steps: the convergence test uses the exact
+first derivatives, so the accuracy of this difference cannot make a non-optimal point look
+optimal.
 
 Constraint of robot sphere s and obstacle o, R = r_s + R_o + margin:
     g = (|p_s(q) - c_o|^2 - R^2) / (2 R) >= 0

@@ -27,7 +27,18 @@ compiled Riccati recursion (riccati.py) with an inertia correction (a multiple o
 added to the Hessian until every reduced Hessian is positive definite), the step length from
 the fraction-to-the-boundary rule and IPOPT's filter line search (with its switching rule and
 one filter reset), and the barrier parameter falls monotonically
-(mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier problem is solved to 10 mu).
+(mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier problem is solved to 10 mu).  The
+per-stage arithmetic of an iteration (errors, barrier blocks, steps to the boundary, merit,
+dual safeguard) is compiled (ipm_kernels.py); this class keeps the logic.
+
+The first barrier parameter is MU_INIT = 1e-4, not IPOPT's 0.1: the objective is T (order
+1 s) against thousands of bound terms (about 30 per interval), so at mu = 0.1 the barrier
+dominates and the first barrier problems' solutions lie far from the optimum (T rose to 8 s
+on the Panda scenario before coming back).  Measured on 16 Panda/UR5 scenarios (free, 1 and 3
+spheres, N = 50..200), 1e-4 took fewer iterations than 0.1 on every one and solved one that
+0.1 did not; neighbouring values (1e-3, 3e-5) failed on some, so the iteration count depends
+erratically on this value.  solve_arm's restart after a failure starts with MU_INIT_RETRY =
+0.1.
 
 Second-order information (hessian=): 'none' (default) keeps the sphere rows' exact curvature
 and the bound/slack barrier terms but no curvature of the dynamics (a Gauss-Newton-like model:
