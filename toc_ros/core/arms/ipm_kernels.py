@@ -190,21 +190,22 @@ def qp_blocks(model_hxx, grads, values, curvature, s, z, x_inner, v, t, zlx, zux
                 g += mu / hi
             hxx[k, i, i] += sig
             gx[k, i] = g
+        # Sphere rows: J^T Sigma_s J - curvature, gradient J^T (Sigma_s (g - s) - mu / s).
+        for p in range(n_rows):
+            sig_s = z[k - 1, p] / s[k - 1, p]
+            weight = sig_s * (values[k - 1, p] - s[k - 1, p]) - mu / s[k - 1, p]
+            for i in range(n):
+                gi = grads[k - 1, p, i]
+                if gi == 0.0:
+                    continue
+                gx[k, i] += gi * weight
+                scaled = gi * sig_s
+                for j in range(n):
+                    hxx[k, i, j] += scaled * grads[k - 1, p, j]
         if n_rows:
             for i in range(n):
                 for j in range(n):
-                    acc = 0.0
-                    for p in range(n_rows):
-                        acc += (grads[k - 1, p, i] * (z[k - 1, p] / s[k - 1, p])
-                                * grads[k - 1, p, j])
-                    hxx[k, i, j] += acc - curvature[k - 1, i, j]
-            for j in range(n):
-                acc = 0.0
-                for p in range(n_rows):
-                    sig_s = z[k - 1, p] / s[k - 1, p]
-                    acc += grads[k - 1, p, j] * (sig_s * (values[k - 1, p] - s[k - 1, p])
-                                                 - mu / s[k - 1, p])
-                gx[k, j] += acc
+                    hxx[k, i, j] -= curvature[k - 1, i, j]
     lo_t = t - t_low
     hi_t = t_high - t
     hxx[0, nx, nx] += zlt / lo_t + zut / hi_t

@@ -88,14 +88,16 @@ def _chain_pose(q, parent, place_r, place_t, axis, prismatic, v_index, rot, pos,
 
 @njit(cache=True)
 def _sphere_pose(s, parent, prismatic, v_index, sphere_joint, sphere_offset, support, rot, pos,
-                 world_axis, centre, jacobian):
-    """Fill sphere s's centre (3,) and d centre / dq (3, n) from the joints' poses."""
+                 world_axis, centre, jacobian, with_jacobian=True):
+    """Fill sphere s's centre (3,) and (with_jacobian) d centre / dq (3, n)."""
     j = sphere_joint[s]
     for a in range(3):
         acc = pos[j, a]
         for c in range(3):
             acc += rot[j, a, c] * sphere_offset[s, c]
         centre[a] = acc
+    if not with_jacobian:
+        return
     for j in range(1, parent.shape[0]):
         k = v_index[j]
         if not support[s, k]:
@@ -182,7 +184,7 @@ def sphere_rows(qs, parent, place_r, place_t, axis, prismatic, v_index, sphere_j
                     world_axis, motion, tmp, offset)
         for s in range(n_spheres):
             _sphere_pose(s, parent, prismatic, v_index, sphere_joint, sphere_offset, support,
-                         rot, pos, world_axis, centres[s], jac[s])
+                         rot, pos, world_axis, centres[s], jac[s], level > 0)
         if level >= 2:
             curvature[node] = 0.0
             direction[:] = 0.0
@@ -207,8 +209,13 @@ def sphere_rows(qs, parent, place_r, place_t, axis, prismatic, v_index, sphere_j
                     scale = weight / big_r
                     for a in range(3):
                         direction[s, a] += weight * (gap[a] / big_r)
+                    # Columns of the joints that do not move the sphere are zero: skipped.
                     for i in range(n):
+                        if not support[s, i]:
+                            continue
                         for k in range(n):
+                            if not support[s, k]:
+                                continue
                             acc = 0.0
                             for a in range(3):
                                 acc += jac[s, a, i] * jac[s, a, k]
