@@ -21,8 +21,10 @@ and spread of --repeats runs after one warm-up run that loads the compiled kerne
 IPOPT and FATROP on the same transcription from the same initial guess (fast mode's start
 point), each --repeats times.  Every fast result is re-checked independently
 (toc_ros/bench/arm_check.py).  Per iteration, fast mode's time is split into Pinocchio
-derivative calls, the Riccati step (compiled) and the rest (Python: barrier terms, sphere
-kinematics batches, line search).
+calls (derivatives, and the line search's batched ABA), the Riccati step (compiled) and the
+rest (sphere rows, the compiled barrier and line-search kernels and the Python driving them,
+start point and final re-integration).  Ratios to IPOPT and FATROP: median over median, and
+the range over the paired runs; the repeated fast runs are checked to give the same bits.
 
     python benchmarks/bench_arm_fast.py                 # the table
     python benchmarks/bench_arm_fast.py --write         # also append it to RESULTS.md

@@ -167,13 +167,16 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
     clearance = self_clear = math.inf
     if robot.spheres is not None:
         centres, _ = sphere_kinematics_batch(robot.spheres, q)
+        # Every node's spheres at once: the nodes' spheres stacked as one sphere set.
+        count, n_spheres = centres.shape[:2]
+        stacked = centres.reshape(-1, 3)
+        radii = np.tile(robot.spheres.radii, count)
         if len(obstacles):
-            clearance = float(min(np.min(obstacle_clearance(c, robot.spheres.radii, obstacles,
-                                                            margin)) for c in centres))
+            clearance = float(np.min(obstacle_clearance(stacked, radii, obstacles, margin)))
         pairs = robot.spheres.self_pairs
         if len(pairs):
-            self_clear = float(min(np.min(self_clearance(c, robot.spheres.radii, pairs))
-                                   for c in centres))
+            node_pairs = (pairs[None] + n_spheres * np.arange(count)[:, None, None])
+            self_clear = float(np.min(self_clearance(stacked, radii, node_pairs.reshape(-1, 2))))
     with np.errstate(invalid='ignore'):
         pos = max(float(np.max(q - arm.upper)), float(np.max(arm.lower - q)), 0.0)
     return states, ArmViolations(
