@@ -121,7 +121,7 @@ def _ratio(row, solver):
     fast, ref = row['times_s'], row[solver + '_all_s']
     pairs = [f / r for f, r in zip(fast, ref)]
     return (f"{row['median_ms'] / (1e3 * statistics.median(ref)):.3f} "
-            f"({min(pairs):.3f}-{max(pairs):.3f})")
+            f'({min(pairs):.3f}-{max(pairs):.3f})')
 
 
 def _gap(t_f, ref):
