@@ -190,7 +190,7 @@ def test_kkt_errors_and_complementarity_match_numpy(n_rows):
     s_c = max(100.0, bound_duals / count) / 100.0
     got = ipm_kernels.kkt_errors(lam, it['a'], it['b'], it['c'], it['defect'], it['grads'],
                                  it['values'], it['s'], z, it['x'][1:-1], it['v'], it['t'],
-                                 *_duals(it), *_bounds(it))
+                                 *_duals(it), *_bounds(it), 100.0)
     np.testing.assert_allclose(got, (dual, primal, compl(0.0), s_d, s_c), rtol=1e-12)
     got_mu = ipm_kernels.complementarity(it['x'][1:-1], it['v'], it['t'], it['s'], z,
                                          *_duals(it), *_bounds(it), 0.4)

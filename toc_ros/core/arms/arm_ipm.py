@@ -166,7 +166,7 @@ class ArmInteriorPoint:
         return ipm_kernels.kkt_errors(
             self.lam, terms['a'], terms['b'], terms['c'], terms['defect'], grads, g, self.s,
             self.z, self.x[1:-1], self.v, self.t, self.zlx, self.zux, self.zlv, self.zuv,
-            self.zlt, self.zut, *self._bounds())
+            self.zlt, self.zut, *self._bounds(), S_MAX)
 
     def _barrier_error(self, dual, primal, s_d, s_c):
         compl = ipm_kernels.complementarity(

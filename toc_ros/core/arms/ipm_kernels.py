@@ -70,13 +70,13 @@ def _upper_slack(x_inner, ux, has_u, k, i):
 
 @njit(cache=True)
 def kkt_errors(lam, a_mat, b_mat, c_vec, defect, grads, values, s, z, x_inner, v, t,
-               zlx, zux, zlv, zuv, zlt, zut, lx, ux, has_l, has_u, t_low, t_high):
+               zlx, zux, zlv, zuv, zlt, zut, lx, ux, has_l, has_u, t_low, t_high, s_max):
     """
     (dual infeasibility, primal infeasibility, complementarity, s_d, s_c): IPOPT's measures.
 
     Dual infeasibility: the largest entry of the Lagrangian's gradient in x_1..x_{N-1}, v and
     T; primal: the largest defect or sphere-row residual g - s; s_d and s_c: IPOPT's
-    scalings of the dual and complementarity errors (S_MAX = 100).
+    scalings of the dual and complementarity errors (s_max: IPOPT's s_max, 100).
     """
     n_int, nx = defect.shape
     n = nx // 2
@@ -133,8 +133,8 @@ def kkt_errors(lam, a_mat, b_mat, c_vec, defect, grads, values, s, z, x_inner, v
     for k in range(lam.shape[0]):
         for i in range(nx):
             lam_sum += abs(lam[k, i])
-    s_d = max(100.0, (lam_sum + bound_duals) / max(count + lam.size, 1)) / 100.0
-    s_c = max(100.0, bound_duals / max(count, 1)) / 100.0
+    s_d = max(s_max, (lam_sum + bound_duals) / max(count + lam.size, 1)) / s_max
+    s_c = max(s_max, bound_duals / max(count, 1)) / s_max
     return dual, primal, compl, s_d, s_c
 
 
