@@ -37,9 +37,9 @@ dominates and the first barrier problems' solutions lie far from the optimum (T 
 on the Panda scenario before coming back).  Measured on 16 Panda/UR5 scenarios (free, 1 and 3
 spheres, N = 50..200): 1e-4 solved all 16 with 1.7 times fewer iterations in total (one
 scenario took one more), 0.1 stopped at the iteration limit on two (UR5, 3 spheres), which
-its total counts; neighbouring values (1e-3,
-3e-5) failed on some, so the iteration count depends erratically on this value.  solve_arm's
-restart after a failure starts with MU_INIT_RETRY = 0.1.
+its total counts; neighbouring values (1e-3, 3e-5) failed on some, so the iteration count
+depends erratically on this value.  solve_arm's restart after a failure starts with
+MU_INIT_RETRY = 0.1.
 
 Second-order information (hessian=): 'none' (default) keeps the sphere rows' exact curvature
 and the bound/slack barrier terms but no curvature of the dynamics (a Gauss-Newton-like model:
