@@ -21,8 +21,10 @@ and spread of --repeats runs after one warm-up run that loads the compiled kerne
 IPOPT and FATROP on the same transcription from the same initial guess (fast mode's start
 point), each --repeats times.  Every fast result is re-checked independently
 (toc_ros/bench/arm_check.py).  Per iteration, fast mode's time is split into Pinocchio
-derivative calls, the Riccati step (compiled) and the rest (Python: barrier terms, sphere
-kinematics batches, line search).
+calls (derivatives, and the line search's batched ABA), the Riccati step (compiled) and the
+rest (sphere rows, the compiled barrier and line-search kernels and the Python driving them,
+start point and final re-integration).  Ratios to IPOPT and FATROP: median over median, and
+the range over the paired runs; the repeated fast runs are checked to give the same bits.
 
     python benchmarks/bench_arm_fast.py                 # the table
     python benchmarks/bench_arm_fast.py --write         # also append it to RESULTS.md
@@ -89,6 +91,7 @@ def run_case(name, with_obstacle, n_int, repeats):
         nlp = ArmTranscription(reference, n_int, 'euler', solver)
         runs = [nlp.solve(guess) for _ in range(repeats)]
         ref[solver] = (runs[-1], statistics.median(r['solve_time_s'] for r in runs))
+        ref[solver + '_all_s'] = [r['solve_time_s'] for r in runs]
     iterations = max(result.iterations, 1)
     total = statistics.median(times)
     return {
@@ -105,19 +108,32 @@ def run_case(name, with_obstacle, n_int, repeats):
                      check['max_velocity_excess'], check['max_effort_excess']),
         'clearance': check['min_clearance'], 'start': state.get('start', ''),
         'ipopt': ref['ipopt'], 'fatrop': ref['fatrop'],
+        'ipopt_all_s': ref['ipopt_all_s'], 'fatrop_all_s': ref['fatrop_all_s'],
+        'times_s': times,
+        'same_bits': all(r.final_time == results[0].final_time
+                         and np.array_equal(r.controls, results[0].controls) for r in results),
         'solved': result.status is Status.SOLVED,
     }
 
 
+def _ratio(row, solver):
+    """Median ratio fast / reference and its spread: min and max over paired runs."""
+    fast, ref = row['times_s'], row[solver + '_all_s']
+    pairs = [f / r for f, r in zip(fast, ref)]
+    return (f"{row['median_ms'] / (1e3 * statistics.median(ref)):.3f} "
+            f'({min(pairs):.3f}-{max(pairs):.3f})')
+
+
 def _gap(t_f, ref):
-    return f'{100.0 * (t_f - ref) / ref:+.4f} %'
+    return f'{(t_f - ref) / ref:+.1e}'
 
 
 def table(rows):
     """Markdown table of the rows."""
-    head = ('| arm | obstacles | N | status | t_f [s] | vs IPOPT | it | median [ms] | '
+    head = ('| arm | obstacles | N | status | t_f [s] | vs IPOPT (relative) | it | median [ms] | '
             'min-max [ms] | per it: pin / Riccati / rest [ms] (pin calls) | IPOPT t_f, it, '
-            '[ms] | FATROP t_f, it, [ms] | fast / IPOPT | fast / FATROP | re-check: limits '
+            '[ms] | FATROP t_f, it, [ms] | fast / IPOPT, median (range) | fast / FATROP, '
+            'median (range) | re-check: limits '
             '& terminal / min clearance |')
     lines = [head, '|' + '---|' * 15]
     for r in rows:
@@ -130,8 +146,8 @@ def table(rows):
             f"{r['linalg_ms_it']:.2f} / {r['rest_ms_it']:.2f} ({r['pin_calls_it']:.0f}) | "
             f"{ip['t_f']:.6f}{'' if ip['success'] else ' (fail)'}, {ip['iterations']}, "
             f"{1e3 * ip_ms:.1f} | {fa['t_f']:.6f}{'' if fa['success'] else ' (fail)'}, "
-            f"{fa['iterations']}, {1e3 * fa_ms:.1f} | {r['median_ms'] / (1e3 * ip_ms):.2f} | "
-            f"{r['median_ms'] / (1e3 * fa_ms):.2f} | {r['check']:.1e} / "
+            f"{fa['iterations']}, {1e3 * fa_ms:.1f} | {_ratio(r, 'ipopt')} | "
+            f"{_ratio(r, 'fatrop')} | {r['check']:.1e} / "
             f"{r['clearance']:+.1e} |")
     return '\n'.join(lines)
 
@@ -143,6 +159,7 @@ def main(argv=None):
     p.add_argument('--N', type=int, nargs='+', default=[50, 100])
     p.add_argument('--arms', nargs='+', default=['panda', 'ur5'])
     p.add_argument('--write', action='store_true', help='append the table to RESULTS.md')
+    p.add_argument('--json', help='write the rows (times in s) to this file')
     args = p.parse_args(argv)
     rows = []
     for name in args.arms:
@@ -152,7 +169,16 @@ def main(argv=None):
                 print(table([row]).splitlines()[-1], flush=True)
                 rows.append(row)
     text = table(rows)
+    same = all(r['same_bits'] for r in rows)
+    text += (f'\n\nRepeated fast runs of each row gave {"identical" if same else "DIFFERENT"} '
+             'final times and controls (bit for bit).')
     print(text)
+    if args.json:
+        import json
+        with open(args.json, 'w') as stream:
+            json.dump([{k: v for k, v in r.items() if k not in ('ipopt', 'fatrop')}
+                       | {'ipopt_t_f': r['ipopt'][0]['t_f'], 'fatrop_t_f': r['fatrop'][0]['t_f']}
+                       for r in rows], stream, indent=1)
     if args.write:
         load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
         with open(os.path.join(HERE, 'RESULTS.md'), 'a') as stream:

@@ -15,17 +15,21 @@
 """
 Model evaluations of the arm interior point: Euler steps, their derivatives, sphere clearances.
 
-Pinocchio cannot be called from compiled code, so every node's dynamics derivatives are one
-pinocchio.computeABADerivatives call from Python; the sphere kinematics of all nodes is one
-compiled batch call (kernels.py).
+Pinocchio cannot be called from compiled code, and its Python bindings have no batched
+derivative call, so every interval's dynamics derivatives are one
+pinocchio.computeABADerivatives call from Python (its outputs copied from views of the
+data's buffers, the Euler blocks then assembled in one compiled call, ipm_kernels.py); the
+line search's accelerations are one batched pinocchio.abaInParallel call on one thread; the
+sphere kinematics, rows, gradients and curvature of all nodes are one compiled call
+(kernels.sphere_rows, with the centres' exact second derivatives).
 
-Second-order information is exact up to a forward difference of Pinocchio's analytical
-derivatives: the Hessian of lam_v . ABA(q, v, tau) is the forward difference, along each
-coordinate of q and v, of its gradient (lam_v . da/dq, lam_v . da/dv, M^-1 lam_v); ABA is
-affine in tau, so no tau direction is needed (2 n extra derivative calls per node).  The
-sphere constraints' curvature is the same forward difference of the batched sphere Jacobians.
-The Hessian only shapes the Newton steps: the convergence test uses the exact first
-derivatives, so the accuracy of this difference cannot make a non-optimal point look optimal.
+With hessian='exact' the dynamics' curvature is exact up to a forward difference of
+Pinocchio's analytical derivatives: the Hessian of lam_v . ABA(q, v, tau) is the forward
+difference, along each coordinate of q and v, of its gradient (lam_v . da/dq, lam_v . da/dv,
+M^-1 lam_v); ABA is affine in tau, so no tau direction is needed (2 n extra derivative calls
+per node).  The Hessian only shapes the Newton steps: the convergence test uses the exact
+first derivatives, so the accuracy of this difference cannot make a non-optimal point look
+optimal.
 
 Constraint of robot sphere s and obstacle o, R = r_s + R_o + margin:
     g = (|p_s(q) - c_o|^2 - R^2) / (2 R) >= 0
@@ -38,7 +42,8 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from .spheres import sphere_kinematics_batch
+from . import kernels
+from .ipm_kernels import euler_terms
 
 FD_STEP = 1e-6
 
@@ -50,11 +55,12 @@ class ArmEvaluator:
         self.arm = arm
         self.model = arm.model
         self.data = arm.model.createData()
+        self.pool = pin.ModelPool(arm.model, 1)
         self.n = arm.n
         self.n_int = n_intervals
         self.effort = arm.effort.copy()
         self.spheres = spheres
-        obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
+        obstacles = np.ascontiguousarray(np.asarray(obstacles, dtype=float).reshape(-1, 4))
         self.obstacles = obstacles
         if spheres is not None:
             self.radius = spheres.radii[:, None] + obstacles[None, :, 3] + margin   # (S, O)
@@ -76,14 +82,19 @@ class ArmEvaluator:
     def accelerations(self, states, controls):
         """Return the ABA joint accelerations, (K, n), at states (K, 2n) and scaled controls."""
         n = self.n
-        out = np.empty((states.shape[0], n))
+        # One batched call (one thread: deterministic, and no waiting for a busy core):
+        # Pinocchio's abaInParallel is ABA in the WORLD convention, bit for bit the ddq that
+        # computeABADerivatives leaves in data, so the line search sees the same dynamics as
+        # the Newton steps.
+        q = np.asfortranarray(states[:, :n].T)
+        dq = np.asfortranarray(states[:, n:].T)
+        tau = np.asfortranarray((self.effort * controls).T)
+        out = np.empty((n, states.shape[0]), order='F')
         started = time.perf_counter()
-        for k in range(states.shape[0]):
-            out[k] = pin.aba(self.model, self.data, states[k, :n], states[k, n:],
-                             self.effort * controls[k])
+        pin.abaInParallel(1, self.pool, q, dq, tau, out)
         self.pin_time += time.perf_counter() - started
         self.pin_calls += states.shape[0]
-        return out
+        return out.T
 
     def defects(self, x, v, t_f):
         """Euler defects x_k + h f(x_k, u_k) - x_{k+1}, (N, 2n)."""
@@ -109,30 +120,29 @@ class ArmEvaluator:
         """
         n, nx, n_int = self.n, 2 * self.n, self.n_int
         h = t_f / n_int
-        model, data = self.model, self.data
         acc = np.empty((n_int, n))
         d_q = np.empty((n_int, n, n))
         d_v = np.empty((n_int, n, n))
         minv = np.empty((n_int, n, n))
         tau = v * self.effort[None, :]
+        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
+        # data's ddq, ddq_dq, ddq_dv and Minv are numpy views of Pinocchio's own buffers:
+        # copying them from the views skips the tuple of fresh arrays each call returns.
+        out_a, out_q, out_v, out_m = data.ddq, data.ddq_dq, data.ddq_dv, data.Minv
         started = time.perf_counter()
-        # Only the Pinocchio calls in the loop; everything else is batched below.
         for k in range(n_int):
-            d_q[k], d_v[k], minv[k] = pin.computeABADerivatives(model, data, x[k, :n],
-                                                                x[k, n:], tau[k])
-            acc[k] = data.ddq
+            derivatives(model, data, x[k, :n], x[k, n:], tau[k])
+            acc[k] = out_a
+            d_q[k] = out_q
+            d_v[k] = out_v
+            minv[k] = out_m
         self.pin_time += time.perf_counter() - started
         calls = n_int
-        f = np.concatenate([x[:-1, n:], acc], axis=1)
-        out = {'defect': x[:-1] + h * f - x[1:], 'c': f / n_int,
-               'a': np.zeros((n_int, nx, nx)), 'b': np.zeros((n_int, nx, n)),
+        out = {'defect': np.empty((n_int, nx)), 'c': np.empty((n_int, nx)),
+               'a': np.empty((n_int, nx, nx)), 'b': np.empty((n_int, nx, n)),
                'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
-        idx = np.arange(nx)
-        out['a'][:, idx, idx] = 1.0
-        out['a'][:, np.arange(n), n + np.arange(n)] += h
-        out['a'][:, n:, :n] += h * d_q
-        out['a'][:, n:, n:] += h * d_v
-        out['b'][:, n:, :] = h * minv * self.effort[None, None, :]
+        euler_terms(x, v, t_f, acc, d_q, d_v, minv, self.effort, out['defect'], out['a'],
+                    out['b'], out['c'])
         if hessian in ('cross', 'exact'):
             lam_q, lam_v = lam[1:, :n], lam[1:, n:]
             # d2 (lam . step) / dT d(x, v) = lam . df/d(x, v) / N.
@@ -178,46 +188,21 @@ class ArmEvaluator:
         (g (K, S * O + P), dg/dq, curvature (K, n, n) of sum_p weights_p g_p or None).
 
         Rows: sphere-obstacle pairs (sphere-major), then self-collision pairs; each row is
-        (d^2 - R^2) / (2 R).  The curvature: exact J^T J terms plus forward differences of
-        the sphere Jacobians for the second derivatives of the centres.
+        (d^2 - R^2) / (2 R).  One compiled call (kernels.sphere_rows): kinematics, rows,
+        gradients and the exact curvature (J^T J terms and the centres' second derivatives).
         """
         count, n = qs.shape
         if not self.n_pairs:
             return np.zeros((count, 0)), np.zeros((count, 0, n)), None
-        centres, jac = sphere_kinematics_batch(self.spheres, qs)
-        n_obs = self.n_obstacle_rows
-        diff = centres[:, :, None, :] - self.obstacles[None, None, :, :3]      # (K, S, O, 3)
-        sq = np.einsum('ksoj,ksoj->kso', diff, diff)
-        values = [((sq - self.radius ** 2) / (2.0 * self.radius)).reshape(count, -1)]
-        a, b = self.pairs[:, 0], self.pairs[:, 1]
-        gap = centres[:, a] - centres[:, b]                                     # (K, P, 3)
-        values.append((np.einsum('kpj,kpj->kp', gap, gap) - self.pair_radius ** 2)
-                      / (2.0 * self.pair_radius))
-        values = np.concatenate(values, axis=1)
-        if not gradients:
-            return values, None, None
-        scaled = diff / self.radius[None, :, :, None]
-        gap_scaled = gap / self.pair_radius[None, :, None]
-        jac_gap = jac[:, a] - jac[:, b]                                         # (K, P, 3, n)
-        grads = np.concatenate([np.einsum('ksoj,ksjn->kson', scaled, jac).reshape(count, -1, n),
-                                np.einsum('kpj,kpjn->kpn', gap_scaled, jac_gap)], axis=1)
-        if weights is None:
-            return values, grads, None
-        w = weights[:, :n_obs].reshape(count, *self.radius.shape)
-        w_pair = weights[:, n_obs:]
-        # sum_p w_p (J^T J) / R  +  sum_p w_p (p - c)/R . d2 p  (c: obstacle or other sphere).
-        jtj = (np.einsum('kso,ksjn,ksjm->knm', w / self.radius[None], jac, jac)
-               + np.einsum('kp,kpjn,kpjm->knm', w_pair / self.pair_radius[None], jac_gap,
-                           jac_gap))
-        direction = np.einsum('kso,ksoj->ksj', w, scaled)                     # (K, S, 3)
-        weighted_gap = w_pair[:, :, None] * gap_scaled
-        np.add.at(direction, (slice(None), a), weighted_gap)
-        np.add.at(direction, (slice(None), b), -weighted_gap)
-        base = np.einsum('ksj,ksjn->kn', direction, jac)
-        shifted = np.repeat(qs, n, axis=0) + FD_STEP * np.tile(np.eye(n), (count, 1))
-        _, jac_p = sphere_kinematics_batch(self.spheres, shifted)
-        jac_p = jac_p.reshape(count, n, *jac_p.shape[1:])                   # (K, i, S, 3, n)
-        moved = np.einsum('ksj,kisjn->kin', direction, jac_p)
-        second = (moved - base[:, None, :]) / FD_STEP
-        second = 0.5 * (second + np.transpose(second, (0, 2, 1)))
-        return values, grads, jtj + second
+        qs = np.ascontiguousarray(qs, dtype=float)
+        level = 0 if not gradients else (1 if weights is None else 2)
+        values = np.empty((count, self.n_pairs))
+        grads = np.empty((count, self.n_pairs, n) if level else (0, 0, 0))
+        curvature = np.empty((count, n, n) if level == 2 else (0, 0, 0))
+        w = (np.ascontiguousarray(weights, dtype=float) if level == 2
+             else np.zeros((0, 0)))
+        spheres = self.spheres
+        kernels.sphere_rows(qs, *spheres.chain, spheres.joint_ids, spheres.joint_offsets,
+                            spheres.support, self.obstacles, self.radius, self.pairs,
+                            self.pair_radius, w, level, values, grads, curvature)
+        return values, (grads if level else None), (curvature if level == 2 else None)

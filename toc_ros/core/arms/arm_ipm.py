@@ -27,7 +27,19 @@ compiled Riccati recursion (riccati.py) with an inertia correction (a multiple o
 added to the Hessian until every reduced Hessian is positive definite), the step length from
 the fraction-to-the-boundary rule and IPOPT's filter line search (with its switching rule and
 one filter reset), and the barrier parameter falls monotonically
-(mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier problem is solved to 10 mu).
+(mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier problem is solved to 10 mu).  The
+per-stage arithmetic of an iteration (errors, barrier blocks, steps to the boundary, merit,
+dual safeguard) is compiled (ipm_kernels.py); this class keeps the logic.
+
+The first barrier parameter is MU_INIT = 1e-4, not IPOPT's 0.1: the objective is T (order
+1 s) against thousands of bound terms (about 30 per interval), so at mu = 0.1 the barrier
+dominates and the first barrier problems' solutions lie far from the optimum (T rose to 8 s
+on the Panda scenario before coming back).  Measured on 16 Panda/UR5 scenarios (free, 1 and 3
+spheres, N = 50..200): 1e-4 solved all 16 with 1.7 times fewer iterations in total (one
+scenario took one more), 0.1 stopped at the iteration limit on two (UR5, 3 spheres), which
+its total counts; neighbouring values (1e-3, 3e-5) failed on some, so the iteration count
+depends erratically on this value.  solve_arm's restart after a failure starts with
+MU_INIT_RETRY = 0.1.
 
 Second-order information (hessian=): 'none' (default) keeps the sphere rows' exact curvature
 and the bound/slack barrier terms but no curvature of the dynamics (a Gauss-Newton-like model:
@@ -53,11 +65,12 @@ import time
 
 import numpy as np
 
-from . import riccati
+from . import ipm_kernels, riccati
 
 T_LOW = 1e-3
 T_HIGH = 100.0
-MU_INIT = 0.1
+MU_INIT = 1e-4
+MU_INIT_RETRY = 0.1
 KAPPA_EPS = 10.0
 KAPPA_SIGMA = 1e10
 S_MAX = 100.0
@@ -82,7 +95,8 @@ class ArmIpmResult:
 class ArmInteriorPoint:
     """One minimum-time problem for an ArmEvaluator; run() iterates from a start point."""
 
-    def __init__(self, evaluator, x0, x_goal, tol=1e-8, constr_tol=1e-9, hessian='none'):
+    def __init__(self, evaluator, x0, x_goal, tol=1e-8, constr_tol=1e-9, hessian='none',
+                 mu_init=MU_INIT):
         self.ev = evaluator
         n = evaluator.n
         arm = evaluator.arm
@@ -97,12 +111,12 @@ class ArmInteriorPoint:
         self.hessian = hessian
         self.constr_tol = constr_tol
         self.mu_min = tol / 10.0
+        self.mu_init = mu_init
         n_int, nx = self.n_int, self.nx
-        self.work = (np.zeros((n_int + 1, nx + 1, nx + 1)), np.zeros((n_int + 1, nx + 1, 1 + nx)),
-                     np.zeros((n_int, n, nx + 1)), np.zeros((n_int, n, 1 + nx)),
-                     np.zeros((n_int + 1, nx + 1, 1 + nx)), np.zeros((n_int, n, 1 + nx)))
+        self.work = riccati.work_arrays(n_int, nx, n)
         self.linalg_time = 0.0
         self.factorizations = 0
+        self._no_curvature = np.zeros((0, 0, 0))
 
     # Start point ---------------------------------------------------------------------------
     def start(self, states, controls, t_f):
@@ -119,7 +133,7 @@ class ArmInteriorPoint:
         self.x = x
         self.v = np.clip(np.asarray(controls, dtype=float) / self.ev.effort, -0.99, 0.99)
         self.t = float(min(max(t_f, 10 * T_LOW), 0.5 * T_HIGH))
-        self.mu = MU_INIT
+        self.mu = self.mu_init
         g = self.ev.clearances(self.x[1:-1, :self.n])
         self.s = np.maximum(g, 1e-2)
         self.z = self.mu / self.s
@@ -144,81 +158,42 @@ class ArmInteriorPoint:
         return (lo, v + 1.0, t - T_LOW), (hi, 1.0 - v, T_HIGH - t)
 
     # Residuals -----------------------------------------------------------------------------
+    def _bounds(self):
+        """Return the bound arguments shared by the compiled kernels."""
+        return self.lx, self.ux, self.has_l, self.has_u, T_LOW, T_HIGH
+
     def _errors(self, terms, grads, g):
-        """(E_0 scaled, primal infeasibility, complementarity at mu = 0, dual infeasibility)."""
-        n = self.n
-        lam = self.lam
-        dual_x = (-lam[1:-1] + np.einsum('kij,ki->kj', terms['a'][1:], lam[2:])
-                  - self.zlx + self.zux)
-        if grads.shape[1]:
-            dual_x[:, :n] -= np.einsum('kpn,kp->kn', grads, self.z)
-        dual_v = np.einsum('kij,ki->kj', terms['b'], lam[1:]) - self.zlv + self.zuv
-        dual_t = 1.0 + np.sum(terms['c'] * lam[1:]) - self.zlt + self.zut
-        dual = max(np.max(np.abs(dual_x), initial=0.0), np.max(np.abs(dual_v)), abs(dual_t))
-        primal = max(np.max(np.abs(terms['defect'])),
-                     np.max(np.abs(g - self.s), initial=0.0))
-        lo, hi = self._slacks(self.x, self.v, self.t)
-        compl = max(np.max(np.where(self.has_l, lo[0] * self.zlx, 0.0), initial=0.0),
-                    np.max(np.where(self.has_u, hi[0] * self.zux, 0.0), initial=0.0),
-                    np.max(lo[1] * self.zlv), np.max(hi[1] * self.zuv),
-                    lo[2] * self.zlt, hi[2] * self.zut,
-                    np.max(self.s * self.z, initial=0.0))
-        bound_duals = (np.sum(np.abs(self.zlx)) + np.sum(np.abs(self.zux))
-                       + np.sum(self.zlv) + np.sum(self.zuv) + self.zlt + self.zut
-                       + np.sum(self.z))
-        count = (np.count_nonzero(self.zlx) + np.count_nonzero(self.zux) + 2 * self.v.size
-                 + 2 + self.z.size)
-        s_d = max(S_MAX, (np.sum(np.abs(lam)) + bound_duals) / max(count + lam.size, 1)) / S_MAX
-        s_c = max(S_MAX, bound_duals / max(count, 1)) / S_MAX
-        return dual, primal, compl, s_d, s_c
+        """(dual infeasibility, primal infeasibility, complementarity at mu = 0, s_d, s_c)."""
+        return ipm_kernels.kkt_errors(
+            self.lam, terms['a'], terms['b'], terms['c'], terms['defect'], grads, g, self.s,
+            self.z, self.x[1:-1], self.v, self.t, self.zlx, self.zux, self.zlv, self.zuv,
+            self.zlt, self.zut, *self._bounds(), S_MAX)
 
     def _barrier_error(self, dual, primal, s_d, s_c):
-        lo, hi = self._slacks(self.x, self.v, self.t)
-        mu = self.mu
-        compl = max(np.max(np.where(self.has_l, np.abs(lo[0] * self.zlx - mu), 0.0),
-                           initial=0.0),
-                    np.max(np.where(self.has_u, np.abs(hi[0] * self.zux - mu), 0.0),
-                           initial=0.0),
-                    np.max(np.abs(lo[1] * self.zlv - mu)), np.max(np.abs(hi[1] * self.zuv - mu)),
-                    abs(lo[2] * self.zlt - mu), abs(hi[2] * self.zut - mu),
-                    np.max(np.abs(self.s * self.z - mu), initial=0.0))
+        compl = ipm_kernels.complementarity(
+            self.x[1:-1], self.v, self.t, self.s, self.z, self.zlx, self.zux, self.zlv,
+            self.zuv, self.zlt, self.zut, *self._bounds(), self.mu)
         return max(dual / s_d, primal, compl / s_c)
 
     # One iteration -------------------------------------------------------------------------
     def _qp_blocks(self, terms, values, grads, curvature):
         """Hessian and gradient blocks of the condensed barrier QP at the current point."""
-        n, nx, mu = self.n, self.nx, self.mu
-        hxx = terms['hxx'].copy()
-        hux = terms['hux'].copy()
-        lo, hi = self._slacks(self.x, self.v, self.t)
-        inner = hxx[1:, :nx, :nx]
-        sig_x = (np.where(self.has_l, self.zlx / lo[0], 0.0)
-                 + np.where(self.has_u, self.zux / hi[0], 0.0))
-        idx = np.arange(nx)
-        inner[:, idx, idx] += sig_x
-        gx = np.zeros((self.n_int, nx + 1))
-        gx[1:, :nx] = (np.where(self.has_l, -mu / lo[0], 0.0)
-                       + np.where(self.has_u, mu / hi[0], 0.0))
-        if grads.shape[1]:
-            sig_s = self.z / self.s
-            r = values - self.s
-            inner[:, :n, :n] += np.einsum('kpi,kp,kpj->kij', grads, sig_s, grads) - curvature
-            gx[1:, :n] += np.einsum('kpn,kp->kn', grads, sig_s * r - mu / self.s)
-        hxx[0, nx, nx] += self.zlt / lo[2] + self.zut / hi[2]
-        gx[0, nx] = 1.0 - mu / lo[2] + mu / hi[2]
-        huu_diag = self.zlv / lo[1] + self.zuv / hi[1]
-        gu = -mu / lo[1] + mu / hi[1]
-        return hxx, hux, huu_diag, gx, gu
+        n_int, n, nx = self.n_int, self.n, self.nx
+        hxx = np.empty((n_int, nx + 1, nx + 1))
+        gx = np.empty((n_int, nx + 1))
+        huu_diag = np.empty((n_int, n))
+        gu = np.empty((n_int, n))
+        ipm_kernels.qp_blocks(
+            terms['hxx'], grads, values, self._no_curvature if curvature is None else curvature,
+            self.s, self.z, self.x[1:-1], self.v, self.t, self.zlx, self.zux, self.zlv,
+            self.zuv, self.zlt, self.zut, *self._bounds(), self.mu, hxx, gx, huu_diag, gu)
+        return hxx, terms['hux'], huu_diag, gx, gu
 
     def _newton_step(self, terms, hxx, hux, huu_diag, gx, gu):
         """Riccati step with inertia correction: (dx, dv, dT, lam_qp) or None."""
         n_int, n, nx = self.n_int, self.n, self.nx
-        eye_x = np.eye(nx + 1)
-        eye_u = np.eye(n)
-        # The proximal term (a trust region in Levenberg-Marquardt form) bounds the steps
-        # where the model has little curvature; it vanishes as full steps are accepted.
-        hxx = hxx + self.prox * eye_x
-        huu0 = (huu_diag + self.prox)[:, :, None] * eye_u[None]
+        hxx_reg = np.empty_like(hxx)
+        huu = np.empty((n_int, n, n))
         delta = 0.0
         dx = np.zeros((n_int + 1, nx))
         dv = np.zeros((n_int, n))
@@ -226,9 +201,11 @@ class ArmInteriorPoint:
         nu = np.zeros(nx)
         started = time.perf_counter()
         while True:
+            # The proximal term (a trust region in Levenberg-Marquardt form) bounds the steps
+            # where the model has little curvature; it vanishes as full steps are accepted.
+            ipm_kernels.regularised(hxx, huu_diag, self.prox, delta, hxx_reg, huu)
             code, d_t = riccati.riccati_solve(
-                terms['a'], terms['b'], terms['c'], terms['defect'],
-                hxx + delta * eye_x if delta else hxx, hux, huu0 + delta * eye_u,
+                terms['a'], terms['b'], terms['c'], terms['defect'], hxx_reg, hux, huu,
                 gx, gu, 1.0, *self.work, dx, dv, lam, nu)
             self.factorizations += 1
             if code == riccati.OK and np.isfinite(d_t) and np.all(np.isfinite(dx)):
@@ -248,26 +225,10 @@ class ArmInteriorPoint:
         return dx, dv, d_t, lam, delta
 
     def _merit(self, x, v, t, s, defect, values):
-        lo, hi = self._slacks(x, v, t)
-        if (np.any(lo[0] <= 0) or np.any(hi[0] <= 0) or np.any(lo[1] <= 0)
-                or np.any(hi[1] <= 0) or lo[2] <= 0 or hi[2] <= 0 or np.any(s <= 0)):
-            return math.inf, math.inf
-        phi = t - self.mu * (np.sum(np.log(lo[0][np.broadcast_to(self.has_l, lo[0].shape)]))
-                             + np.sum(np.log(hi[0][np.broadcast_to(self.has_u, hi[0].shape)]))
-                             + np.sum(np.log(lo[1])) + np.sum(np.log(hi[1]))
-                             + math.log(lo[2]) + math.log(hi[2]) + np.sum(np.log(s)))
-        theta = np.sum(np.abs(defect)) + np.sum(np.abs(values - s))
-        return phi, theta
+        return ipm_kernels.merit(x[1:-1], v, t, s, defect, values, *self._bounds(), self.mu)
 
     def _in_filter(self, theta, phi):
         return any(theta >= f_theta and phi >= f_phi for f_theta, f_phi in self.filter)
-
-    @staticmethod
-    def _max_step(value, step, frac):
-        neg = step < 0
-        if not np.any(neg):
-            return 1.0
-        return float(min(1.0, np.min(-frac * value[neg] / step[neg])))
 
     def run(self, max_iterations=200, should_stop=None):
         """
@@ -341,41 +302,18 @@ class ArmInteriorPoint:
         """Backtracking on the l1 merit; updates the iterate and duals; returns alpha."""
         n, mu = self.n, self.mu
         frac = max(0.99, 1.0 - mu)
-        lo, hi = self._slacks(self.x, self.v, self.t)
-        inner = dx[1:-1]
-        ds = values - self.s + (np.einsum('kpn,kn->kp', grads, inner[:, :n])
-                                if grads.shape[1] else np.zeros_like(self.s))
-        alpha_max = min(
-            self._max_step(lo[0][:, self.has_l], inner[:, self.has_l], frac),
-            self._max_step(hi[0][:, self.has_u], -inner[:, self.has_u], frac),
-            self._max_step(lo[1], dv, frac), self._max_step(hi[1], -dv, frac),
-            self._max_step(np.array([lo[2]]), np.array([d_t]), frac),
-            self._max_step(np.array([hi[2]]), np.array([-d_t]), frac),
-            self._max_step(self.s, ds, frac) if self.s.size else 1.0)
-        # Bound-dual steps of the condensed system.
-        sig = (lambda zv, sv: zv / sv)
-        dzlx = np.where(self.has_l, mu / lo[0] - self.zlx - sig(self.zlx, lo[0]) * inner, 0.0)
-        dzux = np.where(self.has_u, mu / hi[0] - self.zux + sig(self.zux, hi[0]) * inner, 0.0)
-        dzlv = mu / lo[1] - self.zlv - self.zlv / lo[1] * dv
-        dzuv = mu / hi[1] - self.zuv + self.zuv / hi[1] * dv
-        dzlt = mu / lo[2] - self.zlt - self.zlt / lo[2] * d_t
-        dzut = mu / hi[2] - self.zut + self.zut / hi[2] * d_t
-        dz = mu / self.s - self.z - self.z / self.s * ds if self.s.size else self.z * 0.0
-        alpha_dual = min(
-            self._max_step(self.zlx[:, self.has_l], dzlx[:, self.has_l], frac),
-            self._max_step(self.zux[:, self.has_u], dzux[:, self.has_u], frac),
-            self._max_step(self.zlv, dzlv, frac), self._max_step(self.zuv, dzuv, frac),
-            self._max_step(np.array([self.zlt]), np.array([dzlt]), frac),
-            self._max_step(np.array([self.zut]), np.array([dzut]), frac),
-            self._max_step(self.z, dz, frac) if self.z.size else 1.0)
+        ds, dz = np.empty_like(self.s), np.empty_like(self.z)
+        dzlx, dzux = np.empty_like(self.zlx), np.empty_like(self.zux)
+        dzlv, dzuv = np.empty_like(self.zlv), np.empty_like(self.zuv)
+        # Fraction to the boundary (primal and dual), the bound-dual steps of the condensed
+        # system and the barrier objective's slope along the step.
+        alpha_max, alpha_dual, dzlt, dzut, slope = ipm_kernels.step_to_boundary(
+            dx[1:-1], dv, d_t, grads, values, self.s, self.z, self.x[1:-1], self.v, self.t,
+            self.zlx, self.zux, self.zlv, self.zuv, self.zlt, self.zut, *self._bounds(), mu,
+            frac, ds, dzlx, dzux, dzlv, dzuv, dz)
         # IPOPT's filter line search on (theta = l1 constraint violation, phi = barrier
         # objective), with its switching rule and constants.
         phi0, theta0 = self._merit(self.x, self.v, self.t, self.s, terms['defect'], values)
-        slope = (d_t * (1.0 - mu / lo[2] + mu / hi[2])
-                 + np.sum(np.where(self.has_l, -mu / lo[0], 0.0) * inner)
-                 + np.sum(np.where(self.has_u, mu / hi[0], 0.0) * inner)
-                 + np.sum((-mu / lo[1] + mu / hi[1]) * dv)
-                 - np.sum(mu / self.s * ds))
         if self.theta_max is None:
             self.theta_max = 1e4 * max(1.0, theta0)
             self.theta_min = 1e-4 * max(1.0, theta0)
@@ -423,14 +361,10 @@ class ArmInteriorPoint:
     def _safeguard_duals(self):
         """Keep every bound dual within [mu / (k slack), k mu / slack] (IPOPT's kappa_sigma)."""
         mu = self.mu
-        lo, hi = self._slacks(self.x, self.v, self.t)
-
-        def clip(zv, sv):
-            return np.clip(zv, mu / (KAPPA_SIGMA * sv), KAPPA_SIGMA * mu / sv)
-
-        self.zlx = np.where(self.has_l, clip(self.zlx, lo[0]), 0.0)
-        self.zux = np.where(self.has_u, clip(self.zux, hi[0]), 0.0)
-        self.zlv, self.zuv = clip(self.zlv, lo[1]), clip(self.zuv, hi[1])
-        self.zlt, self.zut = float(clip(self.zlt, lo[2])), float(clip(self.zut, hi[2]))
-        if self.z.size:
-            self.z = clip(self.z, self.s)
+        ipm_kernels.safeguard_duals(self.x[1:-1], self.v, self.s, self.z, self.zlx, self.zux,
+                                    self.zlv, self.zuv, self.lx, self.ux, self.has_l,
+                                    self.has_u, mu, KAPPA_SIGMA)
+        self.zlt = min(max(self.zlt, mu / (KAPPA_SIGMA * (self.t - T_LOW))),
+                       KAPPA_SIGMA * mu / (self.t - T_LOW))
+        self.zut = min(max(self.zut, mu / (KAPPA_SIGMA * (T_HIGH - self.t))),
+                       KAPPA_SIGMA * mu / (T_HIGH - self.t))

@@ -39,7 +39,7 @@ import numpy as np
 import pinocchio as pin
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import ArmInteriorPoint
+from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY
 from .arm_start import cold_start, cubic_path, detour_start, path_torques
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
@@ -167,13 +167,16 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
     clearance = self_clear = math.inf
     if robot.spheres is not None:
         centres, _ = sphere_kinematics_batch(robot.spheres, q)
+        # Every node's spheres at once: the nodes' spheres stacked as one sphere set.
+        count, n_spheres = centres.shape[:2]
+        stacked = centres.reshape(-1, 3)
+        radii = np.tile(robot.spheres.radii, count)
         if len(obstacles):
-            clearance = float(min(np.min(obstacle_clearance(c, robot.spheres.radii, obstacles,
-                                                            margin)) for c in centres))
+            clearance = float(np.min(obstacle_clearance(stacked, radii, obstacles, margin)))
         pairs = robot.spheres.self_pairs
         if len(pairs):
-            self_clear = float(min(np.min(self_clearance(c, robot.spheres.radii, pairs))
-                                   for c in centres))
+            node_pairs = (pairs[None] + n_spheres * np.arange(count)[:, None, None])
+            self_clear = float(np.min(self_clearance(stacked, radii, node_pairs.reshape(-1, 2))))
     with np.errstate(invalid='ignore'):
         pos = max(float(np.max(q - arm.upper)), float(np.max(arm.lower - q)), 0.0)
     return states, ArmViolations(
@@ -227,12 +230,15 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
 
     # A run that fails (line search, numerics) is restarted once from the line start slowed
     # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start): a slower
-    # start lies further inside the torque limits.
+    # start lies further inside the torque limits.  The restart also begins with IPOPT's
+    # default barrier parameter (0.1) instead of the small first one (arm_ipm.py), the
+    # setting that is slower but failed on other cases.
     states, torques, t_f, start_name = start_point(robot, evaluator, x0, xg, n_int)
     budget = options.iteration_limit()
     iterations, linalg_time, runs = 0, 0.0, []
     for attempt in range(2):
-        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian)
+        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian,
+                               mu_init=MU_INIT_RETRY if attempt else MU_INIT)
         ipm.start(states, torques, t_f)
         run = ipm.run(budget - iterations, should_stop)
         iterations += run.iterations

@@ -30,7 +30,9 @@ every reduced Hessian R_k + B_k^T P B_k is positive definite, the final-time cur
 is positive and the terminal Schur complement is negative definite; otherwise the kernel
 returns the failing test's code and the caller adds a multiple of the identity to H.
 
-No numpy linear algebra inside the kernels (numba's np.dot/np.linalg need SciPy): small loops.
+No numpy linear algebra inside the kernels: numba's np.dot and np.linalg call SciPy's BLAS and
+LAPACK, and SciPy is not a dependency of toc_ros; the loops below run along contiguous rows
+(they vectorise) and skip the structural zeros of the Euler steps' A and B.
 """
 
 import math
@@ -66,19 +68,61 @@ def _cholesky(a, out, m):
 
 
 @njit(cache=True)
-def _chol_solve_columns(lower, b, m, ncol):
-    """Solve (L L^T) y = b in place for every column of b (m x ncol)."""
-    for c in range(ncol):
-        for i in range(m):
-            acc = b[i, c]
-            for k in range(i):
-                acc -= lower[i, k] * b[k, c]
-            b[i, c] = acc / lower[i, i]
-        for i in range(m - 1, -1, -1):
-            acc = b[i, c]
-            for k in range(i + 1, m):
-                acc -= lower[k, i] * b[k, c]
-            b[i, c] = acc / lower[i, i]
+def _chol_solve_rows(lower, b, m, ncol):
+    """
+    Solve (L L^T) Y = B in place for every column of B (m x ncol).
+
+    Row operations (the inner loops run along B's contiguous rows, so they vectorise); each
+    column sees the same operations in the same order as a column-by-column substitution.
+    """
+    for i in range(m):
+        for k in range(i):
+            lik = lower[i, k]
+            for c in range(ncol):
+                b[i, c] -= lik * b[k, c]
+        lii = lower[i, i]
+        for c in range(ncol):
+            b[i, c] /= lii
+    for i in range(m - 1, -1, -1):
+        for k in range(i + 1, m):
+            lki = lower[k, i]
+            for c in range(ncol):
+                b[i, c] -= lki * b[k, c]
+        lii = lower[i, i]
+        for c in range(ncol):
+            b[i, c] /= lii
+
+
+@njit(cache=True)
+def _add_transposed_product(out, left, right, rows):
+    """
+    Add left[:rows]^T right[:rows] to out (left (rows, p), right (rows, q), out (p, q)).
+
+    Terms with a zero factor of left are skipped (an Euler step's A and B are about half
+    zeros); adding an exact zero product would not change any finite sum.
+    """
+    for m in range(rows):
+        for i in range(left.shape[1]):
+            s = left[m, i]
+            if s != 0.0:
+                for j in range(right.shape[1]):
+                    out[i, j] += s * right[m, j]
+
+
+@njit(cache=True)
+def padded(size):
+    """Return size rounded up to a multiple of 8."""
+    return (size + 7) // 8 * 8
+
+
+@njit(cache=True)
+def work_arrays(n_int, nx, nu):
+    """Zeroed work arrays (pp, pc, gain, ff, xi, uu) of riccati_solve, rows padded."""
+    nxp = padded(nx + 1)
+    ncp = padded(1 + nx)
+    return (np.zeros((n_int + 1, nxp, nxp)), np.zeros((n_int + 1, nxp, ncp)),
+            np.zeros((n_int, nu, nxp)), np.zeros((n_int, nu, ncp)),
+            np.zeros((n_int + 1, nxp, ncp)), np.zeros((n_int, nu, ncp)))
 
 
 @njit(cache=True)
@@ -91,8 +135,9 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     hxx (N, nx + 1, nx + 1), hux (N, nu, nx + 1), huu (N, nu, nu), gx (N, nx + 1), gu (N, nu):
     Hessian and gradient blocks over (xi_k, u_k); rho > 0: curvature put on dx_N (dx_N = 0 is
     imposed, so it changes only the multipliers' intermediate values, not the step).
-    Work: pp (N + 1, nx + 1, nx + 1), pc (N + 1, nx + 1, 1 + nx), gain (N, nu, nx + 1),
-    ff (N, nu, 1 + nx), xi (N + 1, nx + 1, 1 + nx), uu (N, nu, 1 + nx).
+    Work: pp, pc, gain, ff, xi, uu from work_arrays(N, nx, nu) (rows padded to a multiple of
+    8); work arrays of other shapes (e.g. the unpadded (N + 1, nx + 1, nx + 1), ...) are
+    replaced by fresh ones.
     Out: dx (N + 1, nx), du (N, nu), lam (N + 1, nx) (multiplier of the step into x_k, the
     derivative of the cost-to-go), nu (nx,) terminal multipliers.
     """
@@ -101,88 +146,69 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     nu_ = b_mat.shape[2]
     nxi = nx + 1
     ncol = 1 + nx
-    pa = np.zeros((nxi, nxi))
-    pb = np.zeros((nxi, nu_))
-    qxx = np.zeros((nxi, nxi))
-    qux = np.zeros((nu_, nxi))
-    quu = np.zeros((nu_, nu_))
+    # Rows padded with zeros to a multiple of 8: loops of a fixed multiple of the vector width
+    # run vectorised, where 15 would fall to the scalar remainder loop.
+    nxp = padded(nxi)
+    ncp = padded(ncol)
+    if (pp.shape[1] != nxp or pc.shape[2] != ncp or gain.shape[2] != nxp
+            or ff.shape[2] != ncp or xi.shape[1] != nxp or uu.shape[2] != ncp):
+        pp, pc, gain, ff, xi, uu = work_arrays(n, nx, nu_)
+    abar = np.zeros((nxp, nxp))         # [[A, c], [0, 1]]
+    bbar = np.zeros((nxp, nu_))         # [B; 0]
+    abar[nx, nx] = 1.0
+    w = np.empty((nxp, nxp))            # Abar^T P
+    pa = np.empty((nxp, nxp))           # P Abar
+    v = np.empty((nu_, nxp))            # Bbar^T P
+    pb = np.empty((nxp, nu_))           # P Bbar
+    qxx = np.zeros((nxp, nxp))
+    qux = np.zeros((nu_, nxp))
+    quu = np.empty((nu_, nu_))
     low = np.zeros((nu_, nu_))
-    r = np.zeros((nxi, ncol))
-    qx = np.zeros((nxi, ncol))
-    qu = np.zeros((nu_, ncol))
+    r = np.empty((nxp, ncp))
+    qx = np.empty((nxp, ncp))
+    qu = np.empty((nu_, ncp))
     # Terminal value: rho |dx_N|^2 / 2 + nu . dx_N (columns 1.. are the nu directions).
-    for i in range(nxi):
-        for j in range(nxi):
-            pp[n, i, j] = 0.0
-        for c in range(ncol):
-            pc[n, i, c] = 0.0
+    pp[n] = 0.0
+    pc[n] = 0.0
     for i in range(nx):
         pp[n, i, i] = rho
         pc[n, i, 1 + i] = 1.0
     for k in range(n - 1, -1, -1):
         p = pp[k + 1]
-        # pa = P Abar, Abar = [[A, c], [0, 1]]; pb = P Bbar, Bbar = [B; 0].
-        for i in range(nxi):
+        for i in range(nx):
             for j in range(nx):
-                acc = 0.0
-                for m in range(nx):
-                    acc += p[i, m] * a_mat[k, m, j]
-                pa[i, j] = acc
-            acc = p[i, nx]
-            for m in range(nx):
-                acc += p[i, m] * c_vec[k, m]
-            pa[i, nx] = acc
+                abar[i, j] = a_mat[k, i, j]
+            abar[i, nx] = c_vec[k, i]
             for j in range(nu_):
-                acc = 0.0
-                for m in range(nx):
-                    acc += p[i, m] * b_mat[k, m, j]
-                pb[i, j] = acc
-        # Qxx = H + Abar^T P Abar.
-        for i in range(nxi):
-            for j in range(nxi):
-                if i < nx:
-                    acc = 0.0
-                    for m in range(nx):
-                        acc += a_mat[k, m, i] * pa[m, j]
-                else:
-                    acc = pa[nx, j]
-                    for m in range(nx):
-                        acc += c_vec[k, m] * pa[m, j]
-                qxx[i, j] = hxx[k, i, j] + acc
-        for i in range(nu_):
-            for j in range(nxi):
-                acc = 0.0
-                for m in range(nx):
-                    acc += b_mat[k, m, i] * pa[m, j]
-                qux[i, j] = hux[k, i, j] + acc
+                bbar[i, j] = b_mat[k, i, j]
+        # P is symmetric: P Abar = (Abar^T P)^T, P Bbar = (Bbar^T P)^T.
+        w[:] = 0.0
+        _add_transposed_product(w, abar, p, nxi)
+        v[:] = 0.0
+        _add_transposed_product(v, bbar, p, nx)
+        for i in range(nxp):
+            for j in range(nxp):
+                pa[i, j] = w[j, i]
             for j in range(nu_):
-                acc = 0.0
-                for m in range(nx):
-                    acc += b_mat[k, m, i] * pb[m, j]
-                quu[i, j] = huu[k, i, j] + acc
-        # r = p + P dbar (first column only).
+                pb[i, j] = v[j, i]
+        # Qxx = H + Abar^T P Abar, Qux = Hux + Bbar^T P Abar, Quu = Huu + Bbar^T P Bbar.
+        qxx[:nxi, :nxi] = hxx[k]
+        _add_transposed_product(qxx, abar, pa, nxi)
+        qux[:, :nxi] = hux[k]
+        _add_transposed_product(qux, bbar, pa, nx)
+        quu[:] = huu[k]
+        _add_transposed_product(quu, bbar, pb, nx)
+        # r = p + P dbar (first column only); qx = g + Abar^T r, qu = g + Bbar^T r.
+        r[:] = pc[k + 1]
         for i in range(nxi):
-            for c in range(ncol):
-                r[i, c] = pc[k + 1, i, c]
             acc = 0.0
             for m in range(nx):
                 acc += p[i, m] * d_vec[k, m]
             r[i, 0] += acc
-        for c in range(ncol):
-            for i in range(nx):
-                acc = 0.0
-                for m in range(nx):
-                    acc += a_mat[k, m, i] * r[m, c]
-                qx[i, c] = acc
-            acc = r[nx, c]
-            for m in range(nx):
-                acc += c_vec[k, m] * r[m, c]
-            qx[nx, c] = acc
-            for i in range(nu_):
-                acc = 0.0
-                for m in range(nx):
-                    acc += b_mat[k, m, i] * r[m, c]
-                qu[i, c] = acc
+        qx[:] = 0.0
+        _add_transposed_product(qx, abar, r, nxi)
+        qu[:] = 0.0
+        _add_transposed_product(qu, bbar, r, nx)
         for i in range(nxi):
             qx[i, 0] += gx[k, i]
         for i in range(nu_):
@@ -190,56 +216,62 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
         if not _cholesky(quu, low, nu_):
             return REDUCED_HESSIAN_INDEFINITE, 0.0
         # gain = -Quu^-1 Qux, ff = -Quu^-1 qu.
+        gk = gain[k]
+        fk = ff[k]
         for i in range(nu_):
-            for j in range(nxi):
-                gain[k, i, j] = -qux[i, j]
-            for c in range(ncol):
-                ff[k, i, c] = -qu[i, c]
-        _chol_solve_columns(low, gain[k], nu_, nxi)
-        _chol_solve_columns(low, ff[k], nu_, ncol)
-        for i in range(nxi):
-            for j in range(nxi):
-                acc = qxx[i, j]
-                for m in range(nu_):
-                    acc += qux[m, i] * gain[k, m, j]
-                pp[k, i, j] = acc
-            for c in range(ncol):
-                acc = qx[i, c]
-                for m in range(nu_):
-                    acc += qux[m, i] * ff[k, m, c]
-                pc[k, i, c] = acc
+            for j in range(nxp):
+                gk[i, j] = -qux[i, j]
+            for c in range(ncp):
+                fk[i, c] = -qu[i, c]
+        _chol_solve_rows(low, gk, nu_, nxp)
+        _chol_solve_rows(low, fk, nu_, ncp)
+        # P_k = Qxx + Qux^T gain, p_k = qx + Qux^T ff.
+        pk = pp[k]
+        pk[:] = qxx
+        _add_transposed_product(pk, qux, gk, nu_)
+        ck = pc[k]
+        ck[:] = qx
+        _add_transposed_product(ck, qux, fk, nu_)
         for i in range(nxi):
             for j in range(i):
-                s = 0.5 * (pp[k, i, j] + pp[k, j, i])
-                pp[k, i, j] = s
-                pp[k, j, i] = s
+                s = 0.5 * (pk[i, j] + pk[j, i])
+                pk[i, j] = s
+                pk[j, i] = s
     ptt = pp[0, nx, nx]
     if not ptt > 0.0:
         return FINAL_TIME_CURVATURE, 0.0
     # Forward sweep, affine in nu: xi_k = Xi_k [1; nu], u_k = U_k [1; nu].
-    for i in range(nxi):
-        for c in range(ncol):
-            xi[0, i, c] = 0.0
+    xi[0] = 0.0
     for c in range(ncol):
         xi[0, nx, c] = -pc[0, nx, c] / ptt
     for k in range(n):
+        uk = uu[k]
+        uk[:] = ff[k]
+        gk = gain[k]
+        xk = xi[k]
         for i in range(nu_):
-            for c in range(ncol):
-                acc = ff[k, i, c]
-                for j in range(nxi):
-                    acc += gain[k, i, j] * xi[k, j, c]
-                uu[k, i, c] = acc
-        for c in range(ncol):
-            for i in range(nx):
-                acc = c_vec[k, i] * xi[k, nx, c]
-                for j in range(nx):
-                    acc += a_mat[k, i, j] * xi[k, j, c]
-                for j in range(nu_):
-                    acc += b_mat[k, i, j] * uu[k, j, c]
-                xi[k + 1, i, c] = acc
-            xi[k + 1, nx, c] = xi[k, nx, c]
+            for j in range(nxi):
+                s = gk[i, j]
+                for c in range(ncp):
+                    uk[i, c] += s * xk[j, c]
+        xn = xi[k + 1]
         for i in range(nx):
-            xi[k + 1, i, 0] += d_vec[k, i]
+            for c in range(ncp):
+                xn[i, c] = c_vec[k, i] * xk[nx, c]
+            for j in range(nx):
+                s = a_mat[k, i, j]
+                if s != 0.0:
+                    for c in range(ncp):
+                        xn[i, c] += s * xk[j, c]
+            for j in range(nu_):
+                s = b_mat[k, i, j]
+                if s != 0.0:
+                    for c in range(ncp):
+                        xn[i, c] += s * uk[j, c]
+            xn[i, 0] += d_vec[k, i]
+        for i in range(nx, nxp):
+            for c in range(ncp):
+                xn[i, c] = xk[i, c]
     # dx_N = Xi_N[:nx, 0] + M nu = 0, M = -(terminal Schur complement): negative definite.
     m_mat = np.empty((nx, nx))
     neg = np.empty((nx, nx))
@@ -255,7 +287,7 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
     if not _cholesky(neg, low_t, nx):
         return TERMINAL_SCHUR_INDEFINITE, 0.0
     # M is symmetric up to rounding: solve with its symmetric part (-neg).
-    _chol_solve_columns(low_t, rhs, nx, 1)
+    _chol_solve_rows(low_t, rhs, nx, 1)
     for i in range(nx):
         nu[i] = rhs[i, 0]       # (-M) nu = dx_N(nu = 0)  =>  dx_N = 0
     coef = np.empty(ncol)
@@ -270,7 +302,7 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
             for c in range(ncol):
                 acc += xi[n, i, c] * coef[c]
             rhs[i, 0] = acc
-        _chol_solve_columns(low_t, rhs, nx, 1)
+        _chol_solve_rows(low_t, rhs, nx, 1)
         for i in range(nx):
             nu[i] += rhs[i, 0]
             coef[1 + i] = nu[i]
