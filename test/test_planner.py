@@ -246,16 +246,22 @@ def test_with_a_measured_state_the_stop_brakes_and_unchanged_data_change_nothing
     p.worker.stop()
 
 
-def test_a_goal_planned_while_braking_starts_at_the_stops_rest_when_it_ends():
+def moving_with_a_circle_ahead():
+    """A plan 40 % executed (measured on it); new data: a circle on its rest short of the goal."""
     p, port = planner(config(**{'replan.rate': 0.0}))
     finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
     plan, _ = p.plans.current()
     port.clock = plan.start + 0.4 * plan.duration
     port.measured = plan.states[int(np.searchsorted(plan.times, 0.4 * plan.duration))].copy()
-    k = int(0.75 * (len(plan.times) - 1))      # ahead of the stop, short of the goal
+    k = int(0.75 * (len(plan.times) - 1))
     x, y = hand(plan.states[k, 0], plan.states[k, 2])
     port.config = config(**{'replan.rate': 0.0, 'obstacles.x': [1.0, float(x)],
                             'obstacles.y': [1.0, float(y)], 'obstacles.radius': [0.2, 0.02]})
+    return p, port, plan
+
+
+def test_a_goal_planned_while_braking_starts_at_the_stops_rest_when_it_ends():
+    p, port, plan = moving_with_a_circle_ahead()
     heavier = CylindricalRobot(RobotParams(hand_mass=60.0))     # the online estimate
     port.estimate = (heavier, 'hand_mass=60')
     p.data_changed(port.config)
@@ -275,15 +281,7 @@ def test_a_goal_planned_while_braking_starts_at_the_stops_rest_when_it_ends():
 
 
 def test_a_deferred_brake_is_published_at_its_deadline_unless_a_plan_replaced_it():
-    p, port = planner(config(**{'replan.rate': 0.0}))
-    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
-    plan, _ = p.plans.current()
-    port.clock = plan.start + 0.4 * plan.duration
-    port.measured = plan.states[int(np.searchsorted(plan.times, 0.4 * plan.duration))].copy()
-    k = int(0.75 * (len(plan.times) - 1))
-    x, y = hand(plan.states[k, 0], plan.states[k, 2])
-    port.config = config(**{'replan.rate': 0.0, 'obstacles.x': [1.0, float(x)],
-                            'obstacles.y': [1.0, float(y)], 'obstacles.radius': [0.2, 0.02]})
+    p, port, plan = moving_with_a_circle_ahead()
     p.plans.defer_brake(plan, port.clock + 0.1)
     p.brake_if_overdue(port.config)
     assert len(port.trajectories) == 1                 # not due yet

@@ -24,26 +24,13 @@ obstacles hash and data revision, as for the planar models).
 
 from geometry_msgs.msg import Point
 import numpy as np
-from std_msgs.msg import ColorRGBA
 from toc_ros import arm_config, progress as schema
+from toc_ros.conversions import new_marker
 from visualization_msgs.msg import Marker, MarkerArray
 
 
-def _marker(frame_id, stamp, ns, marker_id, marker_type, rgba):
-    marker = Marker()
-    marker.header.frame_id = frame_id
-    marker.header.stamp = stamp
-    marker.ns = ns
-    marker.id = marker_id
-    marker.type = marker_type
-    marker.action = Marker.ADD
-    marker.pose.orientation.w = 1.0
-    marker.color = ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
-    return marker
-
-
 def _sphere(frame_id, stamp, ns, marker_id, centre, radius, rgba):
-    marker = _marker(frame_id, stamp, ns, marker_id, Marker.SPHERE, rgba)
+    marker = new_marker(frame_id, stamp, ns, marker_id, Marker.SPHERE, rgba)
     marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = (
         float(v) for v in centre)
     marker.scale.x = marker.scale.y = marker.scale.z = 2.0 * float(radius)
@@ -75,7 +62,7 @@ def arm_markers(config, stamp, path_states, measured, plan_info, revision):
     if not model.pending:
         tip = arm_config.settings(config.flat).tip_link
         if path_states is not None and np.shape(path_states)[-1] == model.nx:
-            line = _marker(frame, stamp, 'planned_path', 0, Marker.LINE_STRIP,
+            line = new_marker(frame, stamp, 'planned_path', 0, Marker.LINE_STRIP,
                            (0.0, 0.8, 0.0, 1.0))
             line.scale.x = 0.01
             line.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
@@ -97,7 +84,7 @@ def arm_markers(config, stamp, path_states, measured, plan_info, revision):
              'obstacles'), ('plan_info', plan_info, 1.45, 'plan for obstacles')):
         if info is None:
             continue
-        label = _marker(frame, stamp, ns, 0, Marker.TEXT_VIEW_FACING, (1.0, 1.0, 1.0, 1.0))
+        label = new_marker(frame, stamp, ns, 0, Marker.TEXT_VIEW_FACING, (1.0, 1.0, 1.0, 1.0))
         label.pose.position.z = z
         label.scale.z = 0.08
         label.text = f'{text} {info[0]}, data revision {info[1]}'

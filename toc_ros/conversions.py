@@ -189,7 +189,8 @@ def arm_points(model, q):
     return [Point(x=float(p[0]), y=float(p[1])) for p in points], chain
 
 
-def _marker(frame_id, stamp, ns, marker_id, marker_type, rgba):
+def new_marker(frame_id, stamp, ns, marker_id, marker_type, rgba):
+    """Return an ADD Marker of type marker_type in frame_id, identity orientation, colour rgba."""
     marker = Marker()
     marker.header.frame_id = frame_id
     marker.header.stamp = stamp
@@ -223,14 +224,14 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
     out.markers.append(clear)
     rows = np.asarray(obstacles, dtype=float).reshape(-1, 3)
     for k, (cx, cy, radius) in enumerate(rows):
-        body = _marker(frame_id, stamp, 'obstacles', k, Marker.CYLINDER, (0.5, 0.5, 0.5, 0.8))
+        body = new_marker(frame_id, stamp, 'obstacles', k, Marker.CYLINDER, (0.5, 0.5, 0.5, 0.8))
         body.pose.position.x, body.pose.position.y = float(cx), float(cy)
         body.pose.position.z = 0.5 * OBSTACLE_HEIGHT
         body.scale.x = body.scale.y = 2.0 * float(radius)
         body.scale.z = OBSTACLE_HEIGHT
         out.markers.append(body)
     if len(rows):
-        rings = _marker(frame_id, stamp, 'inflated_obstacles', 0, Marker.LINE_LIST,
+        rings = new_marker(frame_id, stamp, 'inflated_obstacles', 0, Marker.LINE_LIST,
                         (1.0, 0.5, 0.0, 1.0))
         rings.scale.x = 0.01
         angles = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
@@ -245,7 +246,7 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
     model = as_model(a)
     if path_states is not None and len(path_states):
         states = np.asarray(path_states, dtype=float).reshape(-1, model.nx)
-        line = _marker(frame_id, stamp, 'planned_path', 0, Marker.LINE_STRIP,
+        line = new_marker(frame_id, stamp, 'planned_path', 0, Marker.LINE_STRIP,
                        (0.0, 0.8, 0.0, 1.0))
         line.scale.x = 0.01
         hand = model.hand_position(model.positions(states))
@@ -253,7 +254,7 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
         out.markers.append(line)
     if arm_state is not None:
         points, chain = arm_points(model, model.positions(np.asarray(arm_state, dtype=float)))
-        arm = _marker(frame_id, stamp, 'arm', 0, Marker.LINE_STRIP if chain
+        arm = new_marker(frame_id, stamp, 'arm', 0, Marker.LINE_STRIP if chain
                       else Marker.LINE_LIST, (0.1, 0.3, 1.0, 1.0))
         arm.scale.x = 0.03
         arm.points = points
@@ -262,7 +263,7 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
                               ('plan_info', plan_info, 0.45, 'plan for obstacles')):
         if info is None:
             continue
-        label = _marker(frame_id, stamp, ns, 0, Marker.TEXT_VIEW_FACING, (1.0, 1.0, 1.0, 1.0))
+        label = new_marker(frame_id, stamp, ns, 0, Marker.TEXT_VIEW_FACING, (1.0, 1.0, 1.0, 1.0))
         label.pose.position.z = z
         label.scale.z = 0.08
         label.text = f'{text} {info[0]}, data revision {info[1]}'
