@@ -37,9 +37,9 @@ from toc_ros.core.executing_plan import braking_plan, ExecutingPlan, Seed
 from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
 from toc_ros.execution_state import ExecutionState
+from toc_ros.goal_requests import BRAKING_REST, start_state
 from toc_ros.nodes import parameters
 from toc_ros.nodes.solver_settings import SolverNodeConfig
-from toc_ros.goal_requests import BRAKING_REST, start_state
 from toc_ros.planner import CYCLE_SOURCE, Planner
 from toc_ros.solve_progress import SolveProgress
 
@@ -247,7 +247,7 @@ def test_with_a_measured_state_the_stop_brakes_and_unchanged_data_change_nothing
 
 
 def moving_with_a_circle_ahead():
-    """A plan 40 % executed (measured on it); new data: a circle on its rest short of the goal."""
+    """Return a plan 40 % executed (measured on it) and a circle on its rest short of the goal."""
     p, port = planner(config(**{'replan.rate': 0.0}))
     finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
     plan, _ = p.plans.current()

@@ -63,7 +63,7 @@ def arm_markers(config, stamp, path_states, measured, plan_info, revision):
         tip = arm_config.settings(config.flat).tip_link
         if path_states is not None and np.shape(path_states)[-1] == model.nx:
             line = new_marker(frame, stamp, 'planned_path', 0, Marker.LINE_STRIP,
-                           (0.0, 0.8, 0.0, 1.0))
+                              (0.0, 0.8, 0.0, 1.0))
             line.scale.x = 0.01
             line.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
                            for p in (pose.translation for pose in

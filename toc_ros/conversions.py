@@ -232,7 +232,7 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
         out.markers.append(body)
     if len(rows):
         rings = new_marker(frame_id, stamp, 'inflated_obstacles', 0, Marker.LINE_LIST,
-                        (1.0, 0.5, 0.0, 1.0))
+                           (1.0, 0.5, 0.0, 1.0))
         rings.scale.x = 0.01
         angles = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
         inflated = rows[:, 2:3] + float(margin)
@@ -247,7 +247,7 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
     if path_states is not None and len(path_states):
         states = np.asarray(path_states, dtype=float).reshape(-1, model.nx)
         line = new_marker(frame_id, stamp, 'planned_path', 0, Marker.LINE_STRIP,
-                       (0.0, 0.8, 0.0, 1.0))
+                          (0.0, 0.8, 0.0, 1.0))
         line.scale.x = 0.01
         hand = model.hand_position(model.positions(states))
         line.points = [Point(x=x, y=y) for x, y in hand.tolist()]
@@ -255,7 +255,7 @@ def markers_msg(obstacles, margin, a, frame_id, stamp, path_states=None, arm_sta
     if arm_state is not None:
         points, chain = arm_points(model, model.positions(np.asarray(arm_state, dtype=float)))
         arm = new_marker(frame_id, stamp, 'arm', 0, Marker.LINE_STRIP if chain
-                      else Marker.LINE_LIST, (0.1, 0.3, 1.0, 1.0))
+                         else Marker.LINE_LIST, (0.1, 0.3, 1.0, 1.0))
         arm.scale.x = 0.03
         arm.points = points
         out.markers.append(arm)
