@@ -20,7 +20,6 @@ joint_states, an independent arm-to-circle distance, and the ~/progress reports.
 """
 
 import math
-import re
 import time
 from types import SimpleNamespace
 
@@ -380,11 +379,13 @@ def test_late_cycles_seed_the_next_and_published_ones_are_on_time(loop):
             and 'seeds the next cycle' in r.message]
     replanned = [r for r in reports if r.event == schema.EVENT_REPLANNED]
     assert late and replanned, [(r.event, r.message[:60]) for r in reports]
-    # Published only when ready before its stamp: plant_node started each of them at its
-    # stamp, or trimmed by no more than the transport (a late plan would be tens of ms).
-    starts = [(float(stamp), float(ago)) for stamp, ago in re.findall(
-        r'stamp (\d+\.\d+) \(trimmed: started (\d+\.\d+) s ago\)', loop.plant.log())]
-    assert all(ago <= 0.005 for stamp, ago in starts if stamp > stamp_of(first)), starts
+    # Published only when ready before its stamp, by the node's clock (the plant receives it
+    # later by the transport, which a loaded machine stretches past 10 ms).
+    assert all(r.published_stamp < r.plan_stamp for r in replanned), [
+        (r.published_stamp, r.plan_stamp) for r in replanned]
+    # The late ones were not published: no trajectory carries their stamp.
+    stamps = {round(stamp_of(t), 6) for t in loop.client.messages('trajectory', since)}
+    assert not stamps & {round(r.plan_stamp, 6) for r in late}
     final = positions_since(loop, since)[-1]
     assert np.max(np.abs(final - GOAL_Q)) < 1e-3
 

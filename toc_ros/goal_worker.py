@@ -53,6 +53,7 @@ class Request:
         self.cycle = cycle               # a replan cycle's data, None for goals
         self.generation = 0              # the goal generation it belongs to (set by submit)
         self.published_at = None         # time.monotonic() when its trajectory was published
+        self.published_stamp = None      # the node clock then [s]
         self.late = False                # a cycle's plan was ready only after its deadline
         self.path = None                 # what the node answers a plan request with
         self.done = threading.Event()

@@ -384,6 +384,7 @@ class Planner:
                 revision = plans.revision
             port.publish_trajectory(trajectory)
             request.published_at = time.monotonic()
+            request.published_stamp = port.now()
             plans.executing = plan
             plans.plan_info = (schema.obstacles_hash(problem.obstacles, problem.margin),
                                revision)
@@ -492,6 +493,7 @@ class Planner:
         if problem is not None:
             values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
         if published:       # the data it was checked against
+            values['published_stamp'] = request.published_stamp
             with self.plans.lock:
                 values['obstacles_hash'], values['data_revision'] = self.plans.plan_info
             self._port.report(schema.result_report(

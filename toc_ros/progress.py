@@ -97,6 +97,8 @@ class ProgressReport:
     deviation: Optional[float] = None
     plan_stamp: Optional[float] = None
     state_stamp: Optional[float] = None
+    # Published cycles: the node clock when the trajectory was published [s] (before plan_stamp).
+    published_stamp: Optional[float] = None
     # Replan cycles with replan.estimate: the estimated model parameters planned with,
     # 'name=value, ...', or 'none: <reason>' while there is no usable estimate.
     estimate: str = ''
@@ -125,8 +127,10 @@ _KEYS = {'n_intervals': 'N'}
 _OWN = ('name', 'message', 'level')
 _INT = ('iteration', 'n_intervals', 'data_revision')
 _FLOAT = ('t_f', 'cost', 'best_feasible_t_f', 'max_control_excess', 'terminal_error',
-          'min_clearance', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp', 'state_stamp')
-_EXACT = ('plan_stamp', 'state_stamp')   # clock times: every digit (9 would lose the fraction)
+          'min_clearance', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp', 'state_stamp',
+          'published_stamp')
+# Clock times: every digit (9 would lose the fraction).
+_EXACT = ('plan_stamp', 'state_stamp', 'published_stamp')
 KEYS = tuple(_KEYS.get(f.name, f.name) for f in fields(ProgressReport) if f.name not in _OWN)
 
 
