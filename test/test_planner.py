@@ -390,6 +390,45 @@ def test_a_late_cycle_keeps_the_plan_and_seeds_the_next():
         assert 'late: ready' in report.message and p.plans.seed.plan is plan
 
 
+def segment_gap(q1, q2, centre, radius):
+    """Clearance of the arm (base to hand, a segment) to a circle [m], recomputed here."""
+    tip, centre = hand(q1, q2), np.asarray(centre, dtype=float)
+    s = np.clip(np.dot(centre, tip) / np.dot(tip, tip), 0.0, 1.0)
+    return float(np.hypot(*(centre - s * tip)) - radius)
+
+
+def test_a_cycle_from_inside_the_margin_plans_out_with_half_its_true_clearance():
+    p, port = planner(config(**{'replan.rate': 20.0, 'obstacles.margin': 0.1}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    port.clock = plan.start + 0.2 * plan.duration
+    k = int(np.searchsorted(plan.times, 0.2 * plan.duration))
+    # The plant carried the hand 0.15 m further out than planned, 0.04 m from a small circle
+    # beyond it that the plan itself clears by more than the margin.
+    state = plan.states[k].copy()
+    state[2] += 0.15
+    radius = 0.05
+    centre = (A + state[2] + 0.04 + radius) * np.array([math.cos(state[0]),
+                                                         math.sin(state[0])])
+    port.config = config(**{'replan.rate': 20.0, 'obstacles.margin': 0.1,
+                            'obstacles.x': [1.0, float(centre[0])],
+                            'obstacles.y': [1.0, float(centre[1])],
+                            'obstacles.radius': [0.2, radius]})
+    assert min(segment_gap(a, b, centre, radius) for a, b in plan.states[k:, 0::2]) > 0.1
+    p.data_changed(port.config)
+    assert len(port.trajectories) == 1              # the plan is clear: nothing to stop
+    assert p.maybe_replan(port.config, state, port.clock, time.monotonic() + 30.0)
+    finish(p)
+    report = port.reports[-1]
+    assert report.event == schema.EVENT_REPLANNED, report.message
+    assert 'from inside the obstacle margin' in report.message
+    _, q, _, _ = points(port.trajectories[-1])
+    gaps = np.array([segment_gap(a, b, centre, radius) for a, b in q])
+    assert 0.0 < gaps[0] < 0.1                      # it starts inside the margin
+    assert np.min(gaps) >= 0.5 * gaps[0] - 1e-6     # and keeps half of that clearance
+    assert np.max(np.abs(q[-1] - NEAR_GOAL[0::2])) < 1e-6
+
+
 def test_no_cycle_without_replanning_or_for_a_state_of_another_size():
     p, port = planner(config(**{'replan.rate': 0.0}))
     finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))

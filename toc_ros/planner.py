@@ -441,10 +441,15 @@ class Planner:
         if taken is None:
             return          # a newer plan was published meanwhile: nothing to replace
         revision, source = taken
-        result, problem, why = None, None, ''
+        result, problem, why, recovery = None, None, '', None
         estimated, estimate = self._port.estimated_model(config)
         try:
-            problem = problem_from_parameters(config.flat, x0=cycle.start, x_goal=plan.goal)
+            # A start the plant carried inside the margin (it did not follow the plan) plans
+            # out of there with part of its true clearance as the margin (as the replan after a
+            # stop): keeping the plan it is not following would carry it on into the circle.
+            recovery = goals.recovery_params(config, cycle.start)
+            problem = problem_from_parameters(recovery or config.flat, x0=cycle.start,
+                                              x_goal=plan.goal)
             if estimated is not None:
                 problem = problem.with_model(estimated)
             # Published only by its deadline (its lead after its joint_states arrived): the
@@ -496,8 +501,10 @@ class Planner:
             values['published_stamp'] = request.published_stamp
             with self.plans.lock:
                 values['obstacles_hash'], values['data_revision'] = self.plans.plan_info
+            inside = '' if recovery is None else (
+                f' from inside the obstacle margin (margin {problem.margin:.4g} m)')
             self._port.report(schema.result_report(
-                result, f'replanned ({cycle.reason}): {result.message}',
+                result, f'replanned ({cycle.reason}){inside}: {result.message}',
                 event=schema.EVENT_REPLANNED, **values))
             return
         message = f'replan cycle ({cycle.reason}) kept the executing plan: {why}'
