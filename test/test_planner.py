@@ -408,8 +408,8 @@ def test_a_cycle_from_inside_the_margin_plans_out_with_half_its_true_clearance()
     state = plan.states[k].copy()
     state[2] += 0.15
     radius = 0.05
-    centre = (A + state[2] + 0.04 + radius) * np.array([math.cos(state[0]),
-                                                         math.sin(state[0])])
+    direction = np.array([math.cos(state[0]), math.sin(state[0])])
+    centre = (A + state[2] + 0.04 + radius) * direction
     port.config = config(**{'replan.rate': 20.0, 'obstacles.margin': 0.1,
                             'obstacles.x': [1.0, float(centre[0])],
                             'obstacles.y': [1.0, float(centre[1])],

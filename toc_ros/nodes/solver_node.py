@@ -15,73 +15,18 @@
 """
 solver_node: minimum-time trajectories of the robot model (robot.model) on request.
 
-URDF arms (robot.model panda, ur5 or urdf) are translated by the arm_* modules: the model and
-its settings arm_config / arm_model (the URDF of robot_description, parameter or topic),
-goals and stale plans arm_goals, obstacle spheres (obstacle_markers, obstacles rows x, y, z,
-r) and the URDF topic arm_inputs, markers arm_markers; they have no replan cycles (see
-docs/ros_interface.md, "URDF arms").  The rest of this text describes the planar models.
+Goals arrive on ``goal_pose``, ``goal_joints`` or ``~/plan``; each plan starts from the latest
+``joint_states`` (``initial_state`` until one arrived), avoids the current obstacles and is
+published on ``trajectory``; ``~/progress`` reports every solve, cycle and stop, ``~/cancel``
+stops a solve, ``~/cancel_goal`` abandons a goal, ``~/ready`` tells when the kernels are loaded.
+The interface and its rules (goal lifecycle, newest goal wins, no plan for stale data, replan
+cycles, braking) are documented in docs/ros_interface.md.
 
-Goals arrive on ``goal_pose`` (hand position, inverse kinematics), ``goal_joints`` (joint
-space, by name) or the service ``~/plan`` (nav_msgs/GetPlan, answered when its solve ends).
-Each plan starts from the latest ``joint_states`` (parameter ``initial_state`` until one
-arrived) and avoids the current obstacles (parameters ``obstacles.*``, replaced by messages on
-``obstacles``; at most ``obstacles.max_count`` circles).  ``~/plan`` always plans from that
-measured state, never from the request's ``start`` (a state the node cannot vouch for): a
-``start`` that is given (not the empty pose) and differs from the measured hand position by
-more than 1 mm, or is not finite, or is in another frame, is ignored with a warning on
-``~/progress`` (event ``start_ignored``) and in the log.  ``~/ready`` (std_srvs/Trigger)
-answers success once the numba kernels are loaded.
-
-One worker thread solves; only the newest goal is solved (a new goal preempts the running
-solve, a queued one is answered as superseded).  The subscriptions and services exist from
-the start; the numba kernels load in the background and goals that arrive meanwhile are
-queued and solved once ready.  While it solves, ``~/progress`` reports at >= 5 Hz, and once at
-the end with the status: level OK for SOLVED, WARN for SOLVED_INACCURATE (paper mode's
-heuristic, trajectory published anyway), CANCELED and TIMEOUT, ERROR for failures and refused
-input (message = the reason).  ``trajectory`` (transient local) is published for SOLVED and
-SOLVED_INACCURATE results only, together with ``planned_path`` and ``markers``; the result on
-``~/progress`` and the markers name the obstacle set it was planned for (``obstacles_hash``)
-and the revision of the planning data (``data_revision``).
-
-Goal lifecycle.  A goal is active from its acceptance until it is reached (its plan, and the
-replan cycles' plans, ran out), replaced by a newer goal, or canceled:
-
-- ``~/cancel`` (std_srvs/Trigger) cancels the running *solve* only (and a queued one): during
-  an execution with replanning, the next cycles still drive the robot on to the goal.
-- ``~/cancel_goal`` (std_srvs/Trigger) abandons the *goal*: the running and queued solves are
-  canceled, no further replan cycle runs and no plan of the goal is published any more; a
-  robot that executes a plan of it gets the braking trajectory (every joint decelerates at its
-  control bound until it rests; an empty trajectory without a measured state), and
-  ``~/progress`` reports CANCELED with event ``goal_canceled``.  success is false when no goal
-  was active (nothing solving, queued or executing).
-- A jump of the measured state, e.g. plant_node's ``~/reset`` while a goal executes, is a
-  disturbance like any other: the goal stays active, and with replanning on the next cycle
-  (due at once: the state deviates from the plan by more than replan.deviation) plans from the
-  new state to the same goal while the executing plan lasts.  To stop instead, call
-  ``~/cancel_goal`` before resetting the plant.
-
-Replanning (fast mode, replan.rate > 0): while a plan executes, replan cycles solve to the
-same goal from the latest joint_states, predicted forward to the new plan's start
-(header.stamp = now + lead) along the executing plan, warm-started from that plan's rest; a
-cycle's plan is published only when solved before its stamp, else the executing plan is kept
-(~/progress event replan_kept).  Goals go first: a cycle never preempts a goal.  With
-replan.estimate the cycles plan with model parameters estimated online from the joint_states
-efforts (core/estimation.py).  The policy (when a cycle is due, its lead and grid, braking)
-is core/replan_policy.py, the executing plan core/executing_plan.py and its bookkeeping
-execution_state.py, the goals' checks and problems goal_requests.py, the solves, cycles and
-stops planner.py (free of rclpy), the worker goal_worker.py: this node translates messages
-and wires them.
-
-No plan for stale data: when the obstacles, the margin, the robot data or the extension
-limits change during a goal's solve, the solve restarts from the same goal and the latest
-state (a replan cycle's plan is published only if it satisfies the data current at its end);
-when they change while a published trajectory is still executing and its remaining part
-now cuts an (inflated) obstacle or exceeds u_max, a replan cycle plans around them at once
-while braking can still wait for it (the plan stays out of the true circles until the cycle's
-outcome is known, and the fastest stop started then still keeps out of them:
-replan_policy.brake_can_wait); otherwise, or when that fails, a braking trajectory (an empty
-one without a measured state) is published at once and the goal is planned again from the
-measured state.
+This module only translates messages and wires them: the solves, cycles and stops are
+planner.py (free of rclpy), the worker goal_worker.py, the goals' checks and problems
+goal_requests.py, the executing plan's bookkeeping execution_state.py, the policy (when a
+cycle is due, its lead and grid, braking) core/replan_policy.py; URDF arms are translated by
+the arm_* modules (arm_config, arm_model, arm_goals, arm_inputs, arm_markers).
 
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
