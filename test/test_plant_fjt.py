@@ -32,6 +32,7 @@ from node_harness import CONFIG, JOINTS, NodeProcess, RosClient
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 try:
@@ -361,9 +362,15 @@ def test_solver_node_executes_its_plan_through_the_action(plant, tmp_path):
         client.collect(DiagnosticStatus, 'solver_node/progress', keep=1000)
         goals = client.node.create_publisher(JointState, client.name('goal_joints'), 10)
         client.wait_for(lambda: goals.get_subscription_count() > 0, what='goal_joints')
-        # The plant's initial state, or a turn away from the scenario's circle from there.
+        # From the plant's initial state (the tests run in any order: another may have left
+        # it anywhere, even inside the circle's margin), a turn away from the scenario's circle.
+        reset = client.node.create_client(Trigger, client.name('plant_node/reset'))
+        assert reset.wait_for_service(timeout_sec=30.0)
+        assert client.call(reset, Trigger.Request(), 30.0).success
         home = np.array([0.261799, 1.0])
-        target = home if np.max(np.abs(_current(plant) - home)) > 0.1 else home - [0.3, 0.0]
+        client.wait_for(lambda: np.max(np.abs(_current(plant) - home)) < 1e-3, what='reset')
+        time.sleep(0.2)     # the solver's latest joint_states is the reset one
+        target = home - [0.3, 0.0]
         goals.publish(JointState(name=list(JOINTS), position=[float(v) for v in target]))
 
         def executed():
