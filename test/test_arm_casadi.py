@@ -318,12 +318,13 @@ def test_lifted_and_explicit_transcriptions_have_the_same_optimum():
 @pytest.mark.slow
 def test_fatrop_and_ipopt_share_the_optimum_and_rk4_reintegrates():
     """
-    FATROP (stagewise transcription) from the cold line start converges; IPOPT (global
-    transcription) started at its result stays at that optimum: the two see the same problem.
+    FATROP and IPOPT (stagewise and global transcriptions) agree on the optimum.
 
-    N = 10 keeps it at ~20 s: cold FATROP at N = 20 takes ~1,000 iterations (~3 min here), and
-    warm-started from IPOPT's optimum it fails (primal-only warm starts do not suit it); the
-    N = 20 agreement is measured in benchmarks/RESULTS.md ("Arms: reference minimum times").
+    FATROP from the cold line start converges; IPOPT started at its result stays at that
+    optimum: the two see the same problem.  N = 10 keeps it at ~20 s: cold FATROP at N = 20
+    takes ~1,000 iterations (~3 min here), and warm-started from IPOPT's optimum it fails
+    (primal-only warm starts do not suit it); the N = 20 agreement is measured in
+    benchmarks/RESULTS.md ("Arms: reference minimum times").
     """
     path = _urdf('panda')
     spec = ap.ArmSpec(urdf=path, joints=PANDA_JOINTS,
@@ -336,8 +337,8 @@ def test_fatrop_and_ipopt_share_the_optimum_and_rk4_reintegrates():
     ipopt = ar.solve_arm(spec, 10, 'rk4', 'ipopt',
                          guess=(fatrop['states'], fatrop['controls'], fatrop['t_f']))
     assert ipopt['success'] and ipopt['max_violation'] < 1e-6, ipopt['status']
-    assert abs(ipopt['t_f'] - fatrop['t_f']) <= 1e-4 * fatrop['t_f'], (ipopt['t_f'],
-                                                                      fatrop['t_f'])
+    gap = abs(ipopt['t_f'] - fatrop['t_f'])
+    assert gap <= 1e-4 * fatrop['t_f'], (ipopt['t_f'], fatrop['t_f'])
     pmodel = _pinocchio(path, PANDA_JOINTS)
     spheres = ap.load_spheres(spec.robot_spheres)
     for out in (ipopt, fatrop):
