@@ -28,7 +28,7 @@ pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(ROBOTS is None, reason='example-robot-data is not installed')]
 Q0 = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
 KP = [600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0]
-KD = [50.0, 50.0, 50.0, 50.0, 20.0, 15.0, 5.0]
+KD = [20.0, 20.0, 20.0, 20.0, 8.0, 6.0, 2.0]     # config/panda.yaml's
 
 
 def _params_file(tmp_path, **overrides):
