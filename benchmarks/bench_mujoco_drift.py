@@ -58,7 +58,7 @@ SETTLE_S = 0.5          # [s] after the plan's end: the final error
 
 
 def plan(arm_name, start, goal, obstacles, n_intervals):
-    """Return (arm model, result) of a fast-mode plan (Euler, margin 0.02 m)."""
+    """Return the arm model and the result of a fast-mode solve (Euler, margin 0.02 m)."""
     from toc_ros.core import Problem, solve
     from toc_ros.core.arms import load_arm
     from toc_ros.core.arms.arm_solve import ArmRobot
@@ -172,7 +172,8 @@ def measure(name, n_intervals):
         return float(np.max(np.abs(a - b)))
     return {'case': name, 't_f': float(result.final_time), 'status': result.status.value,
             'solve_s': solve_s, 'plan_vs_pinocchio': worst(q_plan, q_pin),
-            'grid_vs_pinocchio': worst(q_grid, q_pin), 'mujoco_vs_pinocchio': worst(q_open, q_grid),
+            'grid_vs_pinocchio': worst(q_grid, q_pin),
+            'mujoco_vs_pinocchio': worst(q_open, q_grid),
             'open_loop_drift': worst(q_open, q_plan),
             'open_loop_end': worst(q_open[-1], q_plan[-1]),
             'pd_tracking': worst(q_pd, q_plan), 'pd_final': worst(q_final, np.asarray(goal)),
