@@ -352,10 +352,12 @@ def test_actuator_lag_in_the_plan(loop):
     planned = times[np.flatnonzero(error > 1e-2)[-1] + 1]
     assert arrived <= 1.02 * planned, (arrived, planned)
     assert arrivals[0.0][0] > arrived
-    # Cycles planned with the lag model too.  How many are published in time depends on the
-    # CPU the machine leaves the node (each is an RK4 solve on >= 531 intervals): one suffices.
-    replanned = [r for r in cycle_reports(loop, since) if r.event == schema.EVENT_REPLANNED]
-    assert len(replanned) >= 1
+    # Cycles planned with the lag model too (their start holds the drives' states: a cycle
+    # on the joint model alone could not be solved from it).  How many are ready in time
+    # depends on the CPU the machine leaves the node (each is an RK4 solve on >= 531
+    # intervals; CI once had none in time): one solved cycle, published or late, suffices.
+    solved = [r for r in cycle_reports(loop, since) if r.status is Status.SOLVED]
+    assert len(solved) >= 1, [(r.event, r.message[:80]) for r in cycle_reports(loop, since)]
     final = positions_since(loop, since)[-1]
     assert np.max(np.abs(final - GOAL_Q)) < 1e-3
 
