@@ -28,7 +28,16 @@ def module_name(path):
     return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
 
 
-def top_level_imports(path, modules):
+def imported_module(package, node):
+    """Return the absolute module an ImportFrom node imports from (package: the importer's)."""
+    base = node.module or ''
+    if not node.level:
+        return base
+    parent = package.split('.')
+    return '.'.join(parent[:len(parent) - node.level + 1] + ([base] if base else []))
+
+
+def top_level_imports(path):
     """Package modules and names imported at import time (not inside functions)."""
     name = module_name(path)
     package = name if path.name == '__init__.py' else name.rpartition('.')[0]
@@ -43,11 +52,7 @@ def top_level_imports(path, modules):
             elif isinstance(node, ast.Import):
                 found.update(a.name for a in node.names)
             elif isinstance(node, ast.ImportFrom):
-                base = node.module or ''
-                if node.level:
-                    parent = package.split('.')
-                    parent = parent[:len(parent) - node.level + 1]
-                    base = '.'.join(parent + ([base] if base else []))
+                base = imported_module(package, node)
                 found.add(base)
                 found.update(f'{base}.{a.name}' for a in node.names)
             else:
@@ -63,10 +68,7 @@ def exports(path, modules):
     out = {}
     for node in ast.parse(path.read_text()).body:
         if isinstance(node, ast.ImportFrom):
-            base = node.module or ''
-            if node.level:
-                base = '.'.join(package.split('.')[:len(package.split('.')) - node.level + 1]
-                                + ([base] if base else []))
+            base = imported_module(package, node)
             for alias in node.names:
                 source = f'{base}.{alias.name}'
                 out[alias.asname or alias.name] = source if source in modules else base
@@ -86,19 +88,12 @@ def graph():
     edges = {}
     for name, path in paths.items():
         resolved = set()
-        for target in top_level_imports(path, paths):
-            if target in packages and target != name:
-                continue                          # the package itself: see its names
+        for target in top_level_imports(path):
             base, _, leaf = target.rpartition('.')
-            if target not in packages and base in packages and leaf in packages[base] \
-                    and f'{base}.{leaf}' not in paths:
-                target = packages[base][leaf]
+            if target not in paths and leaf in packages.get(base, {}):
+                target = packages[base][leaf]     # a name the package takes from a module
             resolved.add(target)
-        for target in list(resolved):
-            base, _, leaf = target.rpartition('.')
-            if base in packages and leaf in packages[base] and target not in paths:
-                resolved.discard(target)
-                resolved.add(packages[base][leaf])
+        # The packages themselves are left out: their names resolved to modules above.
         edges[name] = {t for t in resolved if t in paths and t != name and t not in packages}
     return edges
 
