@@ -215,8 +215,9 @@ def test_responsive_at_the_obstacle_limit(solver, paper_obstacles):
     print(f'64 circles: parameter round trips max {max(rounds):.3f} s, cancel {cancel_s:.3f} s, '
           f'progress gaps max {gaps.max():.3f} s over {len(stamps)} messages')
     assert answer.success and final.status is Status.CANCELED
-    # Promised: 100 ms; generous margins for a shared 2-core machine.
-    assert max(rounds) < 0.5 and cancel_s < 1.0
+    # Promised: 100 ms; generous margins for a shared 2-core machine, where one round trip
+    # in ten has taken 0.6 s under CI load (both processes wait for a core, not for the solve).
+    assert np.median(rounds) < 0.15 and max(rounds) < 1.0 and cancel_s < 1.0
     assert len(stamps) >= 10 and gaps.max() < 0.5
 
 

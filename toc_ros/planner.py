@@ -325,7 +325,8 @@ class Planner:
             result, message, goal_source=request.source, start_source=start_source,
             goal=tuple(float(v) for v in np.round(request.goal, 9)),
             obstacles_hash=schema.obstacles_hash(problem.obstacles, problem.margin),
-            data_revision=revision, event=request.event, **config.model_keys())
+            margin=problem.margin, data_revision=revision, event=request.event,
+            **config.model_keys())
         if status is not result.status:
             report = dataclasses.replace(report, status=status, level=None)
         text = (f'{status.value} for goal from {request.source}: {message} '
@@ -497,6 +498,7 @@ class Planner:
                       (f'none: {estimate}' if estimate else ''), **config.model_keys())
         if problem is not None:
             values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
+            values['margin'] = problem.margin
         if published:       # the data it was checked against
             values['published_stamp'] = request.published_stamp
             with self.plans.lock:

@@ -76,7 +76,8 @@ class ProgressReport:
     best_feasible_t_f: Optional[float] = None
     max_control_excess: Optional[float] = None
     terminal_error: Optional[float] = None
-    min_clearance: Optional[float] = None    # [m]
+    min_clearance: Optional[float] = None    # [m], to the obstacles inflated by margin
+    margin: Optional[float] = None           # [m] the obstacle margin planned with
     elapsed_s: Optional[float] = None
     phase: str = ''
     mode: str = ''
@@ -127,7 +128,7 @@ _KEYS = {'n_intervals': 'N'}
 _OWN = ('name', 'message', 'level')
 _INT = ('iteration', 'n_intervals', 'data_revision')
 _FLOAT = ('t_f', 'cost', 'best_feasible_t_f', 'max_control_excess', 'terminal_error',
-          'min_clearance', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp', 'state_stamp',
+          'min_clearance', 'margin', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp', 'state_stamp',
           'published_stamp')
 # Clock times: every digit (9 would lose the fraction).
 _EXACT = ('plan_stamp', 'state_stamp', 'published_stamp')
