@@ -128,8 +128,8 @@ _KEYS = {'n_intervals': 'N'}
 _OWN = ('name', 'message', 'level')
 _INT = ('iteration', 'n_intervals', 'data_revision')
 _FLOAT = ('t_f', 'cost', 'best_feasible_t_f', 'max_control_excess', 'terminal_error',
-          'min_clearance', 'margin', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp', 'state_stamp',
-          'published_stamp')
+          'min_clearance', 'margin', 'elapsed_s', 'latency_s', 'deviation', 'plan_stamp',
+          'state_stamp', 'published_stamp')
 # Clock times: every digit (9 would lose the fraction).
 _EXACT = ('plan_stamp', 'state_stamp', 'published_stamp')
 KEYS = tuple(_KEYS.get(f.name, f.name) for f in fields(ProgressReport) if f.name not in _OWN)
