@@ -29,6 +29,8 @@ from toc_ros.config import load_parameters
 from toc_ros.core import ProblemError
 from toc_ros.recording.bag_reader import Recording, RecordingError
 
+from .arm_plots import draw_arm
+from .arm_run import analyse_arm, is_arm_run, markdown as arm_markdown
 from .plots import draw_all
 from .recorded_run import load_run, ROLES
 from .report import analyse, markdown
@@ -99,7 +101,10 @@ def main(argv=None):
     except RecordingError as error:
         return _error(str(error))
     with recording:
-        run = load_run(recording, params, warn)
+        try:
+            run = load_run(recording, params, warn)
+        except ProblemError as error:
+            return _error(f'{recording.path}: {error}')
         damaged = recording.damaged
         info = {'recording': recording.path, 'files': recording.files,
                 'damaged': damaged}
@@ -111,6 +116,8 @@ def main(argv=None):
         return _error(f'{recording.path}: no toc_ros data to analyse (looked for topics '
                       f'named {wanted} with their ROS 2 types; found: {found})')
     out_dir = os.path.abspath(args.out or default_out_dir(args.path))
+    if is_arm_run(run):
+        return _arm_report(run, info, out_dir, warnings, warn, damaged)
     try:
         os.makedirs(out_dir, exist_ok=True)
         report = analyse(run, info, warn)
@@ -122,6 +129,23 @@ def main(argv=None):
     except OSError as error:
         return _error(f'cannot write the report to {out_dir}: {error.strerror or error}')
     _print_summary(report.summary, out_dir)
+    return EXIT_DAMAGED if damaged else EXIT_OK
+
+
+def _arm_report(run, info, out_dir, warnings, warn, damaged):
+    """Write the report of a URDF-arm run (arm_run); return the exit code."""
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        summary, series = analyse_arm(run, info, warn)
+        summary['plots'] = draw_arm(series, out_dir)
+        summary['warnings'] = warnings
+        text = json.dumps(summary, indent=2, allow_nan=False)
+        _write(os.path.join(out_dir, 'summary.json'), text + '\n')
+        _write(os.path.join(out_dir, 'summary.md'), arm_markdown(summary))
+    except OSError as error:
+        return _error(f'cannot write the report to {out_dir}: {error.strerror or error}')
+    print(arm_markdown(summary), end='')
+    print(f'report: {out_dir}')
     return EXIT_DAMAGED if damaged else EXIT_OK
 
 

@@ -27,9 +27,11 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from toc_ros import arm_config
 from toc_ros.config import model_from_parameters
 from toc_ros.conversions import as_model
 from toc_ros.core import ProblemError
+from toc_ros.core.settings import parameter_table
 from toc_ros.progress import progress_from_msg, ProgressReport
 
 
@@ -42,6 +44,9 @@ ROLES = {
     'goal_joints': ('goal_joints', 'sensor_msgs/msg/JointState'),
     'obstacles': ('obstacles', 'std_msgs/msg/Float64MultiArray'),
     'markers': ('markers', 'visualization_msgs/msg/MarkerArray'),
+    # URDF arms: the obstacle spheres as markers, and the URDF of robot.model urdf.
+    'obstacle_markers': ('obstacle_markers', 'visualization_msgs/msg/MarkerArray'),
+    'robot_description': ('robot_description', 'std_msgs/msg/String'),
 }
 # What is lost without a role (for the 'missing' list).
 NEEDED_FOR = {
@@ -168,12 +173,15 @@ def recorded_model(run, warn=None):
     Return (RobotModel, source) of a run.
 
     The robot_model / model_parameters that solver_node wrote on ~/progress (ready and result
-    reports), else the parameters (--params).
+    reports), else the parameters (--params).  A URDF arm that cannot be rebuilt is a
+    ProblemError with the reason (no planar stand-in could analyse its joints).
     """
     for _, msg in run.messages.get('progress', ()):
         report = progress_from_msg(msg)
         if not report.robot_model:
             continue
+        if arm_config.is_arm({'robot.model': report.robot_model}):
+            return _arm_model(arm_parameters(run, report.robot_model)), 'solver progress'
         params = dict(run.params)
         params['robot.model'] = report.robot_model
         params['robot.model_parameters'] = [
@@ -185,12 +193,47 @@ def recorded_model(run, warn=None):
                 warn(f'the recorded robot model {report.robot_model!r} cannot be built here '
                      f'({error}); using the parameters')
             break
+    if arm_config.is_arm(run.params):
+        return _arm_model(arm_parameters(run, run.params['robot.model'])), 'parameters'
     try:
         return model_from_parameters(run.params), 'parameters'
     except ProblemError as error:
         if warn is not None:
             warn(f'robot model of the parameters: {error}; using the cylindrical robot')
         return as_model(1.1), 'default'
+
+
+def _arm_model(params):
+    """Return the arm model of flat parameters (ProblemError with the reason)."""
+    name = params['robot.model']
+    try:
+        model = model_from_parameters(params)
+    except ProblemError as error:
+        raise ProblemError(f'the recorded arm {name!r} cannot be rebuilt: {error}') from None
+    if getattr(model, 'pending', False):
+        raise ProblemError(f'the recorded arm {name!r} cannot be rebuilt: no URDF (record the '
+                           'robot_description topic, or give robot_description in --params)')
+    return model
+
+
+def arm_parameters(run, name):
+    """
+    Return the flat parameters that rebuild the recorded arm robot.model `name`.
+
+    The run's parameters (--params; the arm settings' defaults where they have none), the
+    planned joints of the first recorded trajectory and the last recorded robot_description.
+    """
+    params = {p.name: p.default for p in parameter_table(arm_config.ArmSettings)}
+    params.update(run.params)
+    params['robot.model'] = name
+    for _, msg in run.messages.get('trajectory', ()):
+        if msg.joint_names:
+            params['joint_names'] = list(msg.joint_names)
+            break
+    descriptions = run.messages.get('robot_description', ())
+    if descriptions:
+        params[arm_config.TOPIC_DESCRIPTION] = descriptions[-1][1].data
+    return params
 
 
 def run_model(run_or_a):
