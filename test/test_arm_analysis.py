@@ -17,8 +17,8 @@ toc-analyze on a synthetic Panda recording, checked by the independent oracle (a
 
 The run: the Panda's 7 joints move from the ready pose along a smooth-step in 1 s (100 Hz
 joint_states with one velocity and one effort sample beyond the URDF's limits), a sphere in the
-tip's way at 0.45 s and, from 0.6 s on, a far one instead (an RViz marker); solver_node's progress names
-the model (robot_model panda) and reports two replan cycles.
+tip's way at 0.45 s and, from 0.6 s on, a far one instead (an RViz marker); solver_node's
+progress names the model (robot_model panda) and reports two replan cycles.
 """
 
 import json
