@@ -75,8 +75,11 @@ TRUE_ROBOT = {'robot.hand_mass': 60.0, 'robot.inertia': 193.0 * 1.2}
 ESTIMATED = ('hand_mass', 'inertia')
 NOMINAL_PLANT = {'payload_mass_offset': 0.0, 'inertia_scale': 1.0, 'actuator_lag': 0.0,
                  'control_delay': 0.0}
-# A margin that covers the plant's tracking error around a moving circle [m].
-MOVING_MARGIN = 0.03
+# A margin that covers the plant's tracking error around a moving circle [m]: with the
+# heavier plant it tracks each plan within ~0.01 m while cycles are on time, but a loaded
+# machine delays cycles by 2-4 periods, and the arm then drifts several centimetres off the
+# plan (benchmarks/RESULTS.md, "The demo's closed loop on a loaded machine").
+MOVING_MARGIN = 0.05
 
 
 @dataclass

@@ -75,12 +75,22 @@ def topic_list(parameter: Parameter) -> List[str]:
 
 # Set by the first SIGINT a node process receives (see _note_interrupt).
 INTERRUPTED = threading.Event()
+# Set once rclpy.init has installed its signal handler (which shuts the context down).
+_RCLPY_HANDLES = threading.Event()
 
 
 def _note_interrupt(signum, frame):
-    """Python's SIGINT handler, noting the request before raising KeyboardInterrupt."""
+    """
+    Python's SIGINT handler: note the request; raise KeyboardInterrupt only before rclpy.init.
+
+    Once rclpy's handler runs first (it chains to this one) it has shut the context down and
+    the executor returns by itself.  A KeyboardInterrupt raised then lands on whatever Python
+    line runs, also inside a `with lock:` of rclpy's or of the node's; the clean-up then waited
+    on that lock forever (a node SIGKILLed at the end of toc-demo under load).
+    """
     INTERRUPTED.set()
-    signal.default_int_handler(signum, frame)
+    if not _RCLPY_HANDLES.is_set():
+        signal.default_int_handler(signum, frame)
 
 
 def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), error_code=2,
@@ -91,13 +101,13 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
     spin(node, executor) replaces executor.spin() and returns the exit code; an exception in
     errors is printed as '<name>: error: <error_prefix><error>' and gives error_code.
     """
-    # Installed before rclpy.init, whose SIGINT handler chains to Python's.  The
-    # KeyboardInterrupt can land inside C++ code run by the executor (rclpy's take_message
-    # converting a message), which pybind11 reports as a RuntimeError; after a SIGINT any
-    # such error is the end that was asked for, not a failure.
+    # Installed before rclpy.init, whose SIGINT handler chains to Python's.  A shutdown can
+    # still surface as an error inside C++ code run by the executor (a callback racing the
+    # context's end); after a SIGINT any such error is the end that was asked for.
     if threading.current_thread() is threading.main_thread():   # signal.signal's rule
         signal.signal(signal.SIGINT, _note_interrupt)
     rclpy.init(args=args)
+    _RCLPY_HANDLES.set()
     node = None
     exit_code = 0
     try:
