@@ -14,11 +14,11 @@
 
 """The plots of an arm run (arm_run.analyse_arm's series): PNG on matplotlib's Agg canvas."""
 
-import os
-
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 import numpy as np
+
+from .plots import draw_all
 
 DPI = 110
 
@@ -103,10 +103,5 @@ PLOTS = {'joints': draw_joints, 'clearance': draw_clearance, 'tip_path': draw_ti
 
 
 def draw_arm(series, out_dir):
-    """Draw every arm plot into out_dir; {name: {'file': name.png or None, 'reason': ...}}."""
-    results = {}
-    for name, draw in PLOTS.items():
-        file_name = f'{name}.png'
-        reason = draw(series, os.path.join(out_dir, file_name))
-        results[name] = {'file': None, 'reason': reason} if reason else {'file': file_name}
-    return results
+    """Draw every arm plot into out_dir (as plots.draw_all does a planar run's)."""
+    return draw_all(series, out_dir, PLOTS)

@@ -446,10 +446,14 @@ PLOTS = {
 }
 
 
-def draw_all(report, out_dir):
-    """Draw every plot into out_dir; {name: {'file': name.png or None, 'reason': ...}}."""
+def draw_all(report, out_dir, plots=None):
+    """
+    Draw every plot into out_dir; {name: {'file': name.png or None, 'reason': ...}}.
+
+    plots: {name: draw(report, path) -> None or the reason}, default PLOTS.
+    """
     results = {}
-    for name, draw in PLOTS.items():
+    for name, draw in (PLOTS if plots is None else plots).items():
         file_name = f'{name}.png'
         reason = draw(report, os.path.join(out_dir, file_name))
         results[name] = {'file': None, 'reason': reason} if reason else {'file': file_name}
