@@ -18,23 +18,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 import numpy as np
 
-from .plots import draw_all
-
-DPI = 110
-
-
-def _figure(rows, height=2.4, width=8.0):
-    fig = Figure(figsize=(width, height * rows), dpi=DPI, layout='constrained')
-    FigureCanvasAgg(fig)
-    return fig
+from .plots import _figure, DPI, draw_all
 
 
 def draw_joints(s, path):
     """Draw positions, velocities and efforts of every joint over time, limits dashed."""
     if not len(s['times']):
         return 'no joint_states of the arm'
-    fig = _figure(3)
-    axes = fig.subplots(3, 1, sharex=True)
+    fig, axes = _figure(3)
     rows = (('position [rad or m]', s['q'], s['lower'], s['upper']),
             ('velocity [rad/s or m/s]', s['dq'], -s['velocity'], s['velocity']),
             ('effort [N m or N]', s['effort'], -s['effort_limit'], s['effort_limit']))
@@ -57,8 +48,7 @@ def draw_clearance(s, path):
     finite = np.isfinite(s['clearance'])
     if not np.any(finite):
         return 'no obstacle spheres were sent during the joint_states'
-    fig = _figure(1)
-    ax = fig.subplots()
+    fig, (ax,) = _figure(1)
     ax.plot(s['times'][finite], s['clearance'][finite], color='k', linewidth=1.0)
     ax.axhline(0.0, color='r', linewidth=0.8)
     ax.set_xlabel('time [s]')
@@ -72,7 +62,8 @@ def draw_tip_path(s, path):
     tips = s['tips']
     if not len(tips):
         return 'no joint_states of the arm'
-    fig = _figure(1, height=6.0, width=6.5)
+    fig = Figure(figsize=(6.5, 6.0), dpi=DPI, layout='constrained')
+    FigureCanvasAgg(fig)
     ax = fig.add_subplot(projection='3d')
     ax.plot(tips[:, 0], tips[:, 1], tips[:, 2], color='k', linewidth=1.2, label='tip')
     ax.scatter(*tips[0], color='g', label='start')

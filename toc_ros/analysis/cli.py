@@ -117,36 +117,50 @@ def main(argv=None):
                       f'named {wanted} with their ROS 2 types; found: {found})')
     out_dir = os.path.abspath(args.out or default_out_dir(args.path))
     if is_arm_run(run):
-        return _arm_report(run, info, out_dir, warnings, warn, damaged)
-    try:
-        os.makedirs(out_dir, exist_ok=True)
-        report = analyse(run, info, warn)
-        report.summary['plots'] = draw_all(report, out_dir)
-        report.summary['warnings'] = warnings
-        text = json.dumps(report.summary, indent=2, allow_nan=False)
-        _write(os.path.join(out_dir, 'summary.json'), text + '\n')
-        _write(os.path.join(out_dir, 'summary.md'), markdown(report.summary))
-    except OSError as error:
-        return _error(f'cannot write the report to {out_dir}: {error.strerror or error}')
-    _print_summary(report.summary, out_dir)
+        summary = _write_report(out_dir, lambda: _arm_summary(run, info, warn, out_dir),
+                                arm_markdown, warnings)
+        if summary is None:
+            return EXIT_ERROR
+        print(arm_markdown(summary), end='')
+        print(f'report: {out_dir}')
+    else:
+        summary = _write_report(out_dir, lambda: _planar_summary(run, info, warn, out_dir),
+                                markdown, warnings)
+        if summary is None:
+            return EXIT_ERROR
+        _print_summary(summary, out_dir)
     return EXIT_DAMAGED if damaged else EXIT_OK
 
 
-def _arm_report(run, info, out_dir, warnings, warn, damaged):
-    """Write the report of a URDF-arm run (arm_run); return the exit code."""
+def _planar_summary(run, info, warn, out_dir):
+    report = analyse(run, info, warn)
+    report.summary['plots'] = draw_all(report, out_dir)
+    return report.summary
+
+
+def _arm_summary(run, info, warn, out_dir):
+    summary, series = analyse_arm(run, info, warn)
+    summary['plots'] = draw_arm(series, out_dir)
+    return summary
+
+
+def _write_report(out_dir, make_summary, to_markdown, warnings):
+    """
+    Write summary.json and summary.md of make_summary() (which draws the plots) to out_dir.
+
+    Returns the summary with the warnings, or None when the report cannot be written (said).
+    """
     try:
         os.makedirs(out_dir, exist_ok=True)
-        summary, series = analyse_arm(run, info, warn)
-        summary['plots'] = draw_arm(series, out_dir)
+        summary = make_summary()
         summary['warnings'] = warnings
         text = json.dumps(summary, indent=2, allow_nan=False)
         _write(os.path.join(out_dir, 'summary.json'), text + '\n')
-        _write(os.path.join(out_dir, 'summary.md'), arm_markdown(summary))
+        _write(os.path.join(out_dir, 'summary.md'), to_markdown(summary))
     except OSError as error:
-        return _error(f'cannot write the report to {out_dir}: {error.strerror or error}')
-    print(arm_markdown(summary), end='')
-    print(f'report: {out_dir}')
-    return EXIT_DAMAGED if damaged else EXIT_OK
+        _error(f'cannot write the report to {out_dir}: {error.strerror or error}')
+        return None
+    return summary
 
 
 def _print_summary(summary, out_dir):
