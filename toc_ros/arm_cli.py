@@ -85,6 +85,9 @@ def build_parser():
     p.add_argument('--N', type=int, default=100, metavar='N', help='intervals (default 100)')
     p.add_argument('--max-iterations', type=int, default=None, metavar='M')
     p.add_argument('--timeout', type=float, default=None, metavar='S')
+    p.add_argument('--initial-guess', metavar='RESULT.json',
+                   help='warm start from a result written by --json: its controls and final '
+                        'time, rolled out from --start (resampled to N)')
     p.add_argument('--json', metavar='PATH', help='write the result as JSON to PATH')
     p.add_argument('--quiet', action='store_true', help='no summary')
     return p
@@ -119,6 +122,18 @@ def build_arm_problem(args):
     return problem, options, arm
 
 
+def _guess(path):
+    """Return (controls, t_f) of a --json result file, None without one; ValueError: why."""
+    from toc_ros.core.result import guess_from_dict
+    if not path:
+        return None
+    try:
+        with open(path) as stream:
+            return guess_from_dict(json.load(stream))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f'--initial-guess {path}: {exc}') from None
+
+
 def main(argv):
     """Run toc-solve for an arm; return the exit code."""
     from toc_ros.core import SolveResult, Status
@@ -126,11 +141,12 @@ def main(argv):
     arm = None
     try:
         problem, options, arm = build_arm_problem(args)
-    except ValueError as exc:      # ArmError, ProblemError
+        guess = _guess(args.initial_guess)
+    except ValueError as exc:      # ArmError, ProblemError, an unusable --initial-guess
         result = SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode='fast',
                              integrator=args.integrator)
     else:
-        result = solve_interruptible(problem, options, None)
+        result = solve_interruptible(problem, options, None, guess)
     if result.status is Status.INVALID_INPUT:
         print(f'toc-solve: invalid problem: {result.message}', file=sys.stderr)
     elif not args.quiet:

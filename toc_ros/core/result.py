@@ -140,6 +140,10 @@ class SolveResult:
                     state['duals'][name] = duals[name][k:].copy()
             if 'rho' in duals:
                 state['duals']['rho'] = duals['rho']
+        if self.solver_state and 'arm_duals' in self.solver_state:
+            # A URDF arm's multipliers: arrays by node or interval, scalars kept.
+            state = {'arm_duals': {name: value[k:].copy() if np.ndim(value) else value
+                                   for name, value in self.solver_state['arm_duals'].items()}}
         return SolveResult(
             status=self.status, message=f'remainder from node {k} of a {self.status.value} '
             'trajectory', mode=self.mode, integrator=self.integrator, n_intervals=n - k,

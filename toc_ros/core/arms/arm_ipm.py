@@ -83,6 +83,12 @@ PROX_INIT = 1.0
 PROX_MAX = 1e8
 ACCEPT_ITERATIONS = 10
 ROUNDING = 10.0 * np.finfo(float).eps
+# How far (relative to the bound, at least absolute) a start point is pushed inside its bounds:
+# a cold start needs room to move; a warm start keeps its active bounds nearly active.
+COLD_PUSH = 1e-2
+# The multipliers a warm start takes over; every array's first axis is the plan's node or
+# interval (sliced alike by SolveResult.remainder).
+DUAL_NAMES = ('lam', 'z', 'zlx', 'zux', 'zlv', 'zuv', 'zlt', 'zut')
 
 
 class ArmIpmResult:
@@ -119,23 +125,29 @@ class ArmInteriorPoint:
         self._no_curvature = np.zeros((0, 0, 0))
 
     # Start point ---------------------------------------------------------------------------
-    def start(self, states, controls, t_f):
-        """Set the primal point, pushed strictly inside the bounds, and the duals."""
+    def start(self, states, controls, t_f, duals=None, push=COLD_PUSH):
+        """
+        Set the primal point, pushed strictly inside the bounds by push (relative), and duals.
+
+        duals (warm start: ArmIpmResult.duals() of a run on the same grid, e.g. the remainder
+        of a plan): its multipliers, re-centred for mu_init by IPOPT's kappa_sigma safeguard;
+        without them, every bound and sphere dual is mu / slack (a cold start).
+        """
         x = np.array(states, dtype=float)
         x[0], x[-1] = self.x0, self.x_goal
-        push = 1e-2 * np.maximum(1.0, np.abs(np.where(self.has_l, self.lx, 0.0)))
-        low = np.where(self.has_l, self.lx + np.minimum(push, 0.25 * (self.ux - self.lx)),
-                       -np.inf)
-        push = 1e-2 * np.maximum(1.0, np.abs(np.where(self.has_u, self.ux, 0.0)))
-        high = np.where(self.has_u, self.ux - np.minimum(push, 0.25 * (self.ux - self.lx)),
-                        np.inf)
+        room = 0.25 * (self.ux - self.lx)
+        step = push * np.maximum(1.0, np.abs(np.where(self.has_l, self.lx, 0.0)))
+        low = np.where(self.has_l, self.lx + np.minimum(step, room), -np.inf)
+        step = push * np.maximum(1.0, np.abs(np.where(self.has_u, self.ux, 0.0)))
+        high = np.where(self.has_u, self.ux - np.minimum(step, room), np.inf)
         x[1:-1] = np.clip(x[1:-1], low, high)
         self.x = x
-        self.v = np.clip(np.asarray(controls, dtype=float) / self.ev.effort, -0.99, 0.99)
+        self.v = np.clip(np.asarray(controls, dtype=float) / self.ev.effort,
+                         -1.0 + push, 1.0 - push)
         self.t = float(min(max(t_f, 10 * T_LOW), 0.5 * T_HIGH))
         self.mu = self.mu_init
         g = self.ev.clearances(self.x[1:-1, :self.n])
-        self.s = np.maximum(g, 1e-2)
+        self.s = np.maximum(g, push)
         self.z = self.mu / self.s
         self.lam = np.zeros((self.n_int + 1, self.nx))
         lo, hi = self._slacks(self.x, self.v, self.t)
@@ -143,12 +155,27 @@ class ArmInteriorPoint:
         self.zux = np.where(self.has_u, self.mu / hi[0], 0.0)
         self.zlv, self.zuv = self.mu / lo[1], self.mu / hi[1]
         self.zlt, self.zut = self.mu / lo[2], self.mu / hi[2]
+        self.prox = PROX_INIT
+        if duals is not None:
+            for name in DUAL_NAMES:
+                if name not in duals:
+                    continue        # e.g. the sphere duals after the obstacles changed
+                value = duals[name]
+                setattr(self, name, np.array(value, dtype=float) if np.ndim(value) else
+                        float(value))
+            self.prox = float(duals['prox'])
+            self._safeguard_duals()
         self.penalty = 1.0
         self.delta_last = 0.0
-        self.prox = PROX_INIT
         self.filter = []
         self.theta_max = None
         self.theta_min = None
+
+    def duals(self):
+        """Return the multipliers and the proximal weight (start(duals=...) of another run)."""
+        out = {name: np.copy(getattr(self, name)) for name in DUAL_NAMES}
+        out['prox'] = self.prox
+        return out
 
     def _slacks(self, x, v, t):
         """((x - lx, v + 1, T - T_LOW), (ux - x, 1 - v, T_HIGH - T)); inf where unbounded."""
@@ -295,8 +322,8 @@ class ArmInteriorPoint:
                 break
         return ArmIpmResult(status=status, x=self.x.copy(), v=self.v.copy(), t=self.t,
                             iterations=iteration, history=np.array(history).reshape(-1, 6),
-                            dual=dual, primal=primal, compl=compl, lam=self.lam.copy(),
-                            z=self.z.copy())
+                            dual=dual, primal=primal, compl=compl, duals=self.duals(),
+                            mu=self.mu)
 
     def _line_search(self, terms, values, grads, dx, dv, d_t, lam_qp):
         """Backtracking on the l1 merit; updates the iterate and duals; returns alpha."""

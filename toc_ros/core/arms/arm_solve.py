@@ -36,11 +36,11 @@ import time
 from typing import Optional
 
 import numpy as np
-import pinocchio as pin
 
 from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY
 from .arm_start import cold_start, cubic_path, detour_start, path_torques
+from .arm_warm import euler_rollout, UnusableGuess, warm_point
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
@@ -51,6 +51,17 @@ from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violation
 BOUND_TOL = 1e-9
 MAX_INTERVALS = 100000
 RETRY_SLOWDOWN = 1.5
+# Warm starts (arm_warm.py): at most WARM_BUDGET iterations before the cold start takes over;
+# every guess is pushed WARM_PUSH inside its bounds.  With its multipliers, a guess from
+# within WARM_EXACT [rad, rad/s] of the start begins at the last barrier parameter of a solve
+# (MU_WARM_EXACT = tol / 10), one the robot drifted from at MU_WARM_DRIFT (at 1e-9 or 1e-8
+# drifts of 0.01-0.03 rad failed on the Panda at N = 50 and fell back to the cold start; at
+# 1e-7 none did, RESULTS "Arms: warm replanning"); without them at the cold start's MU_INIT.
+WARM_BUDGET = 60
+WARM_EXACT = 1e-6
+MU_WARM_EXACT = 1e-9
+MU_WARM_DRIFT = 1e-7
+WARM_PUSH = 1e-6
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -154,15 +165,7 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
     arm = robot.arm
     n = arm.n
     controls = np.asarray(controls, dtype=float)
-    n_int = controls.shape[0]
-    h = t_f / n_int
-    data = arm.model.createData()
-    states = np.empty((n_int + 1, 2 * n))
-    states[0] = x0
-    for k in range(n_int):
-        q, dq = states[k, :n], states[k, n:]
-        acc = pin.aba(arm.model, data, q, dq, controls[k])
-        states[k + 1] = np.concatenate([q + h * dq, dq + h * acc])
+    states = euler_rollout(arm, x0, controls, t_f)
     q, dq = states[:, :n], states[:, n:]
     clearance = self_clear = math.inf
     if robot.spheres is not None:
@@ -203,39 +206,15 @@ def start_point(robot, evaluator, x0, x_goal, n_int):
     return states, torques, t_f, 'line'
 
 
-def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
-              hessian='none'):
-    """Solve an arm Problem in fast mode; never raises for bad input (INVALID_INPUT)."""
-    started = time.monotonic()
-    try:
-        if initial_guess is not None:
-            raise ArmError('warm starts (initial_guess) are not implemented for URDF arms')
-        robot, x0, xg, obstacles = check_arm_problem(problem, options)
-    except (ArmError, ValueError, TypeError) as exc:
-        return SolveResult(status=Status.INVALID_INPUT, message=str(exc),
-                           mode=str(getattr(options, 'mode', '')),
-                           integrator=str(getattr(problem, 'integrator', '')))
-    n_int = problem.n_intervals
-    evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int,
-                             robot.self_collision)
-    deadline = None if options.timeout is None else started + options.timeout
-    stop = {'why': None}
-
-    def should_stop():
-        if cancel is not None and cancel.is_set():
-            stop['why'] = Status.CANCELED
-        elif deadline is not None and time.monotonic() >= deadline:
-            stop['why'] = Status.TIMEOUT
-        return stop['why'] is not None
-
+def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
+    """(last run, iterations, Riccati time) from the cold start; runs gets a line per run."""
     # A run that fails (line search, numerics) is restarted once from the line start slowed
     # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start): a slower
     # start lies further inside the torque limits.  The restart also begins with IPOPT's
     # default barrier parameter (0.1) instead of the small first one (arm_ipm.py), the
     # setting that is slower but failed on other cases.
     states, torques, t_f, start_name = start_point(robot, evaluator, x0, xg, n_int)
-    budget = options.iteration_limit()
-    iterations, linalg_time, runs = 0, 0.0, []
+    iterations, linalg_time = 0, 0.0
     for attempt in range(2):
         ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian,
                                mu_init=MU_INIT_RETRY if attempt else MU_INIT)
@@ -249,6 +228,62 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
         states, torques = slowed(robot.arm, x0, xg, n_int, RETRY_SLOWDOWN * t_f)
         t_f, start_name = RETRY_SLOWDOWN * t_f, f'line x{RETRY_SLOWDOWN:g}'
+    return run, iterations, linalg_time
+
+
+def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
+              hessian='none'):
+    """Solve an arm Problem in fast mode; never raises for bad input (INVALID_INPUT)."""
+    started = time.monotonic()
+    unusable = ''
+    try:
+        robot, x0, xg, obstacles = check_arm_problem(problem, options)
+        n_int = problem.n_intervals
+        evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int,
+                                 robot.self_collision)
+        warm = None if initial_guess is None else warm_point(
+            robot.arm, x0, initial_guess, n_int, evaluator.n_pairs)
+    except UnusableGuess as exc:
+        warm, unusable = None, f'initial guess not used: {exc}'
+    except (ArmError, ValueError, TypeError) as exc:
+        return SolveResult(status=Status.INVALID_INPUT, message=str(exc),
+                           mode=str(getattr(options, 'mode', '')),
+                           integrator=str(getattr(problem, 'integrator', '')))
+    deadline = None if options.timeout is None else started + options.timeout
+    stop = {'why': None}
+
+    def should_stop():
+        if cancel is not None and cancel.is_set():
+            stop['why'] = Status.CANCELED
+        elif deadline is not None and time.monotonic() >= deadline:
+            stop['why'] = Status.TIMEOUT
+        return stop['why'] is not None
+
+    budget = options.iteration_limit()
+    iterations, linalg_time = 0, 0.0
+    runs = [unusable] if unusable else []
+    run = None
+    if warm is not None:
+        # A guess on this grid with its multipliers continues near the end of the barrier
+        # path; any other guess restarts it with the cold start's parameter but keeps its
+        # active bounds nearly active.
+        states, torques, t_f, duals, drift = warm
+        mu = MU_INIT if duals is None else (MU_WARM_EXACT if drift <= WARM_EXACT
+                                            else MU_WARM_DRIFT)
+        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian, mu_init=mu)
+        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH)
+        run = ipm.run(min(budget, WARM_BUDGET), should_stop)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        runs.append(f'warm start{" with multipliers" if duals else ""}: {run.status} after '
+                    f'{run.iterations} iterations')
+    if run is None or (run.status not in ('converged', 'acceptable', 'stopped')
+                       and iterations < budget):
+        # A poor guess is solved from scratch rather than reported as a failure.
+        run, cold_iterations, cold_linalg = _cold_runs(
+            robot, evaluator, x0, xg, n_int, hessian, budget - iterations, should_stop, runs)
+        iterations += cold_iterations
+        linalg_time += cold_linalg
     controls = run.v * robot.arm.effort[None, :]
     states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles,
                                      problem.margin)
@@ -275,7 +310,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
                          n_intervals=n_int, final_time=float(run.t), states=states,
                          controls=controls, iterations=iterations, history=history,
                          violations=violations, cost=float(run.t),
-                         solver_state={'start': start_name, 'ipm_status': run.status,
+                         solver_state={'start': runs[-1].split(':')[0],
+                                       'ipm_status': run.status, 'arm_duals': run.duals,
                                        'pin_calls': evaluator.pin_calls,
                                        'pin_time_s': evaluator.pin_time,
                                        'linalg_time_s': linalg_time})

@@ -1,0 +1,175 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Warm starts of the URDF-arm solver.
+
+A plan's remainder (with its multipliers) from the state the robot reached, a (controls, t_f)
+pair, a guess on another grid, and guesses that are bad.
+
+A warm solve must end where a cold solve of the same problem ends (the same optimum), and
+every result is re-checked independently (toc_ros/bench/arm_check.py: Pinocchio's own URDF
+parser, the controls re-integrated from the problem's start, every limit and clearance at
+every node).
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pin = pytest.importorskip('pinocchio')
+
+from test_arm_solve import _problem, DATA, MARGIN, SCENARIOS  # noqa: E402, I100
+from toc_ros.core import solve, SolveResult, Status  # noqa: E402, I100
+from toc_ros.core.arms import load_arm  # noqa: E402
+
+
+@pytest.fixture(scope='module')
+def panda_plan():
+    """Return a cold Panda plan around one sphere (N = 60) and its problem."""
+    problem = _problem('panda', 60)
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    return problem, result
+
+
+def _check(problem, result):
+    """Re-measure result from problem's start with the independent checker."""
+    from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
+    from toc_ros.bench.arm_problem import ArmSpec
+    arm = load_arm('panda')
+    spec = ArmSpec(urdf=example_robot_urdf('panda'), joints=arm.joint_names,
+                   start=tuple(problem.x0), goal=tuple(problem.x_goal),
+                   obstacles=tuple(problem.obstacles),
+                   robot_spheres=str(DATA / 'arm_spheres_panda.yaml'), margin=MARGIN)
+    check = check_trajectory(spec, result.final_time, result.controls, 'euler', result.states)
+    assert check['terminal_error'] < 1e-6
+    assert check['defect'] < 1e-9
+    assert check['max_position_excess'] <= 1e-9
+    assert check['max_velocity_excess'] <= 1e-9
+    assert check['max_effort_excess'] == 0.0
+    assert check['min_clearance'] >= -1e-6
+
+
+def _from(problem, state, n_int):
+    return dataclasses.replace(problem, x0=tuple(state), n_intervals=n_int)
+
+
+@pytest.mark.parametrize('drift', [0.0, 1e-3])
+def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(panda_plan,
+                                                                               drift):
+    problem, plan = panda_plan
+    rest = plan.remainder(0.3 * plan.final_time)
+    n = 7
+    state = rest.states[0].copy()
+    state[:n] += drift                    # where the robot is, off the plan by drift
+    state[n:] *= 1.0 - drift
+    replan = _from(problem, state, rest.controls.shape[0])
+    cold = solve(replan)
+    warm = solve(replan, initial_guess=rest)
+    assert cold.status is Status.SOLVED and warm.status is Status.SOLVED, warm.message
+    assert 'warm start with multipliers' in warm.message
+    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-6)
+    # The remainder is nearly optimal: far fewer Newton steps than from the cold start.
+    assert warm.iterations <= cold.iterations // 2, (warm.iterations, cold.iterations)
+    _check(replan, warm)
+
+
+def test_remainder_slices_the_arm_multipliers_with_the_plan(panda_plan):
+    _, plan = panda_plan
+    full = plan.solver_state['arm_duals']
+    rest = plan.remainder(0.3 * plan.final_time)
+    k = plan.controls.shape[0] - rest.controls.shape[0]
+    duals = rest.solver_state['arm_duals']
+    assert duals['lam'].shape == (rest.controls.shape[0] + 1, 14)
+    assert duals['zlv'].shape == rest.controls.shape
+    np.testing.assert_array_equal(duals['z'], full['z'][k:])
+    assert duals['zlt'] == full['zlt'] and duals['prox'] == full['prox']
+
+
+def test_a_controls_pair_and_another_grid_are_warm_starts_without_multipliers(panda_plan):
+    problem, plan = panda_plan
+    cold = solve(_problem('panda', 80))
+    for guess in ((plan.controls, plan.final_time), plan):      # 60 intervals for 80
+        warm = solve(_problem('panda', 80), initial_guess=guess)
+        assert warm.status is Status.SOLVED, warm.message
+        assert warm.message.startswith('warm start:')
+        assert warm.final_time == pytest.approx(cold.final_time, rel=1e-6)
+    same = solve(problem, initial_guess=(plan.controls, plan.final_time))
+    assert same.status is Status.SOLVED and same.final_time == pytest.approx(
+        plan.final_time, rel=1e-6)
+    _check(problem, same)
+
+
+def test_a_poor_guess_falls_back_to_the_cold_start(panda_plan):
+    problem, plan = panda_plan
+    # No torques at all: the arm sags under gravity, far from the goal; the warm run fails.
+    result = solve(problem, initial_guess=(np.zeros_like(plan.controls), 0.5))
+    assert result.status is Status.SOLVED, result.message
+    assert result.message.startswith('warm start: line_search_failed')
+    assert result.final_time == pytest.approx(plan.final_time, rel=1e-6)
+    _check(problem, result)
+    # Torques that make the rollout diverge give no start point at all: the cold start.
+    result = solve(problem, initial_guess=(np.full_like(plan.controls, 50.0), 1.0))
+    assert result.status is Status.SOLVED, result.message
+    assert result.message.startswith(
+        'initial guess not used: its controls make the state diverge; ')
+    assert result.final_time == plan.final_time
+
+
+def test_a_changed_obstacle_set_keeps_the_other_multipliers(panda_plan):
+    problem, plan = panda_plan
+    rest = plan.remainder(0.3 * plan.final_time)
+    more = SCENARIOS['panda'][2] + ((0.0, 0.6, 1.2, 0.05),)
+    replan = dataclasses.replace(_from(problem, rest.states[0], rest.controls.shape[0]),
+                                 obstacles=more)
+    warm = solve(replan, initial_guess=rest)
+    cold = solve(replan)
+    assert warm.status is Status.SOLVED, warm.message
+    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-6)
+
+
+@pytest.mark.parametrize('guess, reason', [
+    ('controls', 'SolveResult or a pair'),
+    ((np.zeros((10, 3)), 1.0), 'M x 7'),
+    ((np.full((10, 7), np.nan), 1.0), 'finite controls'),
+    ((np.zeros((10, 7)), -1.0), 'positive final time'),
+    ((np.zeros((10, 7)), 'x'), 'must be numbers'),
+    (SolveResult(status=Status.STALLED, message='no trajectory'), 'M x 7'),
+])
+def test_bad_guesses_are_invalid_input_with_the_reason(guess, reason):
+    result = solve(_problem('panda', 20), initial_guess=guess)
+    assert result.status is Status.INVALID_INPUT
+    assert reason in result.message
+
+
+def test_cli_warm_starts_from_a_result_file(tmp_path, capsys):
+    import json
+    from toc_ros.solve import main
+    start, goal, obs = SCENARIOS['panda']
+    common = ['--model', 'panda', '--collision-spheres', str(DATA / 'arm_spheres_panda.yaml'),
+              '--start', *map(str, start), '--goal', *map(str, goal),
+              '--sphere', *map(str, obs[0]), '--margin', str(MARGIN), '--quiet']
+    first, second = tmp_path / 'a.json', tmp_path / 'b.json'
+    assert main(common + ['--N', '40', '--json', str(first)]) == 0
+    assert main(common + ['--N', '50', '--initial-guess', str(first), '--json',
+                          str(second)]) == 0
+    data = json.loads(second.read_text())
+    assert data['status'] == 'SOLVED' and data['message'].startswith('warm start:')
+    assert data['final_time'] == pytest.approx(
+        solve(_problem('panda', 50)).final_time, rel=1e-6)
+    (tmp_path / 'bad.json').write_text('{"controls": []}')
+    assert main(common + ['--N', '50', '--initial-guess', str(tmp_path / 'bad.json')]) == 4
+    assert 'has no trajectory' in capsys.readouterr().err
