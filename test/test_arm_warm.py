@@ -173,3 +173,39 @@ def test_cli_warm_starts_from_a_result_file(tmp_path, capsys):
     (tmp_path / 'bad.json').write_text('{"controls": []}')
     assert main(common + ['--N', '50', '--initial-guess', str(tmp_path / 'bad.json')]) == 4
     assert 'has no trajectory' in capsys.readouterr().err
+
+
+def test_a_start_a_little_past_a_velocity_limit_is_planned_back_within_it(panda_plan):
+    # A measured state the tracking carried 5 % past joint 1's limit: the plan starts there
+    # and keeps every limit from node 1 on; 20 % past it is refused with the reason.
+    problem, plan = panda_plan
+    arm = load_arm('panda')
+    rest = plan.remainder(0.3 * plan.final_time)
+    fast = rest.states[0].copy()
+    joint = int(np.argmax(np.abs(fast[7:]) / arm.velocity))
+    for factor, solved in ((1.05, True), (1.2, False)):
+        fast[7 + joint] = np.sign(fast[7 + joint]) * factor * arm.velocity[joint]
+        replan = _from(problem, fast, rest.controls.shape[0])
+        result = solve(replan, initial_guess=rest)
+        if solved:
+            assert result.status is Status.SOLVED, result.message
+            assert np.all(np.abs(result.states[1:, 7:]) <= arm.velocity + 1e-9)
+            assert result.violations.max_velocity_excess == 0.0
+            _check_from_node_1(replan, result, arm)
+        else:
+            assert result.status is Status.INVALID_INPUT
+            assert 'exceeds its limit' in result.message and '+10 % allowed' in result.message
+
+
+def _check_from_node_1(problem, result, arm):
+    """Re-check independently, leaving out the start's own velocity excess."""
+    from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
+    from toc_ros.bench.arm_problem import ArmSpec
+    spec = ArmSpec(urdf=example_robot_urdf('panda'), joints=arm.joint_names,
+                   start=tuple(problem.x0), goal=tuple(problem.x_goal),
+                   obstacles=tuple(problem.obstacles),
+                   robot_spheres=str(DATA / 'arm_spheres_panda.yaml'), margin=MARGIN)
+    check = check_trajectory(spec, result.final_time, result.controls, 'euler', result.states)
+    assert check['terminal_error'] < 1e-6 and check['defect'] < 1e-9
+    assert np.all(np.abs(check['states'][1:, 7:]) <= arm.velocity + 1e-9)
+    assert check['max_effort_excess'] == 0.0 and check['min_clearance'] >= -1e-6

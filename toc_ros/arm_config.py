@@ -242,7 +242,7 @@ def arm_errors(params, model):
                       'limits: robot.joint_limits)')
     if params.get('replan.estimate'):
         errors.append('replan.estimate: online estimation is not implemented for URDF arms '
-                      '(replan cycles are off for arms)')
+                      '(their replan cycles plan with the URDF inertials)')
     if not str(params['base_frame']).strip('/'):
         errors.append('base_frame must not be empty')
     count, limit = len(params.get(SPHERES, ())), int(params['obstacles.max_count'])

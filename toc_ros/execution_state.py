@@ -121,8 +121,11 @@ class ExecutionState:
         """Keep a late cycle's plan: the next cycle for the same executing plan starts there."""
         with self.lock:
             if self.executing is plan:
+                # An arm's plans carry the node's arm model (the problem's is the core's).
+                model = plan.model if getattr(plan.model, 'is_arm', False) \
+                    else problem.robot_model
                 self.seed = Seed(plan, result, np.asarray(result.time_grid),
-                                 np.asarray(result.states), problem.robot_model)
+                                 np.asarray(result.states), model)
 
     def cycle_taken(self, received, rate):
         """Record that a regular cycle started from a state received at received [s]."""

@@ -70,6 +70,19 @@ def recovery_params(config, start):
     return None if margin is None else dict(config.flat, **{'obstacles.margin': margin})
 
 
+def cycle_base_problem(config, start, goal):
+    """
+    Return (problem, recovery parameters or None) of a replan cycle from start to goal.
+
+    A planar start inside the obstacle margin plans with the recovery margin (recovery_params);
+    an arm's start is checked by the arm solver like a goal's (inside the margin: refused).
+    """
+    if config.is_arm:
+        return arm_goals.goal_problem(config, start, goal), None
+    recovery = recovery_params(config, start)
+    return problem_from_parameters(recovery or config.flat, x0=start, x_goal=goal), recovery
+
+
 def plan_violation(plan, config, elapsed):
     """Return what the rest of an executing plan violates under config, or None."""
     if config.is_arm:

@@ -40,8 +40,8 @@ import time
 
 import numpy as np
 
-from toc_ros import arm_config, conversions, goal_requests as goals, progress as schema
-from toc_ros.arm_goals import braking_plan as arm_braking_plan
+from toc_ros import arm_config, arm_goals, conversions, goal_requests as goals
+from toc_ros import progress as schema
 from toc_ros.config import problem_from_parameters
 from toc_ros.core import ProblemError, Progress, solve, Status
 from toc_ros.core import replan_policy as policy
@@ -221,7 +221,7 @@ class Planner:
         measured = policy.state_now(plan, port.snapshot()[1], port.measured_time(), now)
         names = config.frames.joint_names
         if getattr(plan.model, 'is_arm', False):
-            braking = arm_braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
+            braking = arm_goals.braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
         else:
             braking = braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
         if braking is None:
@@ -380,8 +380,9 @@ class Planner:
                 current = port.settings()
                 if request.cycle is None or goals.plan_violation(plan, current, 0.0):
                     return False
-                problem = problem_from_parameters(current.flat, x0=problem.x0,
-                                                  x_goal=problem.x_goal)
+                problem = (arm_goals.goal_problem(current, problem.x0, problem.x_goal)
+                           if current.is_arm else problem_from_parameters(
+                               current.flat, x0=problem.x0, x_goal=problem.x_goal))
                 revision = plans.revision
             port.publish_trajectory(trajectory)
             request.published_at = time.monotonic()
@@ -448,9 +449,7 @@ class Planner:
             # A start the plant carried inside the margin (it did not follow the plan) plans
             # out of there with part of its true clearance as the margin (as the replan after a
             # stop): keeping the plan it is not following would carry it on into the circle.
-            recovery = goals.recovery_params(config, cycle.start)
-            problem = problem_from_parameters(recovery or config.flat, x0=cycle.start,
-                                              x_goal=plan.goal)
+            problem, recovery = goals.cycle_base_problem(config, cycle.start, plan.goal)
             if estimated is not None:
                 problem = problem.with_model(estimated)
             # Published only by its deadline (its lead after its joint_states arrived): the

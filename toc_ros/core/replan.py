@@ -61,6 +61,8 @@ def predict(model, x, times, controls, t0, t1):
     the plan the control is zero (the tracker holds the end).  t1 <= t0 returns x.
     """
     x = np.ascontiguousarray(x, dtype=float)
+    if getattr(model, 'is_arm', False):
+        return _predict_arm(model.arm, x, times, controls, t0, t1)
     span = float(t1) - float(t0)
     if not span > 0.0:
         return x.copy()
@@ -71,6 +73,35 @@ def predict(model, x, times, controls, t0, t1):
     states = np.empty((steps + 1, model.nx))
     model.kernels.rollout(x, np.ascontiguousarray(u), dt, model.packed(), RK4, states)
     return states[-1].copy()
+
+
+def _predict_arm(arm, x, times, controls, t0, t1):
+    """
+    Return predict()'s state for a URDF arm (x = (q, dq); pinocchio.aba, RK4 steps).
+
+    After the plan's end the tracker holds its end (an arm without torque would fall): the
+    prediction stops there.
+    """
+    import pinocchio as pin
+    span = min(float(t1), float(times[-1])) - float(t0)
+    if not span > 0.0:
+        return x.copy()
+    steps = max(1, math.ceil(span / PREDICT_STEP_S))
+    dt = span / steps
+    u = controls_at(times, controls, float(t0) + dt * (np.arange(steps) + 0.5))
+    model, n = arm.model, arm.n
+    data = model.createData()
+
+    def rate(state, control):
+        return np.concatenate([state[n:], pin.aba(model, data, state[:n], state[n:], control)])
+
+    for control in u:
+        k1 = rate(x, control)
+        k2 = rate(x + 0.5 * dt * k1, control)
+        k3 = rate(x + 0.5 * dt * k2, control)
+        k4 = rate(x + dt * k3, control)
+        x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
 
 
 def brake(model, x, dt):

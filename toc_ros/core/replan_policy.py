@@ -215,8 +215,11 @@ def next_cycle(plan, state, t, now, received, lead, settings, next_due, revision
         return None
     start_at, stamp = timing
     start = predict(plan.model, state, plan.times, plan.controls, measured_at, start_at)
+    # URDF arms are planned with explicit Euler only (their solver): the goal's integrator.
+    integrator = '' if getattr(plan.model, 'is_arm', False) else getattr(
+        settings, 'replan_integrator', '')
     return Cycle(plan, start, stamp, received, t, deviation, reason, revision, received + lead,
-                 getattr(settings, 'replan_integrator', ''))
+                 integrator)
 
 
 def cycle_problem(source, cycle, problem, max_nodes, options, now):
@@ -235,7 +238,8 @@ def cycle_problem(source, cycle, problem, max_nodes, options, now):
         return None, None, f'only {guess.controls.shape[0]} plan nodes left'
     problem = dataclasses.replace(
         problem, integrator=cycle.integrator or problem.integrator, n_intervals=cycle_nodes(
-            guess.controls.shape[0], max_nodes, guess.final_time, problem.robot_model.max_step))
+            guess.controls.shape[0], max_nodes, guess.final_time,
+            getattr(problem.robot_model, 'max_step', math.inf)))
     options = dataclasses.replace(options, timeout=cycle_timeout(
         cycle.deadline, now, options.timeout))
     return problem, options, guess

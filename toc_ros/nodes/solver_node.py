@@ -170,13 +170,6 @@ class SolverNode(Node):
     def _on_kernels_loaded(self, elapsed):
         self.get_logger().info(f'numba kernels loaded in {elapsed:.2f} s')
         config = self.settings()
-        if config.is_arm and config.node.replan_rate > 0.0:
-            note = (f'replan.rate {config.node.replan_rate:g} Hz: no replan cycles for URDF '
-                    'arms (their solver has no warm start, a cold solve takes longer than a '
-                    'cycle); each goal is planned once, new obstacles stop and replan it')
-            self.get_logger().warning(note)
-            self.report(schema.ProgressReport(message=note, level=schema.DiagnosticStatus.WARN,
-                                              event=schema.EVENT_IDLE))
         self.report(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
             event=schema.EVENT_READY, **config.model_keys()))

@@ -73,10 +73,10 @@ class SolverNodeConfig:
         """
         Tell whether replan cycles run while a plan executes (fast mode, rate > 0).
 
-        Never for URDF arms: their solver has no warm start, and a cold solve takes longer
-        than a cycle's lead (the node says so when replan.rate > 0).
+        URDF arms too: their cycles warm-start from the executing plan's remainder and its
+        multipliers like the planar models' (always Euler, the arm solver's discretisation).
         """
-        return self.node.replan_rate > 0.0 and self.options.mode == 'fast' and not self.is_arm
+        return self.node.replan_rate > 0.0 and self.options.mode == 'fast'
 
     @property
     def is_arm(self):

@@ -27,7 +27,8 @@ checked for it too); otherwise it is only reported (self_clearance), outside the
 
 The returned states are the controls re-integrated with pinocchio.aba (explicit Euler, the
 same h = t_f / N) from x0; every limit and clearance is measured on them at every node
-k = 0..N (ArmViolations).
+k = 0..N (ArmViolations), the velocities from node 1 on (the start's are given, and may
+exceed their limits by START_VELOCITY_SLACK).
 """
 
 import dataclasses
@@ -51,6 +52,11 @@ from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violation
 BOUND_TOL = 1e-9
 MAX_INTERVALS = 100000
 RETRY_SLOWDOWN = 1.5
+# A start may exceed a velocity limit by this fraction: a measured state that the tracking
+# carried past a limit the plan rides (replanning from it must be possible); the plan keeps
+# every limit from node 1 on when the efforts can slow the joint down that fast (else the
+# solve fails).  A goal keeps the limits exactly.
+START_VELOCITY_SLACK = 0.1
 # Warm starts (arm_warm.py): at most WARM_BUDGET iterations before the cold start takes over;
 # every guess is pushed WARM_PUSH inside its bounds.  With its multipliers, a guess from
 # within WARM_EXACT [rad, rad/s] of the start begins at the last barrier parameter of a solve
@@ -92,7 +98,7 @@ class ArmViolations(Violations):
     """Violations of an arm trajectory (every node k = 0..N of the re-integrated states)."""
 
     max_position_excess: float = math.inf   # max(q - upper, lower - q, 0)
-    max_velocity_excess: float = math.inf   # max(|dq| - velocity, 0)
+    max_velocity_excess: float = math.inf   # max(|dq| - velocity, 0), nodes 1..N
     self_clearance: float = math.inf        # worst self-collision clearance
     self_constrained: bool = False          # self_clearance is part of the SOLVED test
 
@@ -153,10 +159,11 @@ def check_arm_problem(problem, options):
         raise ArmError("obstacles need the arm's collision spheres (give a sphere file)")
     x0 = _state(arm, problem.x0, 'start')
     xg = _state(arm, problem.x_goal, 'goal')
-    for x, what in ((x0, 'start'), (xg, 'goal')):
+    for x, what, slack in ((x0, 'start', START_VELOCITY_SLACK), (xg, 'goal', 0.0)):
         check_state(arm, x[:arm.n], x[arm.n:], what,
                     robot.spheres if len(obstacles) or robot.self_collision else None,
-                    obstacles, margin, self_collision=robot.self_collision)
+                    obstacles, margin, self_collision=robot.self_collision,
+                    velocity_slack=slack)
     return robot, x0, xg, obstacles
 
 
@@ -186,7 +193,7 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
         max_control_excess=max(float(np.max(np.abs(controls) - arm.effort)), 0.0),
         terminal_error=float(np.linalg.norm(states[-1] - x_goal)),
         min_clearance=clearance, max_position_excess=pos,
-        max_velocity_excess=max(float(np.max(np.abs(dq) - arm.velocity)), 0.0),
+        max_velocity_excess=max(float(np.max(np.abs(dq[1:]) - arm.velocity)), 0.0),
         self_clearance=self_clear, self_constrained=robot.self_collision)
 
 

@@ -37,12 +37,13 @@ def joint_vector(arm, values, what):
 
 
 def check_state(arm, q, v=None, what='start', spheres=None, obstacles=None, margin=0.0,
-                self_collision=True):
+                self_collision=True, velocity_slack=0.0):
     """
     Return (q, v) as float vectors after checking them; ArmError with the reason otherwise.
 
-    q within [lower, upper], |v| <= velocity (v default zeros), and, with spheres, no sphere
-    closer than margin to an obstacle nor (self_collision) two non-adjacent links touching.
+    q within [lower, upper], |v| <= (1 + velocity_slack) velocity (v default zeros), and,
+    with spheres, no sphere closer than margin to an obstacle nor (self_collision) two
+    non-adjacent links touching.
     """
     q = joint_vector(arm, q, f'{what} positions')
     v = np.zeros(arm.n) if v is None else joint_vector(arm, v, f'{what} velocities')
@@ -50,9 +51,10 @@ def check_state(arm, q, v=None, what='start', spheres=None, obstacles=None, marg
         if not arm.lower[i] <= q[i] <= arm.upper[i]:
             raise ArmError(f'{what}: {name} = {q[i]:.6g} is outside its limits '
                            f'[{arm.lower[i]:.6g}, {arm.upper[i]:.6g}]')
-        if abs(v[i]) > arm.velocity[i]:
+        if abs(v[i]) > (1.0 + velocity_slack) * arm.velocity[i]:
+            allowed = f' (+{100 * velocity_slack:g} % allowed)' if velocity_slack else ''
             raise ArmError(f'{what}: {name} velocity {v[i]:.6g} exceeds its limit '
-                           f'{arm.velocity[i]:.6g}')
+                           f'{arm.velocity[i]:.6g}{allowed}')
     if spheres is not None:
         collision = worst_collision(arm, spheres, q, obstacles, margin, self_collision)
         if collision is not None:
