@@ -630,7 +630,16 @@ def test_the_rest_of_a_braking_stop_is_a_goals_start_only_while_the_stop_execute
     np.testing.assert_array_equal(rest[0], stop.states[-1])
     assert rest[1] == pytest.approx(10.5 + stop.times[-1])
     assert policy.braking_rest_start(moving, 10.5, 4) is None          # not a stop
-    assert policy.braking_rest_start(stop, 10.5 + stop.times[-1] + 1e-6, 4) is None   # ended
+    ended = 10.5 + stop.times[-1] + 1e-6
+    assert policy.braking_rest_start(stop, ended, 4) is None   # ended, no measured state
+    # Ended, the robot still moving near its held end (overshot and pulled back): the rest,
+    # from now; at rest there: its measured state is the start.
+    moving_near = stop.states[-1] + np.array([0.01, 0.05, 0.0, 0.0])
+    rest = policy.braking_rest_start(stop, ended, 4, moving_near, ended)
+    assert rest is not None and rest[1] == ended
+    np.testing.assert_array_equal(rest[0], stop.states[-1])
+    resting = stop.states[-1] + np.array([0.01, 0.0, 0.0, 0.0])
+    assert policy.braking_rest_start(stop, ended, 4, resting, ended) is None
     assert policy.braking_rest_start(stop, 10.5, 6) is None            # another model
     assert policy.braking_rest_start(None, 10.5, 4) is None
     # Measured on the stop: its rest; measured far off it (a reset plant): none.

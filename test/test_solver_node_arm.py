@@ -57,6 +57,16 @@ TIMEOUT = 300.0
 
 @pytest.fixture(scope='module')
 def panda(tmp_path_factory):
+    yield from _panda_node(tmp_path_factory)
+
+
+@pytest.fixture()
+def own_panda(tmp_path_factory):
+    """Start a node of its own: for a test that leaves a measured state (others plan from Q0)."""
+    yield from _panda_node(tmp_path_factory)
+
+
+def _panda_node(tmp_path_factory):
     client = RosClient()
     node = NodeProcess('solver_node', client.namespace, tmp_path_factory.mktemp('arm'),
                        PARAMS)
@@ -383,10 +393,8 @@ def test_obstacle_change_during_a_solve_restarts_it(panda):
     clear_obstacles(panda)
 
 
-def test_cancel_goal_brakes_from_the_measured_state(panda):
-    """Last: from here on the node has a measured state (the others plan from initial_state)."""
-    settle(panda)
-    clear_obstacles(panda)
+def test_cancel_goal_brakes_from_the_measured_state(own_panda):
+    panda = own_panda
     since = time.monotonic()
     panda.goal_joints.publish(JointState(name=PANDA_JOINTS, position=Q_FAR))
     plan = plan_after(panda, since, Q_FAR)

@@ -467,14 +467,20 @@ def braking_rest_start(plan, now, nx, measured=None, measured_time=None):
     solve takes (on a loaded machine, hundreds of milliseconds of braking later).  The stop's
     rest is where the plant will be, as long as the robot follows the stop: None when a
     measured state (at measured_time) is more than BRAKING_FOLLOW_TOL off it (a plant reset,
-    a robot moved by hand), and when plan is no braking stop, it has ended, or its state is not
-    of size nx (another model).
+    a robot moved by hand), and when plan is no braking stop or its state is not of size nx
+    (another model).  After the stop's end the robot may still be moving (a short stop the
+    controller overshot and now pulls back to its held end): the rest holds, from now, until a
+    measured state is at rest (then that is the start) or none is known.
     """
-    if plan is None or not plan.braking or plan.elapsed(now) >= plan.duration \
-            or plan.states.shape[1] != nx:
+    if plan is None or not plan.braking or plan.states.shape[1] != nx:
         return None
-    if measured is not None and np.shape(measured) == (nx,) and measured_time is not None:
-        if plan.deviation(measured, plan.elapsed(state_time(measured_time, now))) \
-                > BRAKING_FOLLOW_TOL:
-            return None
-    return np.array(plan.states[-1], dtype=float), plan.start + plan.duration
+    known = measured is not None and np.shape(measured) == (nx,) and measured_time is not None
+    if known and plan.deviation(measured, plan.elapsed(state_time(measured_time, now))) \
+            > BRAKING_FOLLOW_TOL:
+        return None
+    rest = np.array(plan.states[-1], dtype=float)
+    if plan.elapsed(now) < plan.duration:
+        return rest, plan.start + plan.duration
+    if not known or at_rest(plan.model, measured):
+        return None
+    return rest, float(now)

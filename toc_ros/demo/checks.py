@@ -68,3 +68,13 @@ def success(summary, stages):
         p.get('status') == Status.SOLVED.value and p.get('reached') for p in plans)
         and summary.get('error') is None
         and all(code == 0 for code in summary.get('exit_codes', {None: 1}).values()))
+
+
+def arm_success(summary, stages):
+    """Return the arm demo's verdict: every goal reached and clear of the spheres, clean exit."""
+    done = summary.get('arm_stages', [])
+    return (len(done) == stages and all(
+        s.get('status') == Status.SOLVED.value and s.get('reached')
+        and s.get('min_clearance', -1.0) >= 0.0 for s in done)
+        and summary.get('error') is None
+        and all(code == 0 for code in summary.get('exit_codes', {None: 1}).values()))

@@ -25,6 +25,7 @@ import tempfile
 import time
 
 from toc_ros.demo import checks
+from toc_ros.demo.panda import PandaDemo
 from toc_ros.demo.run import Demo, DemoError, Printer, SCENARIOS
 from toc_ros.demo.summary import format_summary
 from toc_ros.recording.process import default_output_dir
@@ -51,10 +52,12 @@ def parse_args(argv):
                         help='give up after S seconds (default %(default)g; the first run '
                              'compiles the numba kernels for about a minute)')
     parser.add_argument('--quiet', action='store_true', help='print the summary only')
-    parser.add_argument('--model', choices=sorted(SCENARIOS), default='cylindrical',
-                        help="robot model of the demo: 'cylindrical' (the paper's scenario, "
-                             "config/toc_ros.yaml) or 'planar_2r' (config/toc_ros_planar_2r.yaml)"
-                             '; default %(default)s')
+    parser.add_argument('--model', '--robot', choices=sorted(SCENARIOS) + ['panda'],
+                        default='cylindrical',
+                        help="robot of the demo: 'cylindrical' (the paper's scenario, "
+                             "config/toc_ros.yaml), 'planar_2r' (config/toc_ros_planar_2r.yaml) "
+                             "or 'panda' (config/panda.yaml: three goals around two spheres on "
+                             'MuJoCo); default %(default)s')
     parser.add_argument('--no-closed-loop', dest='closed_loop', action='store_false',
                         help='skip the closed-loop stage (cylindrical model: model mismatch '
                              'and a moving circle, open loop against replanning)')
@@ -85,14 +88,18 @@ def main(argv=None):
                   f"{os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}")
     previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)}
     log_dir = tempfile.mkdtemp(prefix='toc-demo-')
-    demo = Demo(args, printer)
+    arm = args.model == 'panda'
+    demo = PandaDemo(args, printer) if arm else Demo(args, printer)
     code = 1
     try:
         try:
             demo.start(log_dir)
             demo.wait_ready()
-            for number, stage in enumerate(demo.stages, 1):
-                demo.run_stage(number, stage)
+            if arm:
+                demo.run()
+            else:
+                for number, stage in enumerate(demo.stages, 1):
+                    demo.run_stage(number, stage)
             if demo.closed_loop and args.closed_loop:
                 demo.run_closed_loop()
             demo.summarize_replanning()
@@ -111,7 +118,8 @@ def main(argv=None):
             signal.signal(sig, handler)
     summary = demo.summary
     summary['wall_time_s'] = time.monotonic() - printer.start
-    summary['success'] = checks.success(summary, len(demo.stages))
+    summary['success'] = (checks.arm_success if arm else checks.success)(summary,
+                                                                         len(demo.stages))
     if args.output is not None:
         os.makedirs(args.output, exist_ok=True)
         logs = os.path.join(args.output, 'logs')

@@ -36,6 +36,8 @@ def format_summary(summary):
     lines = ['', 'toc-demo summary']
     tol = summary['position_tolerance']
     u1, u2 = summary.get('joint_units') or ('rad', 'm')
+    if 'arm_stages' in summary:
+        lines += _arm_lines(summary)
     for k, plan in enumerate(summary['plans'], 1):
         q = plan['goal_q']
         lines.append(f"  plan {k} ({plan['label']}) to q = ({q[0]:.4f} {u1}, {q[1]:.4f} {u2}), "
@@ -92,3 +94,21 @@ def format_summary(summary):
     lines.append(f"  wall time {summary['wall_time_s']:.1f} s: "
                  + ('OK' if summary['success'] else 'FAILED'))
     return '\n'.join(lines)
+
+
+def _arm_lines(summary):
+    """Return the summary lines of an arm demo's goals (toc-demo --robot panda)."""
+    lines = [f"  Panda on MuJoCo, payload {summary['payload_kg']:g} kg the planner does not "
+             f"know, obstacle margin {summary['margin']:g} m:"]
+    for k, s in enumerate(summary['arm_stages'], 1):
+        head = f"  goal {k} ({s['label']}, {s['goal']}): {s.get('status', 'not finished')}"
+        if 'arrival_s' in s:
+            latency = ('' if not s['latencies'] else
+                       f", replan latency median/p99 {1e3 * s['latency_median_s']:.1f}/"
+                       f"{1e3 * s['latency_p99_s']:.1f} ms")
+            head += (f"; t_min {s['t_min']:.4f} s, arrival {s['arrival_s']:.4f} s, final error "
+                     f"{s['final_error']:.2e} rad" + ('' if s['at_rest'] else ' (NOT at rest)')
+                     + f", min clearance {s['min_clearance']:.4f} m, {s['cycles']} cycle(s) "
+                     f"replanned, {s['kept']} kept{latency}")
+        lines.append(head)
+    return lines

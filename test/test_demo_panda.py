@@ -1,0 +1,95 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+toc-demo --robot panda end to end, checked from its recording.
+
+The demo runs as a process; then the recorded joint_states and obstacle spheres are read with
+rosbags (the bag's own schemas) and every sample's clearance is recomputed by
+test/arm_oracle.py (Pinocchio from the URDF file, the shipped sphere file read here), against
+the obstacle set recorded last before it; each goal's rest is checked from the samples.
+"""
+
+import json
+
+from arm_oracle import ArmOracle, find_panda_urdf, PANDA_JOINTS
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from test_demo import run_demo
+from test_mujoco_arm import ROBOTS
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(ROBOTS is None, reason='example-robot-data is not installed')]
+pytest.importorskip('mujoco')
+
+
+@pytest.fixture(scope='module')
+def panda_demo(tmp_path_factory):
+    output = tmp_path_factory.mktemp('panda_demo') / 'run'
+    proc = run_demo('--robot', 'panda', '--output', str(output), '--timeout', '170')
+    assert proc.returncode == 0, f'demo failed:\n{proc.stdout}\n{proc.stderr}'
+    summary = json.loads((output / 'summary.json').read_text())
+    messages = {}
+    with AnyReader([output]) as reader:
+        for connection, log_time, raw in reader.messages():
+            messages.setdefault(connection.topic, []).append(
+                (log_time, reader.deserialize(raw, connection.msgtype)))
+    return proc, summary, messages
+
+
+def test_every_goal_is_reached_and_printed(panda_demo):
+    proc, summary, messages = panda_demo
+    stages = summary['arm_stages']
+    assert [s['label'] for s in stages] == ['pick', 'place', 'home']
+    assert [s['goal'] for s in stages] == ['joints', 'pose', 'joints']
+    assert all(s['status'] == 'SOLVED' and s['reached'] for s in stages)
+    assert 'goal 2 (place, pose): SOLVED' in proc.stdout and 'wall time' in proc.stdout
+    # The joint goals as sent, the pose goal's joints as planned: the arm rests there.
+    samples = [(t, np.array(m.position)) for t, m in messages['/joint_states']]
+    for stage, (start, end) in zip(stages, _stage_spans(messages)):
+        rest = [q for t, q in samples if start <= t < end][-1]
+        assert np.max(np.abs(rest - np.array(stage['goal_q']))) < 1e-3
+        if stage['goal'] == 'joints':
+            np.testing.assert_allclose(stage['goal_q'], stage['target'], atol=1e-9)
+    oracle = ArmOracle(find_panda_urdf().read_text())
+    x, y, z = summary['arm_stages'][1]['target'][:3]
+    reached = oracle.tip(stages[1]['goal_q']).translation
+    assert np.linalg.norm(reached - [x, y, z]) < 1e-3
+
+
+def _stage_spans(messages):
+    """(start, end) log times of each goal: from its goal message to the next one."""
+    sent = sorted([t for t, _ in messages.get('/goal_joints', [])]
+                  + [t for t, _ in messages.get('/goal_pose', [])])
+    return list(zip(sent, sent[1:] + [float('inf')]))
+
+
+def test_every_sample_clears_the_spheres_in_force(panda_demo):
+    _, summary, messages = panda_demo
+    oracle = ArmOracle(find_panda_urdf().read_text())
+    schedule = [(t, np.array(m.data).reshape(-1, 4)) for t, m in messages['/obstacles']]
+    assert len(schedule) >= 4       # the first set, then sphere 2 dropping
+    worst = np.inf
+    checked = 0
+    for t, msg in messages['/joint_states']:
+        assert list(msg.name) == PANDA_JOINTS
+        rows = [r for s, r in schedule if s <= t]
+        if rows:
+            worst = min(worst, oracle.clearance(msg.position, rows[-1], 0.0))
+            checked += 1
+    assert checked > 500         # joint_states at the plant's rate over every motion
+    assert worst >= 0.0, worst
+    assert worst == pytest.approx(min(s['min_clearance'] for s in summary['arm_stages']),
+                                  abs=2e-3)
