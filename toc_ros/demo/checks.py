@@ -75,6 +75,6 @@ def arm_success(summary, stages):
     done = summary.get('arm_stages', [])
     return (len(done) == stages and all(
         s.get('status') == Status.SOLVED.value and s.get('reached')
-        and s.get('min_clearance', -1.0) >= 0.0 for s in done)
+        and 'min_clearance' in s and s['min_clearance'] >= 0.0 for s in done)
         and summary.get('error') is None
         and all(code == 0 for code in summary.get('exit_codes', {None: 1}).values()))
