@@ -303,10 +303,12 @@ def test_cli_refuses_a_goal_outside_the_limits(tmp_path, capsys):
 
 # Solves against IPOPT, re-checked independently -------------------------------------------
 
-def _independent_check(name, result, obstacles):
+def _independent_check(name, result, obstacles, start=None, goal=None):
+    """Re-check result from start (default: the scenario's) to goal with arm_check.py."""
     from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
     from toc_ros.bench.arm_problem import ArmSpec
-    start, goal, _ = SCENARIOS[name]
+    start = SCENARIOS[name][0] if start is None else start
+    goal = SCENARIOS[name][1] if goal is None else goal
     arm = load_arm(name)
     spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
                    goal=goal, obstacles=obstacles,

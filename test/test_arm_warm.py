@@ -31,7 +31,8 @@ import pytest
 
 pin = pytest.importorskip('pinocchio')
 
-from test_arm_solve import _problem, DATA, MARGIN, SCENARIOS  # noqa: E402, I100
+from test_arm_solve import (_independent_check, _problem, DATA, MARGIN,  # noqa: E402, I100
+                            SCENARIOS)
 from toc_ros.core import solve, SolveResult, Status  # noqa: E402, I100
 from toc_ros.core.arms import load_arm  # noqa: E402
 
@@ -47,20 +48,8 @@ def panda_plan():
 
 def _check(problem, result):
     """Re-measure result from problem's start with the independent checker."""
-    from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
-    from toc_ros.bench.arm_problem import ArmSpec
-    arm = load_arm('panda')
-    spec = ArmSpec(urdf=example_robot_urdf('panda'), joints=arm.joint_names,
-                   start=tuple(problem.x0), goal=tuple(problem.x_goal),
-                   obstacles=tuple(problem.obstacles),
-                   robot_spheres=str(DATA / 'arm_spheres_panda.yaml'), margin=MARGIN)
-    check = check_trajectory(spec, result.final_time, result.controls, 'euler', result.states)
-    assert check['terminal_error'] < 1e-6
-    assert check['defect'] < 1e-9
-    assert check['max_position_excess'] <= 1e-9
-    assert check['max_velocity_excess'] <= 1e-9
-    assert check['max_effort_excess'] == 0.0
-    assert check['min_clearance'] >= -1e-6
+    _independent_check('panda', result, tuple(problem.obstacles), tuple(problem.x0),
+                       tuple(problem.x_goal))
 
 
 def _from(problem, state, n_int):
