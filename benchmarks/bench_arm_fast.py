@@ -16,8 +16,9 @@
 Fast mode for URDF arms against CasADi + IPOPT and FATROP, in one process.
 
 For the Panda and the UR5 (scenarios and stand-in robot spheres of bench_arms_reference.py),
-free and with one obstacle sphere, Euler with N = 50 and 100: toc_ros' solve() cold (median
-and spread of --repeats runs after one warm-up run that loads the compiled kernels), then
+free, with one or with three obstacle spheres (--obstacles), Euler with N = 50 and 100
+(--N): toc_ros' solve() cold (median and spread of --repeats runs after one warm-up run
+that loads the compiled kernels), then
 IPOPT and FATROP on the same transcription from the same initial guess (fast mode's start
 point), each --repeats times.  Every fast result is re-checked independently
 (toc_ros/bench/arm_check.py).  Per iteration, fast mode's time is split into Pinocchio
@@ -43,7 +44,8 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf  # noqa: E402, I100
+from benchmarks.bench_arms_reference import SCENARIOS as REFERENCE_SCENARIOS  # noqa: E402, I100
+from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf  # noqa: E402
 from toc_ros.bench.arm_problem import ArmProblem, ArmSpec  # noqa: E402
 from toc_ros.bench.arm_reference import ArmTranscription  # noqa: E402
 from toc_ros.core import Problem, solve, Status  # noqa: E402
@@ -52,18 +54,14 @@ from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot, start_point  # noqa: E402
 
 MARGIN = 0.02
-SCENARIOS = {
-    'panda': ((-1.2, 0.2, 0.0, -2.0, 0.0, 2.2, 0.8), (1.2, 0.1, 0.3, -1.8, 0.2, 2.0, 0.3),
-              ((0.60, 0.0, 0.42, 0.08),)),
-    'ur5': ((0.0, -0.4, 0.4, -1.57, -1.57, 0.0), (0.0, -2.0, 0.9, -1.57, -1.57, 0.0),
-            ((0.60, 0.0, 0.55, 0.2),)),
-}
+SCENARIOS = {name: (sc['start'], sc['goal'], sc['obstacles'])
+             for name, sc in REFERENCE_SCENARIOS.items()}
 
 
-def run_case(name, with_obstacle, n_int, repeats):
+def run_case(name, obstacle_set, n_int, repeats):
     """One row: fast mode, IPOPT and FATROP from fast mode's start point."""
-    start, goal, obstacles = SCENARIOS[name]
-    obstacles = obstacles if with_obstacle else ()
+    start, goal, sets = SCENARIOS[name]
+    obstacles = sets[obstacle_set]
     spheres_file = os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml')
     arm = load_arm(name)
     robot = ArmRobot(arm, load_spheres(spheres_file, arm, self_collision=False))
@@ -95,7 +93,7 @@ def run_case(name, with_obstacle, n_int, repeats):
     iterations = max(result.iterations, 1)
     total = statistics.median(times)
     return {
-        'arm': name, 'obstacles': '1 sphere' if with_obstacle else 'free', 'N': n_int,
+        'arm': name, 'obstacles': obstacle_set, 'N': n_int,
         'status': result.status.value, 't_f': result.final_time,
         'iterations': result.iterations, 'median_ms': 1e3 * total,
         'min_ms': 1e3 * min(times), 'max_ms': 1e3 * max(times),
@@ -158,14 +156,16 @@ def main(argv=None):
     p.add_argument('--repeats', type=int, default=5)
     p.add_argument('--N', type=int, nargs='+', default=[50, 100])
     p.add_argument('--arms', nargs='+', default=['panda', 'ur5'])
+    p.add_argument('--obstacles', nargs='+', default=['free', '1 sphere'],
+                   choices=['free', '1 sphere', '3 spheres'])
     p.add_argument('--write', action='store_true', help='append the table to RESULTS.md')
     p.add_argument('--json', help='write the rows (times in s) to this file')
     args = p.parse_args(argv)
     rows = []
     for name in args.arms:
         for n_int in args.N:
-            for with_obstacle in (False, True):
-                row = run_case(name, with_obstacle, n_int, args.repeats)
+            for obstacle_set in args.obstacles:
+                row = run_case(name, obstacle_set, n_int, args.repeats)
                 print(table([row]).splitlines()[-1], flush=True)
                 rows.append(row)
     text = table(rows)

@@ -366,6 +366,90 @@ def test_fast_arm_solve_matches_ipopt_and_is_feasible(name, obstacles):
 
 
 @pytest.mark.slow
+def test_a_motion_the_cheap_curvature_model_cannot_finish_is_solved_with_exact_curvature():
+    # The Panda lifting joint 2 by 1 rad from its ready pose: without the dynamics' curvature
+    # the interior point wanders (line-search failure, then the iteration limit); 'auto'
+    # switches to exact curvature after CHEAP_ITERATIONS and converges to IPOPT's optimum.
+    pytest.importorskip('casadi')
+    from toc_ros.bench.arm_problem import ArmProblem
+    from toc_ros.bench.arm_reference import ArmTranscription
+    from toc_ros.core.arms.arm_solve import CHEAP_ITERATIONS, slowed, solve_arm
+    start, goal = (0, -0.785, 0, -2.356, 0, 1.571, 0.785), (0.9, 0.25, 0, -2.0, 0, 2.25, 1.6)
+    robot = _robot('panda')
+    problem = Problem(model=robot, x0=start, x_goal=goal, n_intervals=20)
+    cheap = solve_arm(problem, SolverOptions(max_iterations=300), hessian='none')
+    assert cheap.status is not Status.SOLVED
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert result.iterations > CHEAP_ITERATIONS and 'exact curvature' in result.message
+    spec = _independent_check('panda', result, (), start=start, goal=goal)
+    nlp = ArmTranscription(ArmProblem(spec), 20, 'euler', 'ipopt')
+    best = min(out['t_f'] for out in (
+        nlp.solve((result.states, result.controls, result.final_time)),
+        nlp.solve(slowed(robot.arm, np.r_[start, np.zeros(7)], np.r_[goal, np.zeros(7)], 20,
+                         0.8)[:2] + (0.8,))) if out['success'])
+    assert result.final_time <= best * (1 + 1e-6)
+
+
+def test_detours_keep_the_joint_limits_and_clear_the_sphere():
+    # A goal 0.05 rad inside joint 4's lower limit with a sphere where the hand passes halfway:
+    # bending the line towards that limit is not allowed, the detours bend the other joints.
+    from toc_ros.core.arms import sphere_centres
+    from toc_ros.core.arms.arm_start import line_detours
+    robot = _robot('panda')
+    arm = robot.arm
+    start = np.array((0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785))
+    goal = np.array((-0.814, 0.343, 0.039, -3.022, 0.296, 2.235, 1.056))
+    middle = arm.frame_position(0.5 * (start + goal), robot.spheres.links[-1])
+    ev = ArmEvaluator(arm, robot.spheres, ((*middle, 0.08),), MARGIN, 30)
+    x0, xg = np.r_[start, np.zeros(7)], np.r_[goal, np.zeros(7)]
+    assert ev.clearances(np.linspace(start, goal, 31)).min() < -0.05     # the line collides
+    detours = line_detours(arm, ev, x0, xg, 30, count=2)
+    assert len(detours) == 2
+    for states, torques, t_f in detours:
+        # Positions from start to goal (the interior point pins the end states themselves).
+        assert np.allclose(states[0, :7], start) and np.allclose(states[-1, :7], goal)
+        assert np.all(states[:, :7] >= arm.lower) and np.all(states[:, :7] <= arm.upper)
+        assert np.all(np.abs(states[:, 7:]) <= arm.velocity + 1e-12)
+        assert np.all(np.abs(torques) <= arm.effort)
+        # Clearance recomputed from the sphere centres, not through the evaluator's rows.
+        for q in states[1:-1, :7]:
+            centres = sphere_centres(arm, robot.spheres, q)
+            gap = (np.linalg.norm(centres - middle, axis=1) - robot.spheres.radii - 0.08
+                   - MARGIN)
+            assert gap.min() > 0.0
+    assert np.linalg.norm(detours[0][0] - detours[1][0]) > 0.1        # two distinct ways
+
+
+@pytest.mark.slow
+def test_a_sphere_on_the_line_near_a_joint_limit_is_passed_as_well_as_ipopt_does():
+    # The same motion solved: the old single detour gave up at the joint limit and the solve
+    # started inside the sphere (STALLED at N = 60); the free optimum and the bent lines are
+    # tried now.
+    pytest.importorskip('casadi')
+    from toc_ros.bench.arm_problem import ArmProblem
+    from toc_ros.bench.arm_reference import ArmTranscription
+    from toc_ros.core.arms.arm_solve import start_point
+    robot = _robot('panda')
+    start = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+    goal = (-0.814, 0.343, 0.039, -3.022, 0.296, 2.235, 1.056)
+    middle = robot.arm.frame_position(0.5 * (np.array(start) + goal), robot.spheres.links[-1])
+    obstacles = ((*middle, 0.08),)
+    problem = Problem(model=robot, x0=start, x_goal=goal, obstacles=obstacles, margin=MARGIN,
+                      n_intervals=60)
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    spec = _independent_check('panda', result, obstacles, start=start, goal=goal)
+    x0, xg = np.r_[start, np.zeros(7)], np.r_[goal, np.zeros(7)]
+    ev = ArmEvaluator(robot.arm, robot.spheres, obstacles, MARGIN, 60)
+    nlp = ArmTranscription(ArmProblem(spec), 60, 'euler', 'ipopt')
+    runs = [nlp.solve(start_point(robot, ev, x0, xg, 60)[:3]),
+            nlp.solve((result.states, result.controls, result.final_time))]
+    best = min(out['t_f'] for out in runs if out['success'])
+    assert result.final_time <= best * (1 + 1e-3)
+
+
+@pytest.mark.slow
 def test_cli_solves_an_arm_and_writes_the_contract(tmp_path):
     from toc_ros.solve import main
     start, goal, obs = SCENARIOS['ur5']

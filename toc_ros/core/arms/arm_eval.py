@@ -46,6 +46,10 @@ from . import kernels
 from .ipm_kernels import euler_terms
 
 FD_STEP = 1e-6
+# The second derivatives of ABA (2 n derivative calls per interval) are recomputed every
+# TENSOR_REUSE evaluations and contracted with the current multipliers in between: the
+# curvature lags the iterate by at most TENSOR_REUSE - 1 steps, at a third of the cost.
+TENSOR_REUSE = 3
 
 
 class ArmEvaluator:
@@ -77,6 +81,8 @@ class ArmEvaluator:
         self.n_pairs = self.n_obstacle_rows + len(self.pairs)
         self.pin_time = 0.0
         self.pin_calls = 0
+        self._tensor = None
+        self._tensor_age = 0
 
     # Dynamics ------------------------------------------------------------------------------
     def accelerations(self, states, controls):
@@ -102,12 +108,6 @@ class ArmEvaluator:
         acc = self.accelerations(x[:-1], v)
         step = np.hstack([x[:-1, n:], acc])
         return x[:-1] + h * step - x[1:]
-
-    def _gradient_of_weighted_acceleration(self, q, dq, tau, lam_v):
-        """(lam_v . da/dq, lam_v . da/dv, M^-1 lam_v) and the derivatives at one point."""
-        ddq_dq, ddq_dv, minv = pin.computeABADerivatives(self.model, self.data, q, dq, tau)
-        return (np.concatenate([lam_v @ ddq_dq, lam_v @ ddq_dv, lam_v @ minv]),
-                self.data.ddq.copy(), ddq_dq, ddq_dv, minv)
 
     def stage_terms(self, x, v, t_f, lam, hessian='exact'):
         """
@@ -152,31 +152,56 @@ class ArmEvaluator:
             hxx[:, nx, :nx] = hxx[:, :nx, nx]
             hux[:, :, nx] = self.effort * np.einsum('kji,kj->ki', minv, lam_v) / n_int
         if hessian == 'exact':
-            started = time.perf_counter()
-            for k in range(n_int):
-                q, dq = x[k, :n], x[k, n:]
-                lam_v = lam[k + 1, n:]
-                grad = np.concatenate([lam_v @ d_q[k], lam_v @ d_v[k], lam_v @ minv[k]])
-                # Hessian of lam_v . a(q, dq, tau) by forward differences of its gradient.
-                hess = np.zeros((3 * n, 3 * n))
-                for i in range(2 * n):
-                    qp, dqp = q.copy(), dq.copy()
-                    if i < n:
-                        qp[i] += FD_STEP
-                    else:
-                        dqp[i - n] += FD_STEP
-                    grad_p = self._gradient_of_weighted_acceleration(qp, dqp, tau[k], lam_v)[0]
-                    hess[i] = (grad_p - grad) / FD_STEP
-                calls += 2 * n
-                # Rows of tau from symmetry (d2 a / dtau dv = 0, d2 a / dtau2 = 0).
-                hess[2 * n:, :n] = hess[:n, 2 * n:].T
-                hess[2 * n:, n:2 * n] = 0.0
-                hess[:2 * n, :2 * n] = 0.5 * (hess[:2 * n, :2 * n] + hess[:2 * n, :2 * n].T)
-                out['hxx'][k, :nx, :nx] = h * hess[:2 * n, :2 * n]
-                out['hux'][k, :, :nx] = h * self.effort[:, None] * hess[2 * n:, :2 * n]
-            self.pin_time += time.perf_counter() - started
+            self._exact_curvature(x, tau, lam, d_q, d_v, minv, h, out)
         self.pin_calls += calls
         return out
+
+    def forget_curvature(self):
+        """Drop the kept second derivatives (a run from another start point begins)."""
+        self._tensor = None
+
+    def _exact_curvature(self, x, tau, lam, d_q, d_v, minv, h, out):
+        """Fill out's hxx/hux (x, tau blocks) with h times the Hessian of lam_v . ABA."""
+        n, nx = self.n, 2 * self.n
+        if self._tensor is None or self._tensor_age >= TENSOR_REUSE:
+            self._tensor = self._second_derivatives(x, tau, d_q, d_v, minv)
+            self._tensor_age = 0
+        self._tensor_age += 1
+        # Rows i of the Hessian over (q, v, tau): lam_v . d/dz_i of (da/dq, da/dv, M^-1).
+        hess = np.einsum('kj,kijl->kil', lam[1:, n:], self._tensor)
+        square = hess[:, :, :nx]
+        out['hxx'][:, :nx, :nx] = 0.5 * h * (square + square.transpose(0, 2, 1))
+        # The tau rows by symmetry: d2 a / dtau dq from the q rows, d2 a / dtau dv = 0 and
+        # d2 a / dtau2 = 0 (ABA is affine in tau).
+        out['hux'][:, :, :n] = h * self.effort[None, :, None] * hess[:, :n, nx:].transpose(
+            0, 2, 1)
+        out['hux'][:, :, n:nx] = 0.0
+
+    def _second_derivatives(self, x, tau, d_q, d_v, minv):
+        """(N, 2n, n, 3n): d/dz_i of (da/dq, da/dv, M^-1) at every interval, z = (q, v)."""
+        n, nx, n_int = self.n, 2 * self.n, self.n_int
+        # Every interval's state shifted by FD_STEP along each of its 2n coordinates; the
+        # derivatives there are copied out of Pinocchio's buffers (the Python loop does the
+        # Pinocchio calls only) and differenced in one call.
+        shifted = np.repeat(x[:-1, None, :], nx, axis=1)
+        shifted[:, np.arange(nx), np.arange(nx)] += FD_STEP
+        shifted_derivatives = np.empty((n_int, nx, n, 3 * n))
+        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
+        out_q, out_v, out_m = data.ddq_dq, data.ddq_dv, data.Minv
+        started = time.perf_counter()
+        for k in range(n_int):
+            tau_k = tau[k]
+            for i in range(nx):
+                point = shifted[k, i]
+                derivatives(model, data, point[:n], point[n:], tau_k)
+                block = shifted_derivatives[k, i]
+                block[:, :n] = out_q
+                block[:, n:nx] = out_v
+                block[:, nx:] = out_m
+        self.pin_time += time.perf_counter() - started
+        self.pin_calls += nx * n_int
+        base = np.concatenate([d_q, d_v, minv], axis=2)[:, None]
+        return (shifted_derivatives - base) / FD_STEP
 
     # Spheres -------------------------------------------------------------------------------
     def clearances(self, qs):

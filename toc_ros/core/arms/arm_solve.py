@@ -40,7 +40,8 @@ import numpy as np
 
 from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY
-from .arm_start import cold_start, cubic_path, detour_start, path_torques
+from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets, line_detours,
+                        line_time, path_torques, timed_start)
 from .arm_warm import euler_rollout, UnusableGuess, warm_point
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
@@ -68,6 +69,21 @@ WARM_EXACT = 1e-6
 MU_WARM_EXACT = 1e-9
 MU_WARM_DRIFT = 1e-7
 WARM_PUSH = 1e-6
+# Curvature of the dynamics (arm_ipm.py's hessian) with hessian='auto': none first (one
+# Pinocchio derivative call per interval, enough for most problems), then exact (2n + 1
+# calls) from the same iterate, multipliers and barrier parameter once the run has not
+# converged after CHEAP_ITERATIONS or its line search failed: where the dynamics' curvature
+# matters the cheap model wanders without converging (benchmarks/RESULTS.md, "Arms: exact
+# curvature when the cheap model stalls").
+CHEAP_ITERATIONS = 60
+# Around obstacles (arm_start.py, _cold_runs): at most LINE_DETOURS bent lines are tried, and
+# the free optimum is solved within FREE_BUDGET iterations.
+LINE_DETOURS = 2
+FREE_BUDGET = 300
+# Every start but the last gets at most START_BUDGET iterations (the last one the rest).
+START_BUDGET = 150
+# A run within this (relative) of the free optimum's time ends the search of the starts.
+FREE_REACHED = 1e-7
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -207,39 +223,130 @@ def start_point(robot, evaluator, x0, x_goal, n_int):
     """(states, torques, t_f, name): the line start, or a detour when the line collides."""
     states, torques, t_f = cold_start(robot.arm, x0, x_goal, n_int)
     if evaluator.n_pairs and evaluator.clearances(states[:, :robot.arm.n]).min() < 0.0:
-        detour = detour_start(robot.arm, evaluator, x0, x_goal, n_int)
-        if detour is not None:
-            return (*detour, 'detour')
+        detours = line_detours(robot.arm, evaluator, x0, x_goal, n_int)
+        if detours:
+            return (*detours[0], 'detour')
     return states, torques, t_f, 'line'
 
 
+def start_points(robot, evaluator, x0, x_goal, n_int, free=None):
+    """
+    [(states, torques, t_f, name)]: the starts a cold solve tries, in order.
+
+    The line start when it clears every sphere row; otherwise the free optimum (free: its
+    (states, torques, t_f), solved without the obstacles), bent clear of them where it is
+    not, and LINE_DETOURS distinct bent lines; the colliding line when none of these exists.
+    """
+    arm, n = robot.arm, robot.arm.n
+    line = cold_start(arm, x0, x_goal, n_int)
+    if not evaluator.n_pairs or evaluator.clearances(line[0][:, :n]).min() >= 0.0:
+        return [(*line, 'line')]
+    starts = []
+    if free is not None:
+        states, torques, t_f = free
+        if evaluator.clearances(states[:, :n]).min() >= 0.0:
+            starts.append((states, torques, t_f, 'free optimum'))
+        else:
+            rate = states[:, n:] * t_f
+            for offsets in detour_offsets(arm, evaluator, states[:, :n]):
+                starts.append((*timed_start(arm, lambda t, o=offsets: bent_states(
+                    states[:, :n], rate, o, t), t_f), 'free optimum bent'))
+    detours = line_detours(arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)
+    starts += [(*detour, 'detour') for detour in detours]
+    return starts or [(*line, 'line')]
+
+
+def run_ipm(ipm, budget, should_stop, hessian):
+    """Run ipm within budget iterations with the curvature hessian ('auto': see above)."""
+    if hessian != 'auto':
+        ipm.hessian = hessian
+        return ipm.run(budget, should_stop)
+    ipm.hessian = 'none'
+    run = ipm.run(min(budget, CHEAP_ITERATIONS), should_stop)
+    if (run.status not in ('max_iterations', 'line_search_failed')
+            or run.iterations >= budget):
+        return run
+    ipm.hessian = 'exact'
+    rest = ipm.run(budget - run.iterations, should_stop)
+    rest.iterations += run.iterations
+    rest.history = np.vstack([run.history, rest.history])
+    rest.exact_from = run.iterations
+    return rest
+
+
+def _free_optimum(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop):
+    """((states, torques, t_f) or None, iterations): the problem solved without obstacles."""
+    free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, n_int,
+                        len(evaluator.pairs) > 0)
+    states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
+    ipm = ArmInteriorPoint(free, x0, xg)
+    ipm.start(states, torques, t_f)
+    run = run_ipm(ipm, budget, should_stop, hessian)
+    if run.status not in ('converged', 'acceptable'):
+        return None, run.iterations
+    return (run.x, run.v * robot.arm.effort, run.t), run.iterations
+
+
 def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
-    """(last run, iterations, Riccati time) from the cold start; runs gets a line per run."""
-    # A run that fails (line search, numerics) is restarted once from the line start slowed
-    # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start): a slower
-    # start lies further inside the torque limits.  The restart also begins with IPOPT's
-    # default barrier parameter (0.1) instead of the small first one (arm_ipm.py), the
-    # setting that is slower but failed on other cases.
-    states, torques, t_f, start_name = start_point(robot, evaluator, x0, xg, n_int)
+    """(best run, iterations, Riccati time) from the cold starts; runs gets a line per run."""
+    # Around obstacles a cold solve finds the local optimum of its start's way around them:
+    # every start of start_points is solved and the best converged run kept (the search
+    # ends early at the free optimum's time: the obstacles then cost nothing).  When none
+    # converges after a failure (line search, numerics), one more run from the line slowed
+    # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start: further
+    # inside the torque limits) with IPOPT's default first barrier parameter (0.1).
     iterations, linalg_time = 0, 0.0
-    for attempt in range(2):
-        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian,
-                               mu_init=MU_INIT_RETRY if attempt else MU_INIT)
+    free = None
+    line = cold_start(robot.arm, x0, xg, n_int)[0]
+    if evaluator.n_obstacle_rows and evaluator.clearances(line[:, :robot.arm.n]).min() < 0.0:
+        free, used = _free_optimum(robot, evaluator, x0, xg, n_int, hessian,
+                                   min(budget, FREE_BUDGET), should_stop)
+        iterations += used
+        runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
+                    f'{used} iterations')
+    best = run = None
+    starts = start_points(robot, evaluator, x0, xg, n_int, free)
+    for index, (states, torques, t_f, start_name) in enumerate(starts):
+        if run is not None and iterations >= budget:
+            break
+        ipm = ArmInteriorPoint(evaluator, x0, xg)
         ipm.start(states, torques, t_f)
-        run = ipm.run(budget - iterations, should_stop)
+        allowed = budget - iterations
+        if index < len(starts) - 1:
+            allowed = min(allowed, START_BUDGET)
+        run = run_ipm(ipm, allowed, should_stop, hessian)
         iterations += run.iterations
         linalg_time += ipm.linalg_time
-        runs.append(f'{start_name}: {run.status} after {run.iterations} iterations')
-        if run.status not in ('line_search_failed', 'numerical_failure') or attempt:
-            break
-        states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
-        states, torques = slowed(robot.arm, x0, xg, n_int, RETRY_SLOWDOWN * t_f)
-        t_f, start_name = RETRY_SLOWDOWN * t_f, f'line x{RETRY_SLOWDOWN:g}'
+        runs.append(f'{start_name}: {_run_summary(run)}')
+        if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
+            best = run
+        free_reached = (best is not None and free is not None
+                        and best.t <= free[2] * (1.0 + FREE_REACHED))
+        if run.status == 'stopped' or free_reached:
+            break       # (free_reached: the obstacles cost no time, no start can do better)
+    if best is not None:
+        return best, iterations, linalg_time
+    if run is not None and run.status in ('line_search_failed', 'numerical_failure') \
+            and iterations < budget:
+        t_f = RETRY_SLOWDOWN * line_time(robot.arm, x0, xg)
+        states, torques = slowed(robot.arm, x0, xg, n_int, t_f)
+        ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=MU_INIT_RETRY)
+        ipm.start(states, torques, t_f)
+        run = run_ipm(ipm, budget - iterations, should_stop, hessian)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        runs.append(f'line x{RETRY_SLOWDOWN:g}: {_run_summary(run)}')
     return run, iterations, linalg_time
 
 
+def _run_summary(run):
+    exact = getattr(run, 'exact_from', None)
+    return (f'{run.status} after {run.iterations} iterations'
+            + ('' if exact is None else f' (exact curvature from iteration {exact + 1})'))
+
+
 def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
-              hessian='none'):
+              hessian='auto'):
     """Solve an arm Problem in fast mode; never raises for bad input (INVALID_INPUT)."""
     started = time.monotonic()
     unusable = ''
@@ -277,13 +384,12 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         states, torques, t_f, duals, drift = warm
         mu = MU_INIT if duals is None else (MU_WARM_EXACT if drift <= WARM_EXACT
                                             else MU_WARM_DRIFT)
-        ipm = ArmInteriorPoint(evaluator, x0, xg, hessian=hessian, mu_init=mu)
+        ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=mu)
         ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH)
-        run = ipm.run(min(budget, WARM_BUDGET), should_stop)
+        run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian)
         iterations += run.iterations
         linalg_time += ipm.linalg_time
-        runs.append(f'warm start{" with multipliers" if duals else ""}: {run.status} after '
-                    f'{run.iterations} iterations')
+        runs.append(f'warm start{" with multipliers" if duals else ""}: {_run_summary(run)}')
     if run is None or (run.status not in ('converged', 'acceptable', 'stopped')
                        and iterations < budget):
         # A poor guess is solved from scratch rather than reported as a failure.

@@ -22,9 +22,10 @@ grid (from 1.5 times the slowest joint's distance over its velocity limit) whose
 and torques stay within the limits.  The CasADi reference (toc_ros/bench/arm_reference.py)
 builds its line start by the same recipe, so both start from the same point.
 
-The straight path may pass through an obstacle: the interior point then starts infeasible
-(slacks of the sphere rows positive, the rows violated) and has to find the way around; no
-detour is invented here.
+The straight path may pass through an obstacle, and the interior point does not find its way
+out of a start inside one (it has no restoration phase): such a path is bent,
+path + offsets * sin(pi s), with offsets found by corrections of the worst clearance
+(detour_offsets), for the line and for any other path (arm_solve.py bends the free optimum).
 """
 
 import numpy as np
@@ -82,63 +83,117 @@ def cold_start(arm, x0, x_goal, n_intervals):
     return states, torques, t_f
 
 
-def bent_path(x0, x_goal, t_f, n_intervals, offsets):
+def bent_states(path, rate, offsets, t_f):
     """
-    Return cubic_path plus offsets (n,) * sin(pi s) on the positions, velocities to match.
+    States (N + 1, 2n) of path + offsets * sin(pi s) over t_f.
 
-    A detour through a shifted midpoint: the reference's perturbed start.
+    path (N + 1, n): positions at s = k / N; rate: their derivative d path / ds.
     """
-    n = len(x0) // 2
-    states = cubic_path(x0, x_goal, t_f, n_intervals)
-    s = np.linspace(0.0, 1.0, n_intervals + 1)[:, None]
-    states[:, :n] += np.sin(np.pi * s) * offsets[None, :]
-    states[:, n:] += np.pi * np.cos(np.pi * s) * offsets[None, :] / t_f
-    return states
+    s = np.linspace(0.0, 1.0, path.shape[0])[:, None]
+    q = path + np.sin(np.pi * s) * offsets[None, :]
+    dq = (rate + np.pi * np.cos(np.pi * s) * offsets[None, :]) / t_f
+    return np.hstack([q, dq])
 
 
-def detour_offsets(arm, evaluator, x0, x_goal, n_intervals, clearance=0.02, iterations=60):
-    """
-    Offsets (n,) for bent_path whose nodes clear every obstacle by clearance [m], or None.
+def _offset_bounds(arm, path, bend, inner=1e-3):
+    """Per joint, the offsets [low, high] that keep every node of the bent path in limits."""
+    bent = bend > 0.0
+    with np.errstate(invalid='ignore'):
+        low = np.where(bent[:, None], (arm.lower + inner - path) / np.where(
+            bent, bend, 1.0)[:, None], -np.inf)
+        high = np.where(bent[:, None], (arm.upper - inner - path) / np.where(
+            bent, bend, 1.0)[:, None], np.inf)
+    return np.minimum(np.max(low, axis=0), 0.0), np.maximum(np.min(high, axis=0), 0.0)
 
-    Repeated minimum-norm corrections at the worst node along its worst row's gradient,
-    scaled by the node's sin(pi s); positions must stay within the joint limits.
-    """
-    n = arm.n
-    s = np.linspace(0.0, 1.0, n_intervals + 1)
-    bend = np.sin(np.pi * s)
-    offsets = np.zeros(n)
-    line = cubic_path(x0, x_goal, 1.0, n_intervals)[:, :n]
+
+def _corrected(evaluator, path, bend, low, high, target, offsets, iterations, max_step):
+    """Offsets from offsets by worst-row corrections until every row meets target, or None."""
+    inner = slice(1, len(bend) - 1)
     for _ in range(iterations):
-        q = line + bend[:, None] * offsets[None, :]
-        if np.any(q < arm.lower) or np.any(q > arm.upper):
-            return None
+        q = path[inner] + bend[inner, None] * offsets[None, :]
         values, grads, _ = evaluator.clearance_terms(q)
-        worst = np.unravel_index(np.argmin(values), values.shape)
-        if values[worst] >= clearance:
+        deficit = target[None, :] - values
+        worst = np.unravel_index(np.argmax(deficit), deficit.shape)
+        if deficit[worst] <= 0.0:
             return offsets
-        k = worst[0]
-        if bend[k] <= 0.0:
+        grad = grads[worst] * bend[inner][worst[0]]
+        held = (((offsets <= low) & (grad < 0.0)) | ((offsets >= high) & (grad > 0.0)))
+        grad = np.where(held, 0.0, grad)
+        norm = grad @ grad
+        if not norm > 1e-12:
             return None
-        grad = grads[worst] * bend[k]
-        offsets = offsets + 1.2 * (clearance - values[worst]) * grad / max(grad @ grad, 1e-12)
+        step = 1.2 * deficit[worst] * grad / norm
+        length = np.linalg.norm(step)
+        if length > max_step:
+            step *= max_step / length
+        offsets = np.clip(offsets + step, low, high)
     return None
 
 
-def detour_start(arm, evaluator, x0, x_goal, n_intervals):
-    """(states, torques, t_f) of a bent path clear of the obstacles, or None."""
-    offsets = detour_offsets(arm, evaluator, x0, x_goal, n_intervals)
-    if offsets is None:
-        return None
+def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100, restarts=8,
+                   max_step=0.3, distinct=0.3):
+    """
+    Up to count offsets (n,) whose bent path (bent_states) clears the obstacles at every node.
+
+    Each row must clear by clearance, or by half of what it clears at the path's ends when
+    that is less (the ends are fixed).  Repeated minimum-norm corrections at the worst node
+    along its worst row's gradient, scaled by the node's sin(pi s) and at most max_step [rad]
+    long; a joint whose offset reached the bound that keeps the path within its limits is held
+    there.  From zero offsets, then from restarts seeded random ones (0.5 rad); offsets
+    within distinct [rad] of one found before are not returned again.
+    """
     n = arm.n
-    dq = np.abs(x_goal[:n] - x0[:n]) + np.pi * np.abs(offsets)
-    t_f = max(1.5 * float(np.max(dq / arm.velocity)), 0.05)
+    bend = np.sin(np.pi * np.linspace(0.0, 1.0, path.shape[0]))
+    low, high = _offset_bounds(arm, path, bend)
+    ends = evaluator.clearance_terms(path[[0, -1]])[0].min(axis=0)
+    target = np.clip(0.5 * ends, 1e-4, clearance)
+    rng = np.random.default_rng(0)
+    first = np.zeros(n)
+    found = []
+    for _ in range(restarts + 1):
+        offsets = _corrected(evaluator, path, bend, low, high, target, first, iterations,
+                             max_step)
+        if offsets is not None and all(np.linalg.norm(offsets - other) > distinct
+                                       for other in found):
+            found.append(offsets)
+            if len(found) == count:
+                break
+        first = np.clip(rng.normal(0.0, 0.5, n), low, high)
+    return found
+
+
+def timed_start(arm, states_at, t_first):
+    """
+    (states, torques, t_f): states_at(t_f) over the shortest final time >= t_first.
+
+    On a 5 % grid (at most 60 s), the first whose velocities and torques are within the
+    limits; the torques clipped to the efforts.
+    """
+    n = arm.n
+    t_f = t_first
     for _ in range(200):
-        states = bent_path(x0, x_goal, t_f, 50, offsets)
+        states = states_at(t_f)
         torques = path_torques(arm, states, t_f)
         within = (np.all(np.abs(torques) <= arm.effort)
                   and np.all(np.abs(states[:, n:]) <= arm.velocity))
         if within or t_f > 60.0:
             break
         t_f *= 1.05
-    states = bent_path(x0, x_goal, t_f, n_intervals, offsets)
-    return states, np.clip(path_torques(arm, states, t_f), -arm.effort, arm.effort), float(t_f)
+    return states, np.clip(torques, -arm.effort, arm.effort), float(t_f)
+
+
+def line_detours(arm, evaluator, x0, x_goal, n_intervals, count=1):
+    """[(states, torques, t_f)] of up to count bent lines clear of the obstacles."""
+    n = arm.n
+    unit = cubic_path(x0, x_goal, 1.0, n_intervals)
+    out = []
+    for offsets in detour_offsets(arm, evaluator, unit[:, :n], count):
+        dq = np.abs(x_goal[:n] - x0[:n]) + np.pi * np.abs(offsets)
+        t_first = max(1.5 * float(np.max(dq / arm.velocity)), 0.05)
+
+        def states_at(t_f, offsets=offsets):
+            # The cubic's shape depends on t_f when the ends move: rebuilt for each t_f.
+            line = cubic_path(x0, x_goal, t_f, n_intervals)
+            return bent_states(line[:, :n], line[:, n:] * t_f, offsets, t_f)
+        out.append(timed_start(arm, states_at, t_first))
+    return out

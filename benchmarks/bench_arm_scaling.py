@@ -1,0 +1,106 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+How the arm solver's time grows with N: fast mode only, the scenarios of bench_arm_fast.py.
+
+For each arm and obstacle set and N in --N (default 50 100 200 400): one warm-up solve, then
+--repeats cold solves; the median wall time, the iterations, the time per iteration and its
+split (Pinocchio / Riccati / rest), per degree of freedom.  The log-log slopes of the median
+time and of the time per iteration against N are least-squares fits over the N given.
+
+    python benchmarks/bench_arm_scaling.py [--arms panda ur5] [--obstacles free '1 sphere']
+"""
+
+import argparse
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from benchmarks.bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
+from toc_ros.core import Problem, solve  # noqa: E402
+from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
+from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
+
+
+def measure(name, obstacle_set, n_int, repeats):
+    """One row: status, t_f, iterations, median/min/max time, per-iteration split."""
+    start, goal, sets = SCENARIOS[name]
+    arm = load_arm(name)
+    robot = ArmRobot(arm, load_spheres(os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
+                                       arm))
+    problem = Problem(x0=start, x_goal=goal, model=robot, obstacles=sets[obstacle_set],
+                      margin=MARGIN, n_intervals=n_int)
+    solve(problem)
+    times, result = [], None
+    for _ in range(repeats):
+        started = time.perf_counter()
+        result = solve(problem)
+        times.append(time.perf_counter() - started)
+    state = result.solver_state or {}
+    it = max(result.iterations, 1)
+    median = statistics.median(times)
+    return {'arm': name, 'dof': arm.n, 'obstacles': obstacle_set, 'N': n_int,
+            'status': result.status.value, 't_f': result.final_time, 'it': result.iterations,
+            'median_s': median, 'min_s': min(times), 'max_s': max(times),
+            'per_it_s': median / it, 'pin_s': state.get('pin_time_s', np.nan) / it,
+            'riccati_s': state.get('linalg_time_s', np.nan) / it}
+
+
+def slope(rows, key):
+    """Least-squares slope of log(row[key]) against log(N)."""
+    x = np.log([r['N'] for r in rows])
+    y = np.log([r[key] for r in rows])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def main(argv=None):
+    """Print the table and the slopes."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
+    parser.add_argument('--arms', nargs='+', default=['panda', 'ur5'])
+    parser.add_argument('--obstacles', nargs='+', default=['free', '1 sphere'])
+    parser.add_argument('--N', type=int, nargs='+', default=[50, 100, 200, 400])
+    parser.add_argument('--repeats', type=int, default=3)
+    args = parser.parse_args(argv)
+    print('| arm | obstacles | N | status | t_f [s] | it | median [ms] | min-max [ms] | '
+          'per it [ms] | per it and DOF [ms] | per it: pin / Riccati / rest [ms] |')
+    print('|---|---|---|---|---|---|---|---|---|---|---|')
+    slopes = []
+    for name in args.arms:
+        for obstacle_set in args.obstacles:
+            rows = []
+            for n_int in args.N:
+                r = measure(name, obstacle_set, n_int, args.repeats)
+                rows.append(r)
+                rest = r['per_it_s'] - r['pin_s'] - r['riccati_s']
+                print(f"| {name} | {obstacle_set} | {n_int} | {r['status']} | {r['t_f']:.6f} | "
+                      f"{r['it']} | {1e3 * r['median_s']:.1f} | {1e3 * r['min_s']:.1f}-"
+                      f"{1e3 * r['max_s']:.1f} | {1e3 * r['per_it_s']:.2f} | "
+                      f"{1e3 * r['per_it_s'] / r['dof']:.3f} | {1e3 * r['pin_s']:.2f} / "
+                      f"{1e3 * r['riccati_s']:.2f} / {1e3 * rest:.2f} |", flush=True)
+            slopes.append(f'* {name}, {obstacle_set}: log-log slope over N = '
+                          f'{", ".join(map(str, args.N))}: time {slope(rows, "median_s"):.2f}, '
+                          f'time per iteration {slope(rows, "per_it_s"):.2f}')
+    print()
+    print('\n'.join(slopes))
+
+
+if __name__ == '__main__':
+    main()
