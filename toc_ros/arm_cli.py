@@ -15,13 +15,18 @@
 """
 toc-solve for URDF arms: --model panda | ur5 | urdf:PATH (toc_ros.solve hands these over).
 
-    toc-solve --model panda --start Q1..Q7 [DQ1..DQ7] --goal Q1..Q7 [DQ1..DQ7]
+    toc-solve --model panda --start Q1..Q7 [DQ1..DQ7]
+              (--goal Q1..Q7 [DQ1..DQ7] | --goal-pose X Y Z [QX QY QZ QW] [--tip LINK])
               [--joints j1,...,jn] [--locked NAME=VALUE ...] [--collision-spheres FILE]
               [--sphere X Y Z R ...] [--margin M] [--self-collision]
               [--integrator euler|rk4] [--N N]
               [--max-iterations M] [--timeout S] [--json OUT] [--quiet]
 
-States are positions first, then velocities (velocities 0 when omitted).  The JSON is
+States are positions first, then velocities (velocities 0 when omitted).  --goal-pose is
+the tip link's position (and orientation) in the base frame: the goal is the configuration at
+rest that the core's inverse kinematics finds, seeded by the start's positions, within the
+joint limits and clear of the --sphere obstacles by the margin (as solver_node's goal_pose);
+an unreachable pose is an invalid problem (exit code 4) with IK's reason.  The JSON is
 SolveResult.to_dict() (status, final_time, states (N + 1) x 2n, controls N x n torques, the
 measured violations) plus joint_names.  Exit codes as toc-solve: 0 only when SOLVED.
 """
@@ -36,6 +41,8 @@ ARM_PREFIXES = ('urdf:',)
 # The keys of toc_ros.core.arms.model.NAMED_ARMS (a test keeps them equal), spelled out so that
 # toc-solve for the planar models does not import Pinocchio.
 ARM_NAMES = ('panda', 'ur5')
+# The tip link of pose goals when --tip (robot.tip_link on the node) is not given.
+DEFAULT_TIPS = {'panda': 'panda_hand', 'ur5': 'tool0'}
 
 
 def is_arm_model_name(name):
@@ -72,8 +79,16 @@ def build_parser():
                         'Panda / UR5)')
     p.add_argument('--start', type=float, nargs='+', required=True, metavar='X',
                    help='Q1 .. Qn [DQ1 .. DQn]')
-    p.add_argument('--goal', type=float, nargs='+', required=True, metavar='X',
-                   help='Q1 .. Qn [DQ1 .. DQn]')
+    goal = p.add_mutually_exclusive_group(required=True)
+    goal.add_argument('--goal', type=float, nargs='+', metavar='X',
+                      help='Q1 .. Qn [DQ1 .. DQn]')
+    goal.add_argument('--goal-pose', type=float, nargs='+', metavar='X',
+                      help='X Y Z [QX QY QZ QW]: pose of --tip in the base frame [m] (without '
+                           'the quaternion: position only); the goal joints come from inverse '
+                           'kinematics seeded by --start')
+    p.add_argument('--tip', metavar='LINK',
+                   help='link placed by --goal-pose (default: panda_hand, tool0, else the '
+                        'child link of the last planned joint)')
     p.add_argument('--sphere', type=float, nargs=4, action='append', default=[],
                    metavar=('X', 'Y', 'Z', 'R'), help='obstacle sphere in the base frame [m]; '
                    'repeat for several')
@@ -93,9 +108,24 @@ def build_parser():
     return p
 
 
-def build_arm_problem(args):
-    """(Problem, SolverOptions, arm) from the arguments; ArmError / ProblemError if unusable."""
-    from toc_ros.core import Problem, SolverOptions
+def tip_link(model_name, arm, link=None):
+    """Return the tip link: link, else the named arm's default, else the last joint's child."""
+    if link:
+        return link
+    if model_name in DEFAULT_TIPS:
+        return DEFAULT_TIPS[model_name]
+    last = arm.joint_names[-1]
+    return next(child for child, (_, joint, _) in arm.links.items() if joint == last)
+
+
+def robot_key(args):
+    """Return the arguments that make the robot of load_robot (a cache key)."""
+    return (args.model, args.joints, tuple(args.locked), args.collision_spheres,
+            bool(args.self_collision))
+
+
+def load_robot(args):
+    """Return the ArmRobot (arm, collision spheres) of the arguments; ArmError if unusable."""
     from toc_ros.core.arms import load_arm, load_spheres
     from toc_ros.core.arms.arm_solve import ArmRobot
     from toc_ros.core.arms.model import ArmError
@@ -110,19 +140,52 @@ def build_arm_problem(args):
             raise ArmError(f'--locked {entry!r}: {value!r} is not a number') from None
     arm = load_arm(args.model, joints=args.joints, locked=locked)
     if args.collision_spheres:
-        robot = ArmRobot(arm, load_spheres(args.collision_spheres, arm),
-                         args.self_collision)
-    else:
-        robot = ArmRobot.shipped(arm, args.self_collision)
-    problem = Problem(x0=tuple(args.start), x_goal=tuple(args.goal), model=robot,
+        return ArmRobot(arm, load_spheres(args.collision_spheres, arm), args.self_collision)
+    return ArmRobot.shipped(arm, args.self_collision)
+
+
+def goal_state(args, robot):
+    """Return --goal, or the joint positions (at rest) that put the tip at --goal-pose."""
+    from toc_ros.core.arms import solve_ik
+    from toc_ros.core.arms.model import ArmError
+    if args.goal_pose is None:
+        return tuple(args.goal)
+    pose = list(args.goal_pose)
+    if len(pose) not in (3, 7):
+        raise ArmError(f'--goal-pose takes X Y Z [QX QY QZ QW], got {len(pose)} values')
+    arm = robot.arm
+    start = list(args.start)
+    # A start of the wrong size is refused by the problem's checks; IK then starts unseeded.
+    seed = start[:arm.n] if len(start) in (arm.n, 2 * arm.n) else None
+    q = solve_ik(arm, tip_link(args.model, arm, args.tip), pose[:3], pose[3:] or None,
+                 q_start=seed, spheres=robot.spheres, obstacles=args.sphere,
+                 margin=args.margin)
+    return tuple(float(v) for v in q)
+
+
+def solver_options(args):
+    """Return the SolverOptions of the arguments (the arm solver is the fast mode only)."""
+    from toc_ros.core import SolverOptions
+    return SolverOptions(mode='fast', max_iterations=args.max_iterations,
+                         timeout=args.timeout if args.timeout else None)
+
+
+def build_arm_problem(args, robot=None):
+    """
+    (Problem, SolverOptions, arm) from the arguments; ArmError / ProblemError if unusable.
+
+    robot: the ArmRobot of load_robot(args), when the caller keeps one (toc-sweep's workers
+    load each arm once per process); the goal pose's IK uses its Pinocchio Data.
+    """
+    from toc_ros.core import Problem
+    robot = load_robot(args) if robot is None else robot
+    problem = Problem(x0=tuple(args.start), x_goal=goal_state(args, robot), model=robot,
                       obstacles=tuple(tuple(row) for row in args.sphere), margin=args.margin,
                       n_intervals=args.N, integrator=args.integrator)
-    options = SolverOptions(mode='fast', max_iterations=args.max_iterations,
-                            timeout=args.timeout if args.timeout else None)
-    return problem, options, arm
+    return problem, solver_options(args), robot.arm
 
 
-def _guess(path):
+def initial_guess(path):
     """Return (controls, t_f) of a --json result file, None without one; ValueError: why."""
     from toc_ros.core.result import guess_from_dict
     if not path:
@@ -141,7 +204,7 @@ def main(argv):
     arm = None
     try:
         problem, options, arm = build_arm_problem(args)
-        guess = _guess(args.initial_guess)
+        guess = initial_guess(args.initial_guess)
     except ValueError as exc:      # ArmError, ProblemError, an unusable --initial-guess
         result = SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode='fast',
                              integrator=args.integrator)

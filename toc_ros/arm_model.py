@@ -31,13 +31,13 @@ import numpy as np
 import pinocchio as pin
 
 from toc_ros import conversions
+from toc_ros.arm_cli import tip_link
 from toc_ros.core import SolverOptions
 from toc_ros.core.arms import ArmError, default_spheres, load_arm, load_spheres
 from toc_ros.core.arms.arm_solve import ArmRobot
 from toc_ros.core.problem import Problem, ProblemError
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-DEFAULT_TIPS = {'panda': 'panda_hand', 'ur5': 'tool0'}
 # Braking: the stop's duration is searched on this geometric grid [s] (shortest first).
 BRAKE_DURATIONS_S = np.geomspace(0.01, 20.0, 60)
 
@@ -103,13 +103,8 @@ class ArmPlanModel(PendingArm):
 
     def tip_frame(self, link):
         """Return (link name, frame id) of the tip: link, else the model's default."""
-        link = link or DEFAULT_TIPS.get(self.name) or self._last_child()
+        link = tip_link(self.name, self.arm, link)
         return link, self.arm.frame_id(link)
-
-    def _last_child(self):
-        """Return the child link of the last planned joint."""
-        last = self.arm.joint_names[-1]
-        return next(child for child, (_, joint, _) in self.arm.links.items() if joint == last)
 
     def tip_poses(self, qs, link):
         """Return the tip's poses (pin.SE3) in the base frame for configurations qs (M, n)."""

@@ -15,6 +15,7 @@
 """
 Cases -> toc-solve arguments -> Problem/SolverOptions, by the code path of toc-solve itself.
 
+Arm specs (base.model panda, ur5 or urdf:PATH) go to arm_cases.py (case_builder picks).
 Every case becomes the argument list toc-solve would be given (base options, then the varied
 values: start.*/goal.* as --start/--goal, obstacles.K.* as --obstacle rows, NAME.K as element K
 of the array option --NAME, any other name as --NAME); toc_ros.solve parses it and builds the
@@ -46,16 +47,28 @@ class CaseArgumentError(SpecError):
     """toc-solve refused a case's arguments."""
 
 
-def toc_solve_parser():
-    """toc-solve's own argument parser, raising CaseArgumentError instead of exiting."""
-    from toc_ros.solve import build_parser
-    parser = build_parser()
-
+def raising(parser):
+    """Return the parser, made to raise CaseArgumentError instead of exiting."""
     def error(message):
         raise CaseArgumentError(message)
 
     parser.error = error
     return parser
+
+
+def toc_solve_parser():
+    """toc-solve's own argument parser, raising CaseArgumentError instead of exiting."""
+    from toc_ros.solve import build_parser
+    return raising(build_parser())
+
+
+def case_builder(sweep):
+    """Return the builder of a sweep's cases: ArmCaseBuilder when base.model is an arm."""
+    from toc_ros.arm_cli import is_arm_model_name
+    if is_arm_model_name(sweep.base.get('model')):
+        from .arm_cases import ArmCaseBuilder
+        return ArmCaseBuilder(sweep)
+    return CaseBuilder(sweep)
 
 
 def long_options(parser):
@@ -95,6 +108,8 @@ def _jsonable(value):
 class CaseBuilder:
     """Turns the cases of a Sweep into toc-solve argument lists (checked on the client)."""
 
+    is_arm = False
+
     def __init__(self, sweep):
         from toc_ros.config import default_config_path, load_parameters
         from toc_ros.core import ProblemError
@@ -117,6 +132,10 @@ class CaseBuilder:
         self.base = base
         self.kinds = {name: self._classify(name) for name in sweep.names}
         self._check_obstacle_axes()
+
+    def report_options(self):
+        """Keyword arguments of report.write_report: the arm offset a of the hand plane."""
+        return {'a': float(self.params['robot.a'])}
 
     # -- checks ------------------------------------------------------------------------------
 

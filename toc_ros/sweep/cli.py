@@ -130,17 +130,17 @@ def _say(args, *text):
 
 
 def _run(args):
-    from .cases import CaseBuilder
+    from .cases import case_builder
     from .dataset import Dataset, DatasetError, schema_for
     from .spec import load_spec, SpecError
     try:
         sweep = load_spec(args.spec)
-        builder = CaseBuilder(sweep)
+        builder = case_builder(sweep)
         if sweep.n_cases >= 10000:
             _say(args, f'toc-sweep: checking {sweep.n_cases} cases (about '
                        f'{sweep.n_cases * 0.4e-3:.0f} s) ...')
         cases = builder.cases()
-        schema = schema_for(sweep)
+        schema = schema_for(sweep, arm=builder.is_arm)
     except (SpecError, DatasetError) as exc:
         print(f'toc-sweep: bad spec: {exc}', file=sys.stderr)
         return EXIT_USAGE
@@ -175,7 +175,7 @@ def _sweep(args, sweep, builder, cases, dataset, done_ids):
     table = dataset.read(ids)
     from .report import write_report
     summary = write_report(table, sweep, dataset.out, stats, len(cases),
-                           a=float(builder.params['robot.a']))
+                           **builder.report_options())
     if not args.quiet:
         counts = ', '.join(f'{k} {v}' for k, v in summary['by_status'].items())
         print(f'toc-sweep: {summary["rows"]}/{len(cases)} cases in {dataset.dir}: '

@@ -35,6 +35,9 @@ RESULT_COLUMNS = (
     ('wall_time_s', pa.float64()), ('max_control_excess', pa.float64()),
     ('terminal_error', pa.float64()), ('min_clearance', pa.float64()), ('worker', pa.string()),
     ('message', pa.string()), ('args', pa.string()))
+# Arm sweeps only: the goal joint positions the solver got (from IK for a tip target) and the
+# last state's positions of the returned trajectory (null when there is none).
+ARM_COLUMNS = (('goal_q', pa.list_(pa.float64())), ('final_q', pa.list_(pa.float64())))
 TYPES = {'float64': pa.float64(), 'int64': pa.int64(), 'string': pa.string()}
 _PART = re.compile(r'^part-(\d+)\.parquet$')
 
@@ -43,14 +46,15 @@ class DatasetError(RuntimeError):
     """The output directory cannot be used as asked."""
 
 
-def schema_for(sweep):
-    """Arrow schema: case_id, one column per varied name, the result columns."""
-    clash = [n for n in sweep.names if n in dict(RESULT_COLUMNS) or n == 'case_id']
+def schema_for(sweep, arm=False):
+    """Arrow schema: case_id, one column per varied name, the result columns (arm: ARM_COLUMNS)."""
+    results = RESULT_COLUMNS + (ARM_COLUMNS if arm else ())
+    clash = [n for n in sweep.names if n in dict(results) or n == 'case_id']
     if clash:
         raise DatasetError(f'varied name(s) {", ".join(clash)} clash with result columns')
     return pa.schema([('case_id', pa.string())]
                      + [(n, TYPES[sweep.column_types[n]]) for n in sweep.names]
-                     + list(RESULT_COLUMNS))
+                     + list(results))
 
 
 def _columns(schema):

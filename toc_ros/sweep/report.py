@@ -18,13 +18,16 @@ Summary of a sweep (OUT/summary.json, OUT/summary.md) and its t_min heat map (OU
 The heat map is drawn over the spec's two plot axes; the other varied names make one panel per
 combination (up to MAX_PANELS), else each cell shows the worst (largest) t_min over them.
 Goal axes (goal.x/goal.y, goal.q1/goal.q2) are drawn in the hand's x-y plane with the
-obstacles.  Failures are marked: x = the solver did not succeed, dot = invalid problem (e.g.
-goal inside an obstacle).
+obstacles.  Arm sweeps (arm=True) over the tip target (goal_pose.x/goal_pose.y) are drawn in the
+base frame's x-y plane with the obstacle spheres seen from above; their joint axes stay joint
+axes.  Failures are marked: x = the solver did not succeed, dot = invalid problem (e.g. goal
+inside an obstacle; for arms also a tip target IK cannot reach).
 """
 
 import json
 import math
 import os
+import re
 import shlex
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -37,6 +40,8 @@ WORST = 10
 GRID_MAX_VALUES = 400
 SOLVED = ('SOLVED', 'SOLVED_INACCURATE')
 INVALID = 'INVALID_INPUT'
+TITLE_WIDTH = 60
+_OBSTACLE_FIELD = re.compile(r'^(obstacles|spheres)\.(\d+)\.(\w+)$')
 
 
 def _percentiles(values):
@@ -149,12 +154,11 @@ def _share(value):
     return '—' if value is None else f'{100 * value:.1f} %'
 
 
-def _obstacles(args):
-    """Obstacle rows and margin from a case's toc-solve command line."""
+def _obstacles(args, option='--obstacle', width=3):
+    """Obstacle rows (--obstacle X Y R, or for arms --sphere X Y Z R) of a command line."""
     words = shlex.split(args)
-    rows = [tuple(float(w) for w in words[k + 1:k + 4])
-            for k, w in enumerate(words) if w == '--obstacle']
-    return rows
+    return [tuple(float(w) for w in words[k + 1:k + 1 + width])
+            for k, w in enumerate(words) if w == option]
 
 
 def _edges(centers):
@@ -165,8 +169,13 @@ def _edges(centers):
     return np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
 
 
-def heatmap(table, sweep, path, a=1.1):
-    """Draw t_min over the plot axes; return path, or None when fewer than 2 numeric axes."""
+def heatmap(table, sweep, path, a=1.1, arm=False):
+    """
+    Draw t_min over the plot axes; return path, or None when fewer than 2 numeric axes.
+
+    a: the planar robot's arm offset (goal.q1/q2 axes drawn as hand positions); arm: a URDF
+    arm's sweep (no hand plane; tip-target axes drawn with the obstacle spheres).
+    """
     axes = sweep.plot_axes()
     if not axes or table.num_rows == 0:
         return None
@@ -185,9 +194,11 @@ def heatmap(table, sweep, path, a=1.1):
     if len(groups) > MAX_PANELS:
         panels = [('worst case over ' + ', '.join(others), np.ones(len(x), bool))]
     else:
-        panels = [(', '.join(f'{n} = {_fmt(v)}' for n, v in zip(others, g)) or 'all cases',
-                   np.array([k == g for k in keys])) for g in groups]
-    hand = {xname, yname} in ({'goal.x', 'goal.y'}, {'goal.q1', 'goal.q2'})
+        panels = [(_panel_title(others, g), np.array([k == g for k in keys])) for g in groups]
+    hand = not arm and {xname, yname} in ({'goal.x', 'goal.y'}, {'goal.q1', 'goal.q2'})
+    tip = arm and (xname, yname) == ('goal_pose.x', 'goal_pose.y')
+    if arm:
+        a = None        # joint axes of an arm are not the planar robot's hand plane
     ncol = min(3, len(panels))
     nrow = math.ceil(len(panels) / ncol)
     fig = Figure(figsize=(4.6 * ncol + 0.8, 4.2 * nrow), dpi=110, layout='constrained')
@@ -213,7 +224,8 @@ def heatmap(table, sweep, path, a=1.1):
             mesh = ax.scatter(*_plane(x[mask & ok], y[mask & ok], xname, yname, a), c=t[mask & ok],
                               s=8, vmin=vmin, vmax=vmax, cmap='viridis')
         for sel, marker, color, label in ((failed, 'x', 'red', 'not solved'),
-                                          (invalid, '.', '0.4', 'invalid problem')):
+                                          (invalid, '.', '0.4', 'unreachable or invalid'
+                                           if arm else 'invalid problem')):
             sel = sel & mask
             if sel.any():
                 ax.scatter(*_plane(x[sel], y[sel], xname, yname, a), marker=marker, c=color,
@@ -226,11 +238,21 @@ def heatmap(table, sweep, path, a=1.1):
             ax.set_aspect('equal')
             ax.set_xlabel('hand x [m]')
             ax.set_ylabel('hand y [m]')
+        elif tip:
+            first = np.flatnonzero(mask)[0]
+            for cx, cy, _, r in _obstacles(cols['args'][first], '--sphere', 4):
+                ax.add_patch(Circle((cx, cy), r, fill=False, color='k', linewidth=1.2,
+                                    linestyle='--'))
+            ax.set_aspect('equal')
+            ax.set_xlabel('tip target x [m] (base frame)')
+            ax.set_ylabel('tip target y [m]')
         else:
             ax.set_xlabel(xname)
             ax.set_ylabel(yname)
         ax.set_title(title, fontsize=9)
-        if (failed | invalid)[mask].any():
+        if (failed | invalid)[mask].any() and tip:       # below: the targets fill the axes
+            ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.13), ncol=2)
+        elif (failed | invalid)[mask].any():
             ax.legend(fontsize=7, loc='upper right')
     for k in range(len(panels), nrow * ncol):
         grid[k // ncol][k % ncol].set_visible(False)
@@ -241,17 +263,44 @@ def heatmap(table, sweep, path, a=1.1):
     return path
 
 
+def _panel_title(names, values):
+    """Return a panel's title: name = value, the fields of one obstacle or sphere as one."""
+    parts, groups = [], {}
+    for name, value in zip(names, values):
+        match = _OBSTACLE_FIELD.match(name)
+        if not match:
+            parts.append(f'{name} = {_fmt(value)}')
+            continue
+        key = (match.group(1), match.group(2))
+        if key not in groups:
+            groups[key] = ([], [])
+            parts.append(key)
+        groups[key][0].append(match.group(3))
+        groups[key][1].append(_fmt(value))
+    lines = ['']
+    for part in parts:
+        if not isinstance(part, str):
+            fields, values = groups[part]
+            part = (f'{part[0][:-1]} {part[1]} ({", ".join(fields)}) = '
+                    f'({", ".join(values)})')
+        if lines[-1] and len(lines[-1]) + len(part) + 2 > TITLE_WIDTH:
+            lines[-1] += ','
+            lines.append('')
+        lines[-1] += (', ' if lines[-1] else '') + part
+    return '\n'.join(lines) if parts else 'all cases'
+
+
 def _plane(x, y, xname, yname, a):
     """Drawing coordinates: the hand's x-y for goal.q1/goal.q2 axes, else the axis values."""
-    if {xname, yname} != {'goal.q1', 'goal.q2'}:
+    if a is None or {xname, yname} != {'goal.q1', 'goal.q2'}:
         return x, y
     q1, q2 = (x, y) if xname == 'goal.q1' else (y, x)
     return (a + q2) * np.cos(q1), (a + q2) * np.sin(q1)
 
 
-def write_report(table, sweep, out_dir, stats=None, n_cases=None, a=1.1):
+def write_report(table, sweep, out_dir, stats=None, n_cases=None, a=1.1, arm=False):
     """Write summary.json, summary.md and heatmap.png into out_dir; return the summary."""
-    plot = heatmap(table, sweep, os.path.join(out_dir, 'heatmap.png'), a=a)
+    plot = heatmap(table, sweep, os.path.join(out_dir, 'heatmap.png'), a=a, arm=arm)
     summary = summarize(table, sweep, stats, n_cases)
     summary['plots'] = ['heatmap.png'] if plot else []
     with open(os.path.join(out_dir, 'summary.json'), 'w') as stream:

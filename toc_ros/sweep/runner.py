@@ -63,7 +63,7 @@ class RunStats:
     wall_s: float = 0.0            # first submission to last result
     task_s: float = 0.0            # sum of the tasks' compute time on the workers
     cpu_s: float = 0.0             # sum of the worker processes' CPU time in the tasks
-    task_warm_s: float = 0.0       # warm-up time spent inside tasks (0 with the plugin)
+    task_warm_s: float = 0.0       # warm-up inside tasks (0 with the plugin; arms: loading)
     solve_s: float = 0.0           # sum of the solvers' wall_time_s
     threads: int = 0               # worker threads (max seen during the run)
     workers: set = field(default_factory=set)

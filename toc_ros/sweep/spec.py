@@ -23,7 +23,8 @@ The sweep spec (YAML): base scenario, axes to vary, limit; parsing, checks and c
       - {obstacles.0.x: [1.0, -1.0], obstacles.0.y: [1.0, 1.2]}
     random: {n: 0, seed: 1, ranges: {goal.q1: [0.5, 1.5]}}   # n samples, uniform in ranges
     limit: 100000                                   # more cases than this: refused
-    plot: {x: goal.x, y: goal.y}        # heat-map axes (default: goal.x/y, goal.q1/q2, ...)
+    plot: {x: goal.x, y: goal.y}        # heat-map axes (default: goal.x/y, goal_pose.x/y,
+                                        # goal.q1/q2, ...)
 
 Cases are the cross product of the grid axes, each zip group (one axis) and the random
 samples (one axis), in that order, the last varying fastest.  Only the structure is checked
@@ -41,8 +42,8 @@ import yaml
 
 TOP_LEVEL = ('base', 'grid', 'zip', 'random', 'limit', 'plot')
 DEFAULT_LIMIT = 100000
-PLOT_PAIRS = (('goal.x', 'goal.y'), ('goal.q1', 'goal.q2'), ('start.x', 'start.y'),
-              ('start.q1', 'start.q2'))
+PLOT_PAIRS = (('goal.x', 'goal.y'), ('goal_pose.x', 'goal_pose.y'), ('goal.q1', 'goal.q2'),
+              ('start.x', 'start.y'), ('start.q1', 'start.q2'))
 
 
 class SpecError(ValueError):
@@ -162,7 +163,8 @@ def _is_number(value):
 def _check_name(name, where, path):
     if not isinstance(name, str) or not name or name.startswith('-') or ' ' in name:
         raise SpecError(f'{path}: {where}: {name!r} is not a name (toc-solve long option '
-                        'without "--", or start.*, goal.*, obstacles.K.*)')
+                        'without "--", or start.*, goal.*, obstacles.K.*; arms: goal_pose.*, '
+                        'spheres.K.*)')
     return name
 
 

@@ -27,6 +27,7 @@ import traceback
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from .arm_cases import arm_columns, build_case, is_arm_case, warm_up_seconds
 from .cases import command_line
 
 PLUGIN_NAME = 'toc_ros-warm-up'
@@ -70,8 +71,18 @@ def solve_case(case, worker='local'):
     """Solve one case (case_id, argv, values, problem, options); return its result row."""
     from toc_ros.core import solve, SolveResult, Status
     case_id, argv, values, problem, options = case
+    # Arm cases carry their arguments only: the problem is built here (arm_cases.py).
+    arm = problem is None and is_arm_case(argv)
     try:
-        result = solve(problem, options)
+        result = guess = None
+        if arm:
+            try:
+                problem, options, guess = build_case(argv)
+            except ValueError as exc:     # e.g. an unreachable tip target: the row says why
+                result = SolveResult(status=Status.INVALID_INPUT, message=str(exc))
+        if result is None:
+            result = (solve(problem, options) if guess is None
+                      else solve(problem, options, initial_guess=guess))
         status = result.status.value
     except Exception:       # noqa: B902 - a bug must not take the batch down
         result = SolveResult(status=Status.INVALID_INPUT, message=traceback.format_exc(limit=3))
@@ -85,6 +96,8 @@ def solve_case(case, worker='local'):
     row.update({name: float(getattr(v, name, math.nan)) for name in VIOLATIONS})
     row.update({'worker': worker, 'message': str(getattr(result, 'message', '')),
                 'args': command_line(argv)})
+    if arm:
+        row.update(arm_columns(problem, result))
     return row
 
 
@@ -96,7 +109,11 @@ def solve_batch(batch):
     worker = _worker_name()
     warm_up_once()          # a no-op after the plugin; covers a worker that missed it
     warm = time.perf_counter() - start
+    arm_warm = warm_up_seconds()
     rows = [solve_case(case, worker) for case in batch]
+    # An arm's first case in this process loaded and warmed it: not solving, and it would
+    # make the batcher think every case takes that long.
+    warm += warm_up_seconds() - arm_warm
     return {'rows': rows, 'worker': worker, 'task_s': time.perf_counter() - start - warm,
             'cpu_s': time.process_time() - cpu, 'warm_s': warm, 'started_at': started_at,
             'finished_at': time.time()}
