@@ -16,7 +16,7 @@
 An independent check of arm trajectories: Pinocchio straight from the URDF, spheres from YAML.
 
 Nothing of toc_ros is used to judge a plan: the model is pinocchio.buildModelFromUrdf of the
-URDF file (the fingers locked at 0 with buildReducedModel, as the planner locks them), the
+URDF file (the fingers locked at 0, or at given values, with buildReducedModel), the
 limits are the URDF's as Pinocchio reads them, the sphere centres are the link frames'
 placements applied to the sphere file's offsets, and the dynamics is pinocchio.aba.
 """
@@ -45,10 +45,14 @@ def find_panda_urdf():
 class ArmOracle:
     """The Panda (7 joints, fingers locked at 0) and its collision spheres, independently."""
 
-    def __init__(self, urdf_text, spheres_path=PANDA_SPHERES, joints=PANDA_JOINTS):
+    def __init__(self, urdf_text, spheres_path=PANDA_SPHERES, joints=PANDA_JOINTS, locked=None):
+        """locked: {joint: value} of joints not planned (the others locked at 0)."""
         full = pin.buildModelFromXML(urdf_text)
-        locked = [full.getJointId(name) for name in full.names[1:] if name not in joints]
-        self.model = pin.buildReducedModel(full, locked, pin.neutral(full))
+        q_locked = pin.neutral(full)
+        for name, value in (locked or {}).items():
+            q_locked[full.idx_qs[full.getJointId(name)]] = value
+        ids = [full.getJointId(name) for name in full.names[1:] if name not in joints]
+        self.model = pin.buildReducedModel(full, ids, q_locked)
         assert list(self.model.names[1:]) == list(joints)
         self.data = self.model.createData()
         self.n = self.model.nq

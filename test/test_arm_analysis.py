@@ -66,10 +66,26 @@ def obstacle_sets(oracle):
             (SWITCH_S, [(2.0, 2.0, 2.0, 0.1)])]
 
 
-def write_run(path, oracle):
+def old_reports():
+    """Return the progress reports of a recording made before they named the arm settings."""
+    return [schema.ProgressReport(status=Status.SOLVED, message='solved', robot_model='panda',
+                                  event=''),
+            schema.ProgressReport(status=Status.SOLVED, event=schema.EVENT_REPLANNED,
+                                  latency_s=0.012),
+            schema.ProgressReport(status=Status.SOLVED, event=schema.EVENT_REPLANNED,
+                                  latency_s=0.020)]
+
+
+def write_run(path, oracle, reports=None, sets=None):
+    """
+    Write the synthetic run; return (times, q, dq, effort) of its joint_states.
+
+    reports: the progress reports, one every 0.3 s from 0.18 s (default: old_reports());
+    sets: the two obstacle sets [(time, rows)] (default: obstacle_sets(oracle)).
+    """
     times, q, dq, effort = motion(oracle)
     events = []
-    (first, rows), (second, (far,)) = obstacle_sets(oracle)
+    (first, rows), (second, (far,)) = sets or obstacle_sets(oracle)
     events.append((first, '/obstacles', Float64MultiArray(data=[v for r in rows for v in r])))
     # The second set as an RViz marker in the URDF's root frame (diameter as the scale).
     marker = Marker(type=Marker.SPHERE, action=Marker.ADD, ns='far', id=0)
@@ -83,13 +99,7 @@ def write_run(path, oracle):
     plan.points = [JointTrajectoryPoint(positions=list(p), time_from_start=Duration(
         sec=0, nanosec=int(k * 5e8))) for k, p in enumerate((READY, 0.5 * (READY + GOAL), GOAL))]
     events.append((0.19, '/trajectory', plan))
-    reports = [schema.ProgressReport(status=Status.SOLVED, message='solved', robot_model='panda',
-                                     event=''),
-               schema.ProgressReport(status=Status.SOLVED, event=schema.EVENT_REPLANNED,
-                                     latency_s=0.012),
-               schema.ProgressReport(status=Status.SOLVED, event=schema.EVENT_REPLANNED,
-                                     latency_s=0.020)]
-    for k, report in enumerate(reports):
+    for k, report in enumerate(old_reports() if reports is None else reports):
         events.append((0.18 + 0.3 * k, '/solver_node/progress',
                        schema.progress_msg('solver_node', report)))
     for k, t in enumerate(times):
@@ -148,6 +158,11 @@ def test_arm_recording_is_analysed_against_its_spheres_and_limits(tmp_path, caps
         assert summary['plots'][name]['file'] == f'{name}.png'
         assert (out / f'{name}.png').stat().st_size > 10_000
     assert 'min clearance' in (out / 'summary.md').read_text()
+    # A recording made before the reports named the arm settings: what was assumed is said.
+    assumed = [w for w in summary['warnings'] if 'does not name the settings' in w]
+    assert len(assumed) == 1 and 'assumed the shipped panda collision spheres' in assumed[0]
+    assert "the URDF's joint limits" in assumed[0] and 'default tip link' in assumed[0]
+    assert summary['model']['tip_link'] == 'panda_hand'
 
 
 def test_an_arm_that_cannot_be_rebuilt_is_refused_with_the_reason(tmp_path, capsys):

@@ -14,6 +14,7 @@
 
 """The ~/progress schema: one writer, one reader, and nobody else spells its keys."""
 
+import dataclasses
 import math
 from pathlib import Path
 import re
@@ -82,6 +83,31 @@ def test_refusals_and_notices():
     restarted = schema.progress_from_msg(schema.progress_msg('solver', schema.ProgressReport(
         message='again', event=schema.EVENT_RESTARTED)))
     assert restarted.solving
+
+
+def test_arm_fields_round_trip_and_are_absent_from_older_messages():
+    """Names and entries as 'a, b', texts (newlines, commas) as they are; () not written."""
+    from toc_ros.arm_record import ArmRecord
+    spheres = 'panda_link1: [[0.0, 0.0, -0.1, 0.08]]\nignore_pairs: []\n'
+    report = schema.ProgressReport(
+        status=Status.SOLVED, robot_model='urdf', arm_joints=('j1', 'j2'),
+        arm_locked=('finger=0.02',), arm_tip_link='tool', arm_urdf_source='parameter',
+        arm_urdf_sha256='ab' * 32, arm_urdf='<robot name="a, b">\n</robot>',
+        arm_spheres_source='/x/spheres.yaml', arm_spheres_sha256='cd' * 32,
+        arm_spheres=spheres)
+    msg = schema.progress_msg('solver', report)
+    raw = {kv.key: kv.value for kv in msg.values}
+    assert raw['arm_joints'] == 'j1, j2' and 'arm_joint_limits' not in raw
+    back = schema.progress_from_msg(msg)
+    assert back == dataclasses.replace(report, level=msg.level, name='solver')
+    record = ArmRecord.from_report(back)
+    assert record.joints == ('j1', 'j2') and record.joint_limits == ()
+    assert record.spheres == spheres and 'arm_spheres' not in record.fields()
+    assert record.fields(texts=True)['arm_urdf'] == report.arm_urdf
+    old = schema.progress_from_msg(schema.progress_msg('solver', schema.ProgressReport(
+        status=Status.SOLVED, robot_model='panda')))
+    assert old.arm_joints == () and old.arm_urdf_source == ''
+    assert ArmRecord.from_report(old) is None
 
 
 def test_reading_is_tolerant():

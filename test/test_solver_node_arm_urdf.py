@@ -19,6 +19,7 @@ The URDF is the Panda's from example-robot-data, given as text (as robot_state_p
 has it) with the shipped sphere file; plans are re-checked by test/arm_oracle.py.
 """
 
+import hashlib
 import re
 import time
 
@@ -153,6 +154,15 @@ def test_robot_description_parameter_and_limit_override(tmp_path):
         result, msg = solver.plan(Q_TURN)
         assert result.status is Status.SOLVED and result.robot_model == 'urdf', result.message
         oracle.check(msg, Q0, Q_TURN)
+        # The result names the arm (toc-analyze rebuilds it); the texts are the ready
+        # report's only.
+        assert result.arm_joints == tuple(PANDA_JOINTS)
+        assert result.arm_joint_limits == ('panda_joint1.upper=1.6',)
+        assert (result.arm_urdf_source, result.arm_urdf_sha256) == (
+            'parameter', hashlib.sha256(urdf.strip().encode()).hexdigest())
+        assert result.arm_spheres_source == str(PANDA_SPHERES)
+        assert result.arm_tip_link == 'panda_hand' and not result.arm_urdf
+        assert not result.arm_spheres
         far = list(Q_TURN)
         far[0] = 2.0        # within the URDF's limits, not within the override
         assert 'outside its limits [-2.8973, 1.6]' in refused(solver, far, 'panda_joint1')
@@ -183,8 +193,14 @@ def test_robot_description_topic_loads_and_reloads(tmp_path):
         narrow = with_joint1_upper(urdf, 1.0)
         since = time.monotonic()
         solver.description.publish(String(data=narrow))
-        solver.client.wait_for(lambda: [r for r in reports(solver, since)
-                                        if r.event == EVENT_READY], TIMEOUT, 'the reload')
+        ready = solver.client.wait_for(lambda: [r for r in reports(solver, since)
+                                                if r.event == EVENT_READY], TIMEOUT,
+                                       'the reload')[0]
+        # The ready report names the new URDF by its sha256 (the text is the topic's) and
+        # carries the sphere file's text.
+        assert (ready.arm_urdf_source, ready.arm_urdf) == ('topic', '')
+        assert ready.arm_urdf_sha256 == hashlib.sha256(narrow.strip().encode()).hexdigest()
+        assert ready.arm_spheres == PANDA_SPHERES.read_text()
         assert 'outside its limits [-2.8973, 1]' in refused(solver, Q_TURN, 'panda_joint1')
         inside = list(Q_TURN)
         inside[0] = 0.9

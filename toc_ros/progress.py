@@ -20,7 +20,8 @@ A ProgressReport is what one message says; ``progress_msg(name, report)`` writes
 ``level``, ``name``, ``message`` and ``values[*].key/value`` are used).  While a solve runs the
 status is None (written as ``SOLVING``); afterwards it is a core ``Status``.  Values are
 strings: integers as digits, floats with 9 significant digits (clock times 17; 'nan' when
-unknown), vectors as '[a, b, ...]'.  Keys whose value is unset are left out.
+unknown), vectors as '[a, b, ...]', lists of names as 'a, b, ...'.  Keys whose value is unset
+are left out.
 """
 
 from dataclasses import dataclass, fields
@@ -91,6 +92,25 @@ class ProgressReport:
     event: str = ''
     robot_model: str = ''         # robot.model planned for (ready and result reports)
     model_parameters: str = ''    # its robot.model_parameters, 'name=value' joined by ', '
+    # URDF arms (ready and result reports): what rebuilds the model planned for, so that a
+    # recording analyses on another machine (toc_ros.arm_record writes and reads them).
+    # Recordings made before these existed have none of them (arm_urdf_source empty).
+    arm_joints: Tuple[str, ...] = ()         # the planned joints, in order
+    arm_locked: Tuple[str, ...] = ()         # every locked joint 'JOINT=VALUE' [rad or m]
+    arm_joint_limits: Tuple[str, ...] = ()   # robot.joint_limits 'JOINT.KEY=VALUE' overrides
+    arm_tip_link: str = ''                   # the tip link in force (default resolved)
+    # The URDF: 'panda' / 'ur5' (example-robot-data's), 'parameter' or 'topic' (the
+    # robot_description parameter or topic); the sha256 of its text; the text itself only on
+    # ready reports (once per model load) and only for 'parameter' (the topic is recorded).
+    arm_urdf_source: str = ''
+    arm_urdf_sha256: str = ''
+    arm_urdf: str = ''
+    # The collision spheres: the sphere file's path as the node had it, or 'shipped' (the
+    # package's set of panda / ur5); the sha256 of its YAML text; the text on ready reports
+    # (the path may not exist where the recording is analysed).
+    arm_spheres_source: str = ''
+    arm_spheres_sha256: str = ''
+    arm_spheres: str = ''
     # Replan cycles: joint_states received -> trajectory published [s], the state's deviation
     # from the executing plan [rad or m], the new plan's header.stamp and the header.stamp of
     # the joint_states it started from [s, node clock].
@@ -132,6 +152,8 @@ _FLOAT = ('t_f', 'cost', 'best_feasible_t_f', 'max_control_excess', 'terminal_er
           'state_stamp', 'published_stamp')
 # Clock times: every digit (9 would lose the fraction).
 _EXACT = ('plan_stamp', 'state_stamp', 'published_stamp')
+# Tuples of names or entries (no commas in them): written joined by ', '; () is not written.
+_NAMES = ('arm_joints', 'arm_locked', 'arm_joint_limits')
 KEYS = tuple(_KEYS.get(f.name, f.name) for f in fields(ProgressReport) if f.name not in _OWN)
 
 
@@ -159,10 +181,11 @@ def progress_msg(name, report):
         if f.name in _OWN or f.name == 'status':
             continue
         value = getattr(report, f.name)
-        if value is None or value == '':
+        if value is None or value == '' or (f.name in _NAMES and not value):
             continue
-        values.append(KeyValue(key=_KEYS.get(f.name, f.name),
-                               value=_text(value, 17 if f.name in _EXACT else 9)))
+        text = (', '.join(str(v) for v in value) if f.name in _NAMES
+                else _text(value, 17 if f.name in _EXACT else 9))
+        values.append(KeyValue(key=_KEYS.get(f.name, f.name), value=text))
     return DiagnosticStatus(level=level, name=name, message=report.message, values=values)
 
 
@@ -212,6 +235,8 @@ def progress_from_msg(msg):
             kwargs[f.name] = _number(value, float)
         elif f.name == 'goal':
             kwargs[f.name] = _vector(value)
+        elif f.name in _NAMES:
+            kwargs[f.name] = tuple(v.strip() for v in str(value).split(',') if v.strip())
         else:
             kwargs[f.name] = value
     return ProgressReport(**kwargs)

@@ -16,7 +16,7 @@
 toc-analyze for URDF arms: the executed motion against the joint limits and the obstacle spheres.
 
 A recording of solver_node with robot.model panda, ur5 or urdf names its model on ~/progress
-(robot_model); recorded_run.arm_parameters rebuilds it.  The obstacles in force at each
+(robot_model and the arm_* fields); recorded_arm rebuilds it.  The obstacles in force at each
 joint_states sample are the latest `obstacles` rows (x, y, z, r) or `obstacle_markers` set
 recorded before it (a run without either has no clearance to report).  Clearance is the core's
 sphere clearance (toc_ros.core.arms) of the arm's collision spheres to the true obstacle
@@ -120,7 +120,8 @@ def analyse_arm(run, info, warn=None):
         base = str(run.params['base_frame'])
     schedule = obstacle_schedule(run, base, warn)
     clearance, nearest = sample_clearance(model.robot, q, times, schedule)
-    tip, _ = model.tip_frame(str(run.params.get('robot.tip_link', '')))
+    # The tip link planned with (the recording's, else --params' or the model's default).
+    tip, _ = model.tip_frame(str(run.model_params.get('robot.tip_link', '')))
     tips = np.array([p.translation for p in model.tip_poses(q, tip)]) if len(q) \
         else np.empty((0, 3))
     worst = int(np.argmin(clearance)) if len(clearance) else None

@@ -31,8 +31,9 @@ from toc_ros import arm_config
 from toc_ros.config import model_from_parameters
 from toc_ros.conversions import as_model
 from toc_ros.core import ProblemError
-from toc_ros.core.settings import parameter_table
 from toc_ros.progress import progress_from_msg, ProgressReport
+
+from .recorded_arm import recorded_arm
 
 
 # Role -> (last name token, type). Names are matched below any namespace.
@@ -108,6 +109,9 @@ class RecordedRun:
     params: dict
     model: object = None                # the RobotModel (recorded_model), set by load_run
     model_source: str = 'parameters'
+    # The flat parameters the model was built from (arms: their settings, e.g. robot.tip_link,
+    # as recorded, else as --params give them).
+    model_params: dict = field(default_factory=dict)
     clock_offset_ns: int = 0            # log time - header.stamp (see the module docstring)
     clock_source: str = 'none'
 
@@ -139,7 +143,7 @@ def load_run(recording, params, warn=None) -> RecordedRun:
     messages = {role: [((t - start_ns) * 1e-9, m) for t, m in sorted(items, key=lambda x: x[0])]
                 for role, items in raw.items()}
     run = RecordedRun(topics, messages, start_ns, dict(params))
-    run.model, run.model_source = recorded_model(run, warn)
+    run.model, run.model_source, run.model_params = rebuild_model(run, warn)
     run.clock_offset_ns, run.clock_source = clock_offset(raw['joint_states'], warn)
     return run
 
@@ -169,71 +173,47 @@ def clock_offset(joint_states, warn=None):
 
 
 def recorded_model(run, warn=None):
+    """Return (RobotModel, source) of a run (see rebuild_model)."""
+    return rebuild_model(run, warn)[:2]
+
+
+def rebuild_model(run, warn=None):
     """
-    Return (RobotModel, source) of a run.
+    Return (RobotModel, source, the flat parameters it was built from) of a run.
 
     The robot_model / model_parameters that solver_node wrote on ~/progress (ready and result
-    reports), else the parameters (--params).  A URDF arm that cannot be rebuilt is a
-    ProblemError with the reason (no planar stand-in could analyse its joints).
+    reports; URDF arms: with what rebuilds them, see recorded_arm), else the parameters
+    (--params).  A URDF arm that cannot be rebuilt is a ProblemError with the reason (no
+    planar stand-in could analyse its joints).
     """
-    for _, msg in run.messages.get('progress', ()):
-        report = progress_from_msg(msg)
+    reports = [progress_from_msg(msg) for _, msg in run.messages.get('progress', ())]
+    for report in reports:
         if not report.robot_model:
             continue
         if arm_config.is_arm({'robot.model': report.robot_model}):
-            return _arm_model(arm_parameters(run, report.robot_model)), 'solver progress'
+            model, params = recorded_arm(run, report.robot_model, [
+                r for r in reports if r.robot_model == report.robot_model], warn)
+            return model, 'solver progress', params
         params = dict(run.params)
         params['robot.model'] = report.robot_model
         params['robot.model_parameters'] = [
             p.strip() for p in report.model_parameters.split(',') if p.strip()]
         try:
-            return model_from_parameters(params), 'solver progress'
+            return model_from_parameters(params), 'solver progress', params
         except ProblemError as error:
             if warn is not None:
                 warn(f'the recorded robot model {report.robot_model!r} cannot be built here '
                      f'({error}); using the parameters')
             break
     if arm_config.is_arm(run.params):
-        return _arm_model(arm_parameters(run, run.params['robot.model'])), 'parameters'
+        model, params = recorded_arm(run, run.params['robot.model'], [], warn)
+        return model, 'parameters', params
     try:
-        return model_from_parameters(run.params), 'parameters'
+        return model_from_parameters(run.params), 'parameters', run.params
     except ProblemError as error:
         if warn is not None:
             warn(f'robot model of the parameters: {error}; using the cylindrical robot')
-        return as_model(1.1), 'default'
-
-
-def _arm_model(params):
-    """Return the arm model of flat parameters (ProblemError with the reason)."""
-    name = params['robot.model']
-    try:
-        model = model_from_parameters(params)
-    except ProblemError as error:
-        raise ProblemError(f'the recorded arm {name!r} cannot be rebuilt: {error}') from None
-    if getattr(model, 'pending', False):
-        raise ProblemError(f'the recorded arm {name!r} cannot be rebuilt: no URDF (record the '
-                           'robot_description topic, or give robot_description in --params)')
-    return model
-
-
-def arm_parameters(run, name):
-    """
-    Return the flat parameters that rebuild the recorded arm robot.model `name`.
-
-    The run's parameters (--params; the arm settings' defaults where they have none), the
-    planned joints of the first recorded trajectory and the last recorded robot_description.
-    """
-    params = {p.name: p.default for p in parameter_table(arm_config.ArmSettings)}
-    params.update(run.params)
-    params['robot.model'] = name
-    for _, msg in run.messages.get('trajectory', ()):
-        if msg.joint_names:
-            params['joint_names'] = list(msg.joint_names)
-            break
-    descriptions = run.messages.get('robot_description', ())
-    if descriptions:
-        params[arm_config.TOPIC_DESCRIPTION] = descriptions[-1][1].data
-    return params
+        return as_model(1.1), 'default', run.params
 
 
 def run_model(run_or_a):

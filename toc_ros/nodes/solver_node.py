@@ -172,7 +172,7 @@ class SolverNode(Node):
         config = self.settings()
         self.report(schema.ProgressReport(
             message=f'ready: numba kernels loaded in {elapsed:.2f} s', elapsed_s=elapsed,
-            event=schema.EVENT_READY, **config.model_keys()))
+            event=schema.EVENT_READY, **config.model_keys(texts=True)))
         self.get_logger().info(
             f'ready: {len(config.problem.obstacles)} obstacle(s), mode '
             f'{config.options.mode}, N = {config.problem.n_intervals}')

@@ -23,9 +23,9 @@ per accepted change, so that the node reads typed fields instead of looking name
 """
 
 from dataclasses import dataclass
-from typing import Any, Dict
+from typing import Any, Dict, Optional
 
-from toc_ros import arm_config
+from toc_ros import arm_config, arm_record
 from toc_ros.config import (Frames, model_choice, model_from_parameters,
                             options_from_parameters, problem_from_parameters)
 from toc_ros.core import ModelError, ProblemError
@@ -52,6 +52,8 @@ class SolverNodeConfig:
     problem: Problem             # the scenario's data as given: initial_state (x0), obstacles
     options: SolverOptions       # solver.*
     model: Any                   # the RobotModel planned for (with its actuator lag)
+    # A loaded URDF arm: what rebuilds it from a recording (its files read with the model).
+    arm: Optional[arm_record.ArmRecord] = None
 
     @classmethod
     def from_flat(cls, params):
@@ -64,9 +66,12 @@ class SolverNodeConfig:
                        else from_parameters(Problem, params))
         except (TypeError, ValueError) as exc:
             raise ProblemError(str(exc))
+        model = model_from_parameters(params)
+        arm = (arm_record.arm_record(params, model)
+               if getattr(model, 'is_arm', False) and not model.pending else None)
         return cls(flat=params, node=node, frames=frames, robot=model_choice(params),
-                   problem=problem, options=options_from_parameters(params),
-                   model=model_from_parameters(params))
+                   problem=problem, options=options_from_parameters(params), model=model,
+                   arm=arm)
 
     @property
     def replanning(self):
@@ -83,10 +88,18 @@ class SolverNodeConfig:
         """Tell whether the model is a URDF arm (robot.model panda, ur5 or urdf)."""
         return getattr(self.model, 'is_arm', False)
 
-    def model_keys(self):
-        """Return the robot-model values of progress reports (what was planned for)."""
-        return {'robot_model': self.robot.name,
+    def model_keys(self, texts=False):
+        """
+        Return the robot-model values of progress reports (what was planned for).
+
+        URDF arms add their ArmRecord; texts (the ready report, once per model load): with
+        the sphere file's and a parameter URDF's text, too large for every result.
+        """
+        keys = {'robot_model': self.robot.name,
                 'model_parameters': ', '.join(self.robot.parameters)}
+        if self.arm is not None:
+            keys.update(self.arm.fields(texts))
+        return keys
 
     def planning_data(self):
         """Return the parameter values a plan depends on beyond its goal."""
