@@ -247,7 +247,7 @@ def test_step_derivatives_and_curvature_match_finite_differences(name):
     ({'x0': (float('nan'), 0.2, 0.0, -2.0, 0.0, 2.2, 0.8)}, 'NaN'),
     ({'x_goal': (1.2, 0.1)}, 'the arm has 7 joints'),
     ({'x_goal': (1.2, 0.1, 0.3, -1.8, 0.2, 2.0, 0.3) + (9.0,) * 7}, 'velocity'),
-    ({'integrator': 'rk4'}, 'not implemented'),
+    ({'integrator': 'midpoint'}, "use 'euler' or 'rk4'"),
     ({'obstacles': ((0.214, -0.551, 0.35, 0.05),)}, 'in collision'),
     ({'obstacles': ((0.5, 0.0, 0.5, float('inf')),)}, 'NaN or infinite'),
     ({'margin': -1.0}, 'margin'),
@@ -303,7 +303,7 @@ def test_cli_refuses_a_goal_outside_the_limits(tmp_path, capsys):
 
 # Solves against IPOPT, re-checked independently -------------------------------------------
 
-def _independent_check(name, result, obstacles, start=None, goal=None):
+def _independent_check(name, result, obstacles, start=None, goal=None, integrator='euler'):
     """Re-check result from start (default: the scenario's) to goal with arm_check.py."""
     from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf
     from toc_ros.bench.arm_problem import ArmSpec
@@ -313,7 +313,7 @@ def _independent_check(name, result, obstacles, start=None, goal=None):
     spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
                    goal=goal, obstacles=obstacles,
                    robot_spheres=str(DATA / f'arm_spheres_{name}.yaml'), margin=MARGIN)
-    check = check_trajectory(spec, result.final_time, result.controls, 'euler',
+    check = check_trajectory(spec, result.final_time, result.controls, integrator,
                              result.states)
     assert check['terminal_error'] < 1e-6
     assert check['defect'] < 1e-9
@@ -447,6 +447,63 @@ def test_a_sphere_on_the_line_near_a_joint_limit_is_passed_as_well_as_ipopt_does
             nlp.solve((result.states, result.controls, result.final_time))]
     best = min(out['t_f'] for out in runs if out['success'])
     assert result.final_time <= best * (1 + 1e-3)
+
+
+@pytest.mark.parametrize('name', ['panda', 'ur5'])
+def test_rk4_step_derivatives_match_finite_differences(name):
+    robot = _robot(name)
+    arm = robot.arm
+    n, nx = arm.n, 2 * arm.n
+    rng = np.random.default_rng(11)
+    ev = ArmEvaluator(arm, robot.spheres, (), MARGIN, 1, integrator='rk4')
+    q = np.clip(rng.uniform(-1.0, 1.0, n), arm.lower, arm.upper)
+    x = np.vstack([np.concatenate([q, rng.uniform(-1, 1, n)]), rng.uniform(-1, 1, nx)])
+    v = rng.uniform(-0.8, 0.8, (1, n))
+    t_f = 0.05          # one interval of 50 ms: a step the size of a plan's
+    terms = ev.stage_terms(x, v, t_f, np.zeros((2, nx)), hessian='none')
+    z0 = np.concatenate([x[0], v[0], [t_f]])
+
+    def step(z):
+        return ev.defects(np.vstack([z[:nx], x[1]]), z[nx:nx + n][None], z[-1])[0] + x[1]
+
+    # RK4 by hand, with pinocchio.aba: the step the defects must describe.
+    def f(state):
+        return np.concatenate([state[n:], pin.aba(arm.model, arm.model.createData(),
+                                                  state[:n], state[n:],
+                                                  arm.effort * v[0])])
+    k1 = f(x[0])
+    k2 = f(x[0] + 0.5 * t_f * k1)
+    k3 = f(x[0] + 0.5 * t_f * k2)
+    k4 = f(x[0] + t_f * k3)
+    assert np.allclose(step(z0), x[0] + t_f / 6 * (k1 + 2 * k2 + 2 * k3 + k4), atol=1e-12)
+    eps = 1e-6
+    jac = np.stack([(step(z0 + eps * e) - step(z0 - eps * e)) / (2 * eps)
+                    for e in np.eye(z0.size)], axis=1)
+    scale = max(1.0, np.abs(jac).max())
+    np.testing.assert_allclose(terms['a'][0], jac[:, :nx], atol=1e-7 * scale)
+    np.testing.assert_allclose(terms['b'][0], jac[:, nx:nx + n], atol=1e-7 * scale)
+    np.testing.assert_allclose(terms['c'][0], jac[:, -1], atol=1e-7 * scale)
+
+
+@pytest.mark.slow
+def test_rk4_arm_solve_matches_ipopt_on_the_rk4_transcription():
+    # N = 10: RK4 arm solves run without the dynamics' curvature (about 1000 iterations here)
+    # and IPOPT on the RK4 transcription takes seconds; IPOPT is started from fast mode's
+    # solution (a better optimum nearby would show).
+    pytest.importorskip('casadi')
+    from toc_ros.bench.arm_problem import ArmProblem
+    from toc_ros.bench.arm_reference import ArmTranscription
+    problem = _problem('ur5', 10, False, integrator='rk4')
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert result.integrator == 'rk4'
+    spec = _independent_check('ur5', result, (), integrator='rk4')
+    euler = solve(_problem('ur5', 10, False))
+    assert abs(euler.final_time - result.final_time) > 1e-4      # another discretisation
+    nlp = ArmTranscription(ArmProblem(spec), 10, 'rk4', 'ipopt')
+    out = nlp.solve((result.states, result.controls, result.final_time))
+    assert out['success'], out['status']
+    assert result.final_time <= out['t_f'] * (1 + 1e-6)
 
 
 @pytest.mark.slow

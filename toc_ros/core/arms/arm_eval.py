@@ -44,6 +44,7 @@ import pinocchio as pin
 
 from . import kernels
 from .ipm_kernels import euler_terms
+from .rk4_steps import rk4_defects, rk4_terms
 
 FD_STEP = 1e-6
 # The second derivatives of ABA (2 n derivative calls per interval) are recomputed every
@@ -55,8 +56,10 @@ TENSOR_REUSE = 3
 class ArmEvaluator:
     """Euler step values/derivatives and sphere constraints for one arm problem."""
 
-    def __init__(self, arm, spheres, obstacles, margin, n_intervals, self_collision=False):
+    def __init__(self, arm, spheres, obstacles, margin, n_intervals, self_collision=False,
+                 integrator='euler'):
         self.arm = arm
+        self.integrator = integrator
         self.model = arm.model
         self.data = arm.model.createData()
         self.pool = pin.ModelPool(arm.model, 1)
@@ -103,15 +106,39 @@ class ArmEvaluator:
         return out.T
 
     def defects(self, x, v, t_f):
-        """Euler defects x_k + h f(x_k, u_k) - x_{k+1}, (N, 2n)."""
+        """Defects step_k - x_{k+1}, (N, 2n): Euler x_k + h f(x_k, u_k), or RK4."""
+        if self.integrator == 'rk4':
+            return rk4_defects(self, x, v, t_f)
         n, h = self.n, t_f / self.n_int
         acc = self.accelerations(x[:-1], v)
         step = np.hstack([x[:-1, n:], acc])
         return x[:-1] + h * step - x[1:]
 
+    def derivatives_at(self, states, tau):
+        """(acc, d acc/dq, d acc/dv, M^-1) at states (K, 2n) under torques (K, n)."""
+        n, count = self.n, states.shape[0]
+        acc = np.empty((count, n))
+        d_q = np.empty((count, n, n))
+        d_v = np.empty((count, n, n))
+        minv = np.empty((count, n, n))
+        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
+        # data's ddq, ddq_dq, ddq_dv and Minv are numpy views of Pinocchio's own buffers:
+        # copying them from the views skips the tuple of fresh arrays each call returns.
+        out_a, out_q, out_v, out_m = data.ddq, data.ddq_dq, data.ddq_dv, data.Minv
+        started = time.perf_counter()
+        for k in range(count):
+            derivatives(model, data, states[k, :n], states[k, n:], tau[k])
+            acc[k] = out_a
+            d_q[k] = out_q
+            d_v[k] = out_v
+            minv[k] = out_m
+        self.pin_time += time.perf_counter() - started
+        self.pin_calls += count
+        return acc, d_q, d_v, minv
+
     def stage_terms(self, x, v, t_f, lam, hessian='exact'):
         """
-        Euler step derivatives and Lagrangian curvature at every interval.
+        Step derivatives and Lagrangian curvature at every interval (rk4_steps.py for RK4).
 
         Returns a dict: defect (N, 2n), a (N, 2n, 2n), b (N, 2n, n) (scaled controls),
         c (N, 2n) (d step / d T), and with hessian the blocks hxx (N, 2n + 1, 2n + 1),
@@ -119,25 +146,11 @@ class ArmEvaluator:
         the torques).
         """
         n, nx, n_int = self.n, 2 * self.n, self.n_int
+        if self.integrator == 'rk4':
+            return rk4_terms(self, x, v, t_f)
         h = t_f / n_int
-        acc = np.empty((n_int, n))
-        d_q = np.empty((n_int, n, n))
-        d_v = np.empty((n_int, n, n))
-        minv = np.empty((n_int, n, n))
         tau = v * self.effort[None, :]
-        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
-        # data's ddq, ddq_dq, ddq_dv and Minv are numpy views of Pinocchio's own buffers:
-        # copying them from the views skips the tuple of fresh arrays each call returns.
-        out_a, out_q, out_v, out_m = data.ddq, data.ddq_dq, data.ddq_dv, data.Minv
-        started = time.perf_counter()
-        for k in range(n_int):
-            derivatives(model, data, x[k, :n], x[k, n:], tau[k])
-            acc[k] = out_a
-            d_q[k] = out_q
-            d_v[k] = out_v
-            minv[k] = out_m
-        self.pin_time += time.perf_counter() - started
-        calls = n_int
+        acc, d_q, d_v, minv = self.derivatives_at(x[:-1], tau)
         out = {'defect': np.empty((n_int, nx)), 'c': np.empty((n_int, nx)),
                'a': np.empty((n_int, nx, nx)), 'b': np.empty((n_int, nx, n)),
                'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
@@ -153,7 +166,6 @@ class ArmEvaluator:
             hux[:, :, nx] = self.effort * np.einsum('kji,kj->ki', minv, lam_v) / n_int
         if hessian == 'exact':
             self._exact_curvature(x, tau, lam, d_q, d_v, minv, h, out)
-        self.pin_calls += calls
         return out
 
     def forget_curvature(self):

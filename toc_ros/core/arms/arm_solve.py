@@ -17,18 +17,18 @@ solve(Problem(model=ArmRobot(arm, spheres), ...)) for URDF arms: checks, fast mo
 
 For an arm the Problem's fields mean: x0 / x_goal the states (q_1..q_n, dq_1..dq_n), positions
 first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base frame; margin
-[m] added to every sphere pair's radii; n_intervals N; integrator 'euler' (RK4 is not
-implemented for arms in fast mode and is refused with the reason); t_f0 is not used (the cold
-start times its own path).  Paper mode is not implemented for arms (refused).
+[m] added to every sphere pair's radii; n_intervals N; integrator 'euler' or 'rk4' (RK4
+without the dynamics' curvature: rk4_steps.py); t_f0 is not used (the cold start times its
+own path).  Paper mode is not implemented for arms (refused).
 
 Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
 constrained at every node when ArmRobot.self_collision is True (start and goal are then
 checked for it too); otherwise it is only reported (self_clearance), outside the SOLVED test.
 
-The returned states are the controls re-integrated with pinocchio.aba (explicit Euler, the
-same h = t_f / N) from x0; every limit and clearance is measured on them at every node
-k = 0..N (ArmViolations), the velocities from node 1 on (the start's are given, and may
-exceed their limits by START_VELOCITY_SLACK).
+The returned states are the controls re-integrated with pinocchio.aba (the problem's
+integrator, the same h = t_f / N) from x0; every limit and clearance is measured on them at
+every node k = 0..N (ArmViolations), the velocities from node 1 on (the start's are given,
+and may exceed their limits by START_VELOCITY_SLACK).
 """
 
 import dataclasses
@@ -42,7 +42,7 @@ from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY
 from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets, line_detours,
                         line_time, path_torques, timed_start)
-from .arm_warm import euler_rollout, UnusableGuess, warm_point
+from .arm_warm import rollout, UnusableGuess, warm_point
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
@@ -160,9 +160,8 @@ def check_arm_problem(problem, options):
     arm = robot.arm
     if options.mode != 'fast':
         raise ArmError(f'mode {options.mode!r} is not implemented for URDF arms: use fast')
-    if problem.integrator != 'euler':
-        raise ArmError(f'integrator {problem.integrator!r} is not implemented for URDF arms in '
-                       "fast mode: use 'euler'")
+    if problem.integrator not in ('euler', 'rk4'):
+        raise ArmError(f"integrator {problem.integrator!r}: use 'euler' or 'rk4'")
     n_int = problem.n_intervals
     if (not isinstance(n_int, (int, np.integer)) or isinstance(n_int, bool)
             or not 2 <= n_int <= MAX_INTERVALS):
@@ -183,12 +182,12 @@ def check_arm_problem(problem, options):
     return robot, x0, xg, obstacles
 
 
-def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin):
+def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator='euler'):
     """(states (N + 1, 2n) re-integrated with pinocchio.aba, ArmViolations)."""
     arm = robot.arm
     n = arm.n
     controls = np.asarray(controls, dtype=float)
-    states = euler_rollout(arm, x0, controls, t_f)
+    states = rollout(arm, x0, controls, t_f, integrator)
     q, dq = states[:, :n], states[:, n:]
     clearance = self_clear = math.inf
     if robot.spheres is not None:
@@ -258,6 +257,8 @@ def start_points(robot, evaluator, x0, x_goal, n_int, free=None):
 
 def run_ipm(ipm, budget, should_stop, hessian):
     """Run ipm within budget iterations with the curvature hessian ('auto': see above)."""
+    if ipm.ev.integrator == 'rk4':
+        hessian = 'none'            # no curvature of the RK4 steps (rk4_steps.py)
     if hessian != 'auto':
         ipm.hessian = hessian
         return ipm.run(budget, should_stop)
@@ -277,7 +278,7 @@ def run_ipm(ipm, budget, should_stop, hessian):
 def _free_optimum(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop):
     """((states, torques, t_f) or None, iterations): the problem solved without obstacles."""
     free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, n_int,
-                        len(evaluator.pairs) > 0)
+                        len(evaluator.pairs) > 0, evaluator.integrator)
     states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
     ipm = ArmInteriorPoint(free, x0, xg)
     ipm.start(states, torques, t_f)
@@ -354,9 +355,9 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         robot, x0, xg, obstacles = check_arm_problem(problem, options)
         n_int = problem.n_intervals
         evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int,
-                                 robot.self_collision)
+                                 robot.self_collision, problem.integrator)
         warm = None if initial_guess is None else warm_point(
-            robot.arm, x0, initial_guess, n_int, evaluator.n_pairs)
+            robot.arm, x0, initial_guess, n_int, evaluator.n_pairs, problem.integrator)
     except UnusableGuess as exc:
         warm, unusable = None, f'initial guess not used: {exc}'
     except (ArmError, ValueError, TypeError) as exc:
@@ -399,7 +400,7 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         linalg_time += cold_linalg
     controls = run.v * robot.arm.effort[None, :]
     states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles,
-                                     problem.margin)
+                                     problem.margin, problem.integrator)
     converged = run.status in ('converged', 'acceptable')
     if converged and violations.feasible():
         status = Status.SOLVED
@@ -419,7 +420,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         history[:, 1] = run.history[:, 0]
         history[:, 2] = run.history[:, 0]
         history[:, 3] = run.history[:, 1]
-    result = SolveResult(status=status, message=message, mode='fast', integrator='euler',
+    result = SolveResult(status=status, message=message, mode='fast',
+                         integrator=problem.integrator,
                          n_intervals=n_int, final_time=float(run.t), states=states,
                          controls=controls, iterations=iterations, history=history,
                          violations=violations, cost=float(run.t),

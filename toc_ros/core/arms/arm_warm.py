@@ -56,6 +56,33 @@ def euler_rollout(arm, x0, controls, t_f):
     return states
 
 
+def rk4_rollout(arm, x0, controls, t_f):
+    """States (M + 1, 2n) of RK4 steps h = t_f / M from x0 under controls (M, n)."""
+    n = arm.n
+    controls = np.asarray(controls, dtype=float)
+    n_int = controls.shape[0]
+    h = t_f / n_int
+    data = arm.model.createData()
+    states = np.empty((n_int + 1, 2 * n))
+    states[0] = x0
+
+    def f(x, tau):
+        return np.concatenate([x[n:], pin.aba(arm.model, data, x[:n], x[n:], tau)])
+    for k in range(n_int):
+        x, tau = states[k], controls[k]
+        k1 = f(x, tau)
+        k2 = f(x + 0.5 * h * k1, tau)
+        k3 = f(x + 0.5 * h * k2, tau)
+        k4 = f(x + h * k3, tau)
+        states[k + 1] = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return states
+
+
+def rollout(arm, x0, controls, t_f, integrator='euler'):
+    """States of the controls from x0 with the integrator ('euler' or 'rk4')."""
+    return (rk4_rollout if integrator == 'rk4' else euler_rollout)(arm, x0, controls, t_f)
+
+
 def _fitting_duals(duals, m, nx, n, n_pairs):
     """Return the multipliers whose shapes fit m intervals (sphere duals: n_pairs columns)."""
     shapes = {'lam': (m + 1, nx), 'z': (m - 1, n_pairs), 'zlx': (m - 1, nx),
@@ -72,7 +99,7 @@ def _fitting_duals(duals, m, nx, n, n_pairs):
     return out
 
 
-def warm_point(arm, x0, guess, n_int, n_pairs):
+def warm_point(arm, x0, guess, n_int, n_pairs, integrator='euler'):
     """
     Return (states, controls, t_f, duals or None, drift) of an initial guess for n_int intervals.
 
@@ -111,7 +138,8 @@ def warm_point(arm, x0, guess, n_int, n_pairs):
         states[0] = x0
     else:
         with np.errstate(all='ignore'):
-            states = euler_rollout(arm, x0, np.clip(controls, -arm.effort, arm.effort), t_f)
+            states = rollout(arm, x0, np.clip(controls, -arm.effort, arm.effort), t_f,
+                             integrator)
         duals = None
         if not np.all(np.isfinite(states)):
             raise UnusableGuess('its controls make the state diverge')
