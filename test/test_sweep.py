@@ -190,6 +190,11 @@ BAD_SPECS = [
 
 @pytest.mark.parametrize('doc,message', BAD_SPECS)
 def test_bad_specs_are_refused_before_any_solve(tmp_path, monkeypatch, capsys, doc, message):
+    refused_before_any_solve(tmp_path, monkeypatch, capsys, doc, message)
+
+
+def refused_before_any_solve(tmp_path, monkeypatch, capsys, doc, message):
+    """Check that toc-sweep refuses the spec doc with message, starting no cluster."""
     from toc_ros.sweep import cli, runner
 
     def no_cluster(*_args, **_kwargs):

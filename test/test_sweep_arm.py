@@ -34,6 +34,7 @@ from arm_oracle import ArmOracle, find_panda_urdf
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from test_sweep import refused_before_any_solve
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -120,19 +121,7 @@ BAD_ARM_SPECS = [
 @pytest.mark.parametrize('doc,message', BAD_ARM_SPECS)
 def test_bad_arm_specs_are_refused_before_any_solve(tmp_path, monkeypatch, capsys, doc,
                                                     message):
-    from toc_ros.sweep import cli, runner
-
-    def no_cluster(*_args, **_kwargs):
-        raise AssertionError('a cluster was started for a bad spec')
-
-    monkeypatch.setattr(runner, 'connect', no_cluster)
-    out = tmp_path / 'out'
-    code = cli.main([_write_spec(tmp_path, doc), '--out', str(out), '--quiet'])
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert 'toc-sweep: bad spec:' in err and message in err, err
-    assert 'Traceback' not in err
-    assert not out.exists()
+    refused_before_any_solve(tmp_path, monkeypatch, capsys, doc, message)
 
 
 def test_arm_cases_become_toc_solve_arguments(tmp_path, oracle):

@@ -40,24 +40,8 @@ class UnusableGuess(Exception):
     """A well-formed initial guess that gives no start point (the cold start is used)."""
 
 
-def euler_rollout(arm, x0, controls, t_f):
-    """States (M + 1, 2n) of explicit Euler steps h = t_f / M from x0 under controls (M, n)."""
-    n = arm.n
-    controls = np.asarray(controls, dtype=float)
-    n_int = controls.shape[0]
-    h = t_f / n_int
-    data = arm.model.createData()
-    states = np.empty((n_int + 1, 2 * n))
-    states[0] = x0
-    for k in range(n_int):
-        q, dq = states[k, :n], states[k, n:]
-        acc = pin.aba(arm.model, data, q, dq, controls[k])
-        states[k + 1] = np.concatenate([q + h * dq, dq + h * acc])
-    return states
-
-
-def rk4_rollout(arm, x0, controls, t_f):
-    """States (M + 1, 2n) of RK4 steps h = t_f / M from x0 under controls (M, n)."""
+def rollout(arm, x0, controls, t_f, integrator='euler'):
+    """States (M + 1, 2n) of the controls (M, n) from x0: explicit Euler or RK4 steps t_f / M."""
     n = arm.n
     controls = np.asarray(controls, dtype=float)
     n_int = controls.shape[0]
@@ -71,16 +55,14 @@ def rk4_rollout(arm, x0, controls, t_f):
     for k in range(n_int):
         x, tau = states[k], controls[k]
         k1 = f(x, tau)
+        if integrator != 'rk4':
+            states[k + 1] = x + h * k1
+            continue
         k2 = f(x + 0.5 * h * k1, tau)
         k3 = f(x + 0.5 * h * k2, tau)
         k4 = f(x + h * k3, tau)
         states[k + 1] = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     return states
-
-
-def rollout(arm, x0, controls, t_f, integrator='euler'):
-    """States of the controls from x0 with the integrator ('euler' or 'rk4')."""
-    return (rk4_rollout if integrator == 'rk4' else euler_rollout)(arm, x0, controls, t_f)
 
 
 def _fitting_duals(duals, m, nx, n, n_pairs):
