@@ -104,7 +104,10 @@ def test_the_paper_scenario_keeps_its_single_start():
     assert solver._fitted_times() == []
     result = solve(problem, SolverOptions(mode='fast'))
     assert result.status is Status.SOLVED
-    assert result.final_time == 2.0672762627490937
+    # The single start's optimum: equal to the last bits in one environment (determinism is
+    # tested elsewhere), within rounding across numpy/numba versions (a fresh install of
+    # 2026-12-04 differs from the recorded value in the 16th digit).
+    assert result.final_time == pytest.approx(2.0672762627490937, rel=1e-13)
 
 
 def _casadi_states(problem, controls, t_f):
