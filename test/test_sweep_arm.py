@@ -126,7 +126,7 @@ def test_bad_arm_specs_are_refused_before_any_solve(tmp_path, monkeypatch, capsy
 
 def test_arm_cases_become_toc_solve_arguments(tmp_path, oracle):
     from toc_ros.arm_cli import build_arm_problem, build_parser
-    from toc_ros.sweep.cases import case_builder
+    from toc_ros.sweep.arm_cases import case_builder
     from toc_ros.sweep.spec import parse_spec
     doc = _spec(grid={'goal_pose.x': [0.45], 'spheres.0.radius': [0.05], 'start.dq2': [0.1],
                       'N': [30]})
@@ -151,7 +151,7 @@ def test_arm_cases_become_toc_solve_arguments(tmp_path, oracle):
 
 
 def test_an_unreachable_target_is_an_invalid_input_row(tmp_path):
-    from toc_ros.sweep.cases import case_builder
+    from toc_ros.sweep.arm_cases import case_builder
     from toc_ros.sweep.spec import parse_spec
     from toc_ros.sweep.worker import solve_case
     doc = _spec(grid={'goal_pose.x': [1.3]})

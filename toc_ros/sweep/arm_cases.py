@@ -37,7 +37,8 @@ import time
 
 from toc_ros import arm_cli
 
-from .cases import case_hash, CaseArgumentError, format_number, long_options, raising
+from .cases import (case_hash, CaseArgumentError, CaseBuilder, format_number, long_options,
+                    raising)
 from .spec import SpecError
 
 POSE_FIELDS = ('x', 'y', 'z')
@@ -340,3 +341,10 @@ def arm_columns(problem, result):
     if states is not None and len(states):
         final = [float(v) for v in states[-1][:n]]
     return {'goal_q': [float(v) for v in problem.x_goal[:n]], 'final_q': final}
+
+
+def case_builder(sweep):
+    """Return the builder of a sweep's cases: ArmCaseBuilder when base.model is an arm."""
+    if arm_cli.is_arm_model_name(sweep.base.get('model')):
+        return ArmCaseBuilder(sweep)
+    return CaseBuilder(sweep)

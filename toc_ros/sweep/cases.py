@@ -15,7 +15,7 @@
 """
 Cases -> toc-solve arguments -> Problem/SolverOptions, by the code path of toc-solve itself.
 
-Arm specs (base.model panda, ur5 or urdf:PATH) go to arm_cases.py (case_builder picks).
+Arm specs (base.model panda, ur5 or urdf:PATH) go to arm_cases.py (its case_builder picks).
 Every case becomes the argument list toc-solve would be given (base options, then the varied
 values: start.*/goal.* as --start/--goal, obstacles.K.* as --obstacle rows, NAME.K as element K
 of the array option --NAME, any other name as --NAME); toc_ros.solve parses it and builds the
@@ -60,15 +60,6 @@ def toc_solve_parser():
     """toc-solve's own argument parser, raising CaseArgumentError instead of exiting."""
     from toc_ros.solve import build_parser
     return raising(build_parser())
-
-
-def case_builder(sweep):
-    """Return the builder of a sweep's cases: ArmCaseBuilder when base.model is an arm."""
-    from toc_ros.arm_cli import is_arm_model_name
-    if is_arm_model_name(sweep.base.get('model')):
-        from .arm_cases import ArmCaseBuilder
-        return ArmCaseBuilder(sweep)
-    return CaseBuilder(sweep)
 
 
 def long_options(parser):

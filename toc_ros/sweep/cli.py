@@ -130,7 +130,7 @@ def _say(args, *text):
 
 
 def _run(args):
-    from .cases import case_builder
+    from .arm_cases import case_builder
     from .dataset import Dataset, DatasetError, schema_for
     from .spec import load_spec, SpecError
     try:
