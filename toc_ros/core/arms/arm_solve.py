@@ -228,16 +228,16 @@ def start_point(robot, evaluator, x0, x_goal, n_int):
     return states, torques, t_f, 'line'
 
 
-def start_points(robot, evaluator, x0, x_goal, n_int, free=None):
+def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
     """
     [(states, torques, t_f, name)]: the starts a cold solve tries, in order.
 
-    The line start when it clears every sphere row; otherwise the free optimum (free: its
+    line: cold_start's (states, torques, t_f).  The line start when it clears every sphere
+    row; otherwise the free optimum (free: its
     (states, torques, t_f), solved without the obstacles), bent clear of them where it is
     not, and LINE_DETOURS distinct bent lines; the colliding line when none of these exists.
     """
     arm, n = robot.arm, robot.arm.n
-    line = cold_start(arm, x0, x_goal, n_int)
     if not evaluator.n_pairs or evaluator.clearances(line[0][:, :n]).min() >= 0.0:
         return [(*line, 'line')]
     starts = []
@@ -275,11 +275,11 @@ def run_ipm(ipm, budget, should_stop, hessian):
     return rest
 
 
-def _free_optimum(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop):
-    """((states, torques, t_f) or None, iterations): the problem solved without obstacles."""
-    free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, n_int,
+def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
+    """((states, torques, t_f) or None, iterations): solved without obstacles from line."""
+    states, torques, t_f = line
+    free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, len(torques),
                         len(evaluator.pairs) > 0, evaluator.integrator)
-    states, torques, t_f = cold_start(robot.arm, x0, xg, n_int)
     ipm = ArmInteriorPoint(free, x0, xg)
     ipm.start(states, torques, t_f)
     run = run_ipm(ipm, budget, should_stop, hessian)
@@ -298,15 +298,15 @@ def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, ru
     # inside the torque limits) with IPOPT's default first barrier parameter (0.1).
     iterations, linalg_time = 0, 0.0
     free = None
-    line = cold_start(robot.arm, x0, xg, n_int)[0]
-    if evaluator.n_obstacle_rows and evaluator.clearances(line[:, :robot.arm.n]).min() < 0.0:
-        free, used = _free_optimum(robot, evaluator, x0, xg, n_int, hessian,
+    line = cold_start(robot.arm, x0, xg, n_int)
+    if evaluator.n_obstacle_rows and evaluator.clearances(line[0][:, :robot.arm.n]).min() < 0.0:
+        free, used = _free_optimum(robot, evaluator, x0, xg, line, hessian,
                                    min(budget, FREE_BUDGET), should_stop)
         iterations += used
         runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
                     f'{used} iterations')
     best = run = None
-    starts = start_points(robot, evaluator, x0, xg, n_int, free)
+    starts = start_points(robot, evaluator, x0, xg, n_int, line, free)
     for index, (states, torques, t_f, start_name) in enumerate(starts):
         if run is not None and iterations >= budget:
             break
