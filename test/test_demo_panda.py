@@ -56,6 +56,12 @@ def test_every_goal_is_reached_and_printed(panda_demo):
     assert [s['goal'] for s in stages] == ['joints', 'pose', 'joints']
     assert all(s['status'] == 'SOLVED' and s['reached'] for s in stages)
     assert 'goal 2 (place, pose): SOLVED' in proc.stdout and 'wall time' in proc.stdout
+    # The plans assume 1 kg in the hand, the plant carries 1.2 kg: the replan cycles' online
+    # estimate (from joint_states efforts) finds the plant's payload by the last goal.
+    assert summary['payload_kg'] == 1.2 and summary['planned_payload_kg'] == 1.0
+    estimate = stages[-1]['payload_estimate']
+    assert estimate.startswith('payload_mass='), estimate
+    assert float(estimate.split('=')[1]) == pytest.approx(1.2, rel=0.05), estimate
     # The joint goals as sent, the pose goal's joints as planned: the arm rests there.
     samples = [(t, np.array(m.position)) for t, m in messages['/joint_states']]
     for stage, (start, end) in zip(stages, _stage_spans(messages)):

@@ -43,6 +43,8 @@ TOPIC_DESCRIPTION = 'robot_description.topic'
 SPHERES = 'obstacles.spheres'
 TOPIC_DEFAULTS = {TOPIC_DESCRIPTION: '', SPHERES: ()}
 LIMIT_KEYS = ('effort', 'velocity', 'lower', 'upper')
+# What replan.estimate can fit for URDF arms (the other inertials are the URDF's).
+ARM_ESTIMATES = ('payload_mass',)
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,10 @@ class ArmSettings:
         (), "joint-limit overrides of URDF arms, 'JOINT.KEY=VALUE' with KEY effort [N m or N], "
         "velocity [rad/s or m/s], lower or upper [rad or m] (like MoveIt's joint_limits.yaml), "
         'e.g. panda_joint1.velocity=1.0', ros_name='robot.joint_limits', ros_type='string_array')
+    payload_mass: float = setting(
+        0.0, 'payload [kg] the plans of URDF arms assume: a point mass at the origin of '
+        'robot.tip_link (replan.estimate: [payload_mass] fits it online, from this value)',
+        unit='kg', low=0.0, high=1e4, ros_name='robot.payload_mass')
     locked_joints: Tuple[str, ...] = setting(
         (), "URDF joints not in joint_names are locked: 'JOINT=VALUE' [rad or m] gives the "
         'value, the others are locked at 0 clamped into their limits (as plant_node locks '
@@ -163,14 +169,15 @@ def arm_model(params):
     if name == 'urdf' and not description:
         from toc_ros.arm_model import PendingArm
         return PendingArm(joints)
-    return _cached_arm(name, description, joints, locked, limits, spheres, stamp)
+    return _cached_arm(name, description, joints, locked, limits, spheres, stamp,
+                       arm.tip_link.strip(), float(arm.payload_mass))
 
 
 @functools.lru_cache(maxsize=8)
-def _cached_arm(name, description, joints, locked, limits, spheres, stamp):
+def _cached_arm(name, description, joints, locked, limits, spheres, stamp, tip, payload):
     from toc_ros.arm_model import build_arm
     return build_arm(name, description, joints, dict(locked),
-                     {j: dict(v) for j, v in limits}, spheres or None)
+                     {j: dict(v) for j, v in limits}, spheres or None, tip, payload)
 
 
 def obstacle_rows(params):
@@ -241,9 +248,10 @@ def arm_errors(params, model):
     if params.get('robot.model_parameters'):
         errors.append('robot.model_parameters: not used by URDF arms (the URDF is the model; '
                       'limits: robot.joint_limits)')
-    if params.get('replan.estimate'):
-        errors.append('replan.estimate: online estimation is not implemented for URDF arms '
-                      '(their replan cycles plan with the URDF inertials)')
+    other = sorted(set(params.get('replan.estimate') or ()) - set(ARM_ESTIMATES))
+    if other:
+        errors.append(f'replan.estimate: URDF arms estimate {", ".join(ARM_ESTIMATES)} only '
+                      f'(a point mass at robot.tip_link), not {", ".join(other)}')
     if not str(params['base_frame']).strip('/'):
         errors.append('base_frame must not be empty')
     count, limit = len(params.get(SPHERES, ())), int(params['obstacles.max_count'])

@@ -35,6 +35,7 @@ from toc_ros.arm_cli import tip_link
 from toc_ros.core import SolverOptions
 from toc_ros.core.arms import ArmError, default_spheres, load_arm, load_spheres
 from toc_ros.core.arms.arm_solve import ArmRobot
+from toc_ros.core.arms.payload import inverse_dynamics, with_payload
 from toc_ros.core.problem import Problem, ProblemError
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -70,18 +71,58 @@ class PendingArm:
 
 
 class ArmPlanModel(PendingArm):
-    """A loaded arm: ArmRobot (model, limits, spheres) and its tip link."""
+    """
+    A loaded arm: ArmRobot (model, limits, spheres), its tip link and payload.
+
+    Its one model parameter, payload_mass [kg] (a point mass at the origin of payload_link,
+    core/arms/payload.py), is what the online estimate (replan.estimate) fits.
+    """
 
     pending = False
 
-    def __init__(self, name, robot):
-        """name: robot.model ('panda', 'ur5', 'urdf'); robot: the core's ArmRobot."""
+    def __init__(self, name, robot, payload_link, payload_mass=0.0):
+        """
+        Build the plan model of an arm with its payload.
+
+        name: robot.model ('panda', 'ur5', 'urdf'); robot: the core's ArmRobot without payload;
+        payload_link: the link carrying payload_mass [kg].
+        """
         super().__init__(robot.arm.joint_names)
         self.name = name
-        self.robot = robot
-        self.arm = robot.arm
+        self.bare_robot = robot
+        self.payload_link = payload_link
+        self.payload_mass = float(payload_mass)
+        try:
+            arm = with_payload(robot.arm, self.payload_mass, payload_link)
+        except ArmError as exc:
+            raise ProblemError(f'robot.payload_mass: {exc}') from None
+        self.robot = dataclasses.replace(robot, arm=arm)
+        self.arm = arm
         self.nu = self.n_joints
         self.u_max = self.arm.effort.copy()
+
+    def parameter_values(self):
+        """Return the model's parameters: {'payload_mass': kg}."""
+        return {'payload_mass': self.payload_mass}
+
+    def with_parameters(self, values):
+        """Return this arm with parameters changed (ProblemError for unknown or bad values)."""
+        unknown = set(values) - {'payload_mass'}
+        if unknown:
+            raise ProblemError(f'URDF arms have no parameter {", ".join(sorted(unknown))} '
+                               '(only payload_mass)')
+        return ArmPlanModel(self.name, self.bare_robot, self.payload_link,
+                            values.get('payload_mass', self.payload_mass))
+
+    def check(self):
+        """Return what is wrong with the parameters (empty: usable)."""
+        return [] if self.payload_mass >= 0.0 else [
+            f'payload_mass {self.payload_mass:g} kg is negative']
+
+    def inverse_dynamics_with(self, values):
+        """Return tau(q, dq, ddq) (RNEA) of this arm with the payload of values (estimation)."""
+        mass = values.get('payload_mass', self.payload_mass)
+        return inverse_dynamics(with_payload(self.bare_robot.arm, mass, self.payload_link))
 
     def positions(self, states):
         """Return q of states (..., 2 n)."""
@@ -216,12 +257,14 @@ class ArmPlanModel(PendingArm):
         return None
 
 
-def build_arm(name, description, joints, locked, limits, spheres_path):
+def build_arm(name, description, joints, locked, limits, spheres_path, tip='',
+              payload_mass=0.0):
     """
     Return the ArmPlanModel of a URDF arm (ProblemError with the reason).
 
     name: 'panda', 'ur5' or 'urdf' (then description is the URDF text); joints: the planned
-    joints; spheres_path: a sphere file, or None for the shipped set of panda / ur5.
+    joints; spheres_path: a sphere file, or None for the shipped set of panda / ur5; tip: the
+    tip link (robot.tip_link, '' for the default), which carries payload_mass [kg].
     """
     source = description if name == 'urdf' else name
     try:
@@ -230,4 +273,9 @@ def build_arm(name, description, joints, locked, limits, spheres_path):
                    else default_spheres(arm, self_collision=True))
     except (ArmError, OSError) as exc:
         raise ProblemError(f'robot.model {name}: {exc}') from None
-    return ArmPlanModel(name, ArmRobot(arm, spheres))
+    link = tip_link(name, arm, tip)
+    try:
+        arm.frame_id(link)
+    except ArmError as exc:
+        raise ProblemError(f'robot.tip_link: {exc}') from None
+    return ArmPlanModel(name, ArmRobot(arm, spheres), link, payload_mass)

@@ -35,6 +35,7 @@ from toc_ros.core.problem import ProblemError
 
 SHIPPED = 'shipped'             # arm_spheres_source of the package's sets (panda, ur5)
 URDF_PARAMETER, URDF_TOPIC = 'parameter', 'topic'     # arm_urdf_source of robot.model urdf
+PAYLOAD = 'payload_mass'
 
 
 def sha256(text):
@@ -54,6 +55,7 @@ class ArmRecord:
     urdf_sha256: str
     spheres_source: str                 # the sphere file's path, or SHIPPED
     spheres_sha256: str
+    payload_mass: float = 0.0           # robot.payload_mass [kg] at the tip link
     urdf: str = ''                      # the URDF text ('' when not carried)
     spheres: str = ''                   # the sphere file's YAML text ('' when not carried)
 
@@ -63,7 +65,10 @@ class ArmRecord:
                   'arm_joint_limits': self.joint_limits, 'arm_tip_link': self.tip_link,
                   'arm_urdf_source': self.urdf_source, 'arm_urdf_sha256': self.urdf_sha256,
                   'arm_spheres_source': self.spheres_source,
-                  'arm_spheres_sha256': self.spheres_sha256}
+                  'arm_spheres_sha256': self.spheres_sha256,
+                  # The arm's one model parameter, as the planar models' are reported.
+                  'model_parameters': (f'{PAYLOAD}={self.payload_mass!r}'
+                                       if self.payload_mass else '')}
         if texts:
             values['arm_spheres'] = self.spheres
             if self.urdf_source == URDF_PARAMETER:
@@ -80,11 +85,20 @@ class ArmRecord:
                    urdf_source=report.arm_urdf_source, urdf_sha256=report.arm_urdf_sha256,
                    spheres_source=report.arm_spheres_source,
                    spheres_sha256=report.arm_spheres_sha256, urdf=report.arm_urdf,
-                   spheres=report.arm_spheres)
+                   spheres=report.arm_spheres, payload_mass=_payload(report.model_parameters))
 
     def same_arm(self, other):
         """Tell whether two records name the same arm (texts aside: digests compare them)."""
         return self.fields() == other.fields()
+
+
+def _payload(text):
+    """Return the payload mass of a report's model_parameters ('payload_mass=M' or '')."""
+    for entry in str(text).split(','):
+        name, _, value = entry.partition('=')
+        if name.strip() == PAYLOAD:
+            return float(value)
+    return 0.0
 
 
 @functools.lru_cache(maxsize=8)
@@ -139,4 +153,5 @@ def arm_record(params, model):
         locked=tuple(f'{joint}={float(value)!r}' for joint, value in model.arm.locked.items()),
         joint_limits=limits, tip_link=tip, urdf_source=urdf_source,
         urdf_sha256=model.arm.source['sha256'], spheres_source=spheres_source,
-        spheres_sha256=sha256(spheres), urdf=model.arm.urdf, spheres=spheres)
+        spheres_sha256=sha256(spheres), urdf=model.arm.urdf, spheres=spheres,
+        payload_mass=model.payload_mass)

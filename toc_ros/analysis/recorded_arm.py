@@ -90,7 +90,8 @@ def arm_parameters(run, name, record=None, warn=None, records=()):
     params.update({'joint_names': list(record.joints),
                    'robot.locked_joints': list(record.locked),
                    'robot.joint_limits': list(record.joint_limits),
-                   'robot.tip_link': record.tip_link})
+                   'robot.tip_link': record.tip_link,
+                   'robot.payload_mass': record.payload_mass})
     params[arm_config.TOPIC_DESCRIPTION] = ''
     if record.urdf_source in (URDF_PARAMETER, URDF_TOPIC):
         params['robot_description'] = _urdf(run, record, records or (record,), warn)

@@ -53,6 +53,29 @@ STEP = 0.1
 PRIOR_PAIRS = 1e-3
 
 
+def torque_function(model, values):
+    """
+    Return tau(q, dq, ddq): the inverse dynamics of model with parameter values changed.
+
+    A model with its own (inverse_dynamics_with, e.g. a URDF arm: RNEA) gives it; otherwise it
+    comes from the forward kernel, tau = (d ddq / du)^-1 (ddq - ddq(u = 0)).
+    """
+    own = getattr(model, 'inverse_dynamics_with', None)
+    if own is not None:
+        return own(values)
+    p = (model.with_parameters(values) if values else model).packed()
+    n = model.n_joints
+    f, fx, fu, zero = (np.empty(model.nx), np.empty((model.nx, model.nx)),
+                       np.empty((model.nx, n)), np.zeros(n))
+
+    def tau(q, dq, ddq):
+        x = np.empty(model.nx)
+        x[0::2], x[1::2] = q, dq
+        model.kernels.rhs_jac(x, zero, p, f, fx, fu)
+        return np.linalg.solve(fu[1::2, :], ddq - f[1::2])
+    return tau
+
+
 def parameter_names(model):
     """Return the names of the model's numeric parameters."""
     return tuple(name for name, value in model.parameter_values().items()
@@ -82,16 +105,11 @@ class ParameterEstimator:
         values = model.parameter_values()
         self._theta0 = np.array([float(values[n]) for n in names])
         self._scale = np.where(self._theta0 != 0.0, np.abs(self._theta0), 1.0)
-        # Packed parameters of the model and of each parameter stepped by STEP * scale.
-        self._p0 = model.packed()
-        self._stepped = []
-        for j, name in enumerate(names):
-            changed = model.with_parameters({name: self._theta0[j] + STEP * self._scale[j]})
-            self._stepped.append(changed.packed())
+        # Inverse dynamics of the model and of each parameter stepped by STEP * scale.
+        self._tau0 = torque_function(model, {})
+        self._stepped = [torque_function(model, {name: self._theta0[j] + STEP * self._scale[j]})
+                         for j, name in enumerate(names)]
         self._u_max = np.asarray(model.u_max, dtype=float)
-        n = model.n_joints
-        self._f, self._fx = np.empty(model.nx), np.empty((model.nx, model.nx))
-        self._fu, self._zero = np.empty((model.nx, n)), np.zeros(n)
         self.reset()
 
     def reset(self):
@@ -103,11 +121,6 @@ class ParameterEstimator:
         self._last = None
         self._updated = None
         self.status = 'no samples yet'
-
-    def _torque(self, p, x, ddq):
-        """Return the control that gives accelerations ddq at state x (inverse dynamics)."""
-        self.model_.kernels.rhs_jac(x, self._zero, p, self._f, self._fx, self._fu)
-        return np.linalg.solve(self._fu[1::2, :], ddq - self._f[1::2])
 
     def add(self, t, q, dq, u):
         """Add a sample at time t [s]: positions q, velocities dq, applied efforts u."""
@@ -121,14 +134,12 @@ class ParameterEstimator:
         if not (0.0 < dt <= MAX_GAP_S) or np.any(
                 np.abs(sample[3] - last[3]) > MAX_EFFORT_STEP * self._u_max):
             return
-        x = np.empty(self.model_.nx)
-        x[0::2] = 0.5 * (sample[1] + last[1])
-        x[1::2] = 0.5 * (sample[2] + last[2])
+        q, dq = 0.5 * (sample[1] + last[1]), 0.5 * (sample[2] + last[2])
         ddq = (sample[2] - last[2]) / dt
         u_mid = 0.5 * (sample[3] + last[3])
         try:
-            tau0 = self._torque(self._p0, x, ddq)
-            columns = [(self._torque(p, x, ddq) - tau0) / STEP for p in self._stepped]
+            tau0 = self._tau0(q, dq, ddq)
+            columns = [(tau(q, dq, ddq) - tau0) / STEP for tau in self._stepped]
         except np.linalg.LinAlgError:
             return
         rows = np.column_stack(columns) / self._u_max[:, None]      # d(tau / u_max) / d s

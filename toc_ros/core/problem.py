@@ -108,6 +108,9 @@ class Problem:
         Joint states x0, x_goal (2 n entries) become the model's states (models with actuator
         states: the torques that hold the joints' velocities, see actuated.py).
         """
+        robot = getattr(model, 'robot', None)
+        if robot is not None:       # a URDF arm's plan model: the Problem holds its ArmRobot
+            return dataclasses.replace(self, model=robot)
         states = {name: _model_state(model, getattr(self, name)) for name in ('x0', 'x_goal')}
         return dataclasses.replace(self, model=model, **states)
 

@@ -15,8 +15,9 @@
 """
 toc-demo --robot panda: a pick-and-place-like sequence on the Panda around two spheres.
 
-solver_node and plant_node of config/panda.yaml (MuJoCo plant carrying a payload the planner
-does not know, replan cycles at 20 Hz), three goals (joint, pose, joint); during the first
+solver_node and plant_node of config/panda.yaml (the plans assume a 1 kg payload in the hand,
+the MuJoCo plant carries 20 % more, and the replan cycles estimate it online from joint_states;
+replan cycles at 20 Hz), three goals (joint, pose, joint); during the first
 motion one sphere drops onto the route of the second, which plans around it.  Every
 joint_states sample of each motion is checked against the obstacle spheres in force when it
 was received (the core's sphere clearance, no margin); the summary has arrival, final error,
@@ -41,7 +42,8 @@ from toc_ros.progress import EVENT_REPLAN_KEPT, EVENT_REPLANNED, progress_from_m
 import yaml
 
 PARAMS_FILE = 'panda.yaml'
-PAYLOAD_KG = 1.0            # on robot.tip_link of the plant; the planner plans without it
+PLANNED_PAYLOAD_KG = 1.0    # robot.payload_mass: at the hand's origin in the plan model
+PAYLOAD_KG = 1.2            # plant_node's payload_mass_offset (+20 %), estimated online
 MARGIN = 0.03               # [m] obstacles.margin of the plans
 READY = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
 # The hand's route: ready pose -> pick on the +y side -> place on the -y side (an arc in front
@@ -91,7 +93,8 @@ class PandaDemo(Demo):
         self.sent = []          # (monotonic time, obstacle rows) as published
         self.summary = {'robot': 'panda', 'plans': [], 'arm_stages': [],
                         'joint_names': self.joint_names, 'base_frame': self.base_frame,
-                        'payload_kg': PAYLOAD_KG, 'margin': MARGIN,
+                        'payload_kg': PAYLOAD_KG, 'planned_payload_kg': PLANNED_PAYLOAD_KG,
+                        'margin': MARGIN,
                         'position_tolerance': [checks.SETTLE_POSITION] * len(self.joint_names),
                         'ros_domain_id': os.environ.get('ROS_DOMAIN_ID'), 'recording': None}
 
@@ -108,6 +111,9 @@ class PandaDemo(Demo):
         solver.setdefault('obstacles', {})['margin'] = MARGIN
         plant['payload_mass_offset'] = PAYLOAD_KG
         plant.setdefault('robot', {})['tip_link'] = 'panda_hand'
+        solver.setdefault('robot', {}).update(tip_link='panda_hand',
+                                              payload_mass=PLANNED_PAYLOAD_KG)
+        solver.setdefault('replan', {})['estimate'] = ['payload_mass']
         path = os.path.join(log_dir, 'panda_demo.yaml')
         with open(path, 'w') as stream:
             yaml.safe_dump({f'/**/{name}': values for name, values in doc.items()}, stream)
@@ -201,7 +207,7 @@ class PandaDemo(Demo):
                   f"{result['arrival_s']:.3f} s (t_min {report.t_f:.3f} s), final error "
                   f"{result['final_error']:.2e} rad, min clearance "
                   f"{result['min_clearance']:.4f} m, {result['cycles']} cycle(s) replanned "
-                  f"({result['kept']} kept)")
+                  f"({result['kept']} kept), estimate {result['payload_estimate'] or 'none'}")
 
     def _measure(self, samples, goal_q, first, first_received, reports):
         """Arrival, final error, clearance over the samples, cycles and their latencies."""
@@ -231,7 +237,9 @@ class PandaDemo(Demo):
                 gaps = obstacle_clearance(centres[k], spheres.radii, np.array(rows[-1]), 0.0)
                 worst = min(worst, float(np.min(gaps)))
         latencies = [r.latency_s for r in reports if r.event == EVENT_REPLANNED]
-        return dict(latency_stats(latencies), arrival_s=arrival,
+        # The online estimate the last cycle of the motion had (replan.estimate).
+        estimate = next((r.estimate for r in reversed(reports) if r.estimate), '')
+        return dict(latency_stats(latencies), arrival_s=arrival, payload_estimate=estimate,
                     final_error=float(errors[-1]), min_clearance=worst,
                     cycles=len(latencies),
                     kept=sum(r.event == EVENT_REPLAN_KEPT for r in reports),

@@ -98,8 +98,9 @@ def format_summary(summary):
 
 def _arm_lines(summary):
     """Return the summary lines of an arm demo's goals (toc-demo --robot panda)."""
-    lines = [f"  Panda on MuJoCo, payload {summary['payload_kg']:g} kg the planner does not "
-             f"know, obstacle margin {summary['margin']:g} m:"]
+    lines = [f"  Panda on MuJoCo, payload {summary['payload_kg']:g} kg (the plans assume "
+             f"{summary.get('planned_payload_kg', 0.0):g} kg; estimated online), obstacle "
+             f"margin {summary['margin']:g} m:"]
     for k, s in enumerate(summary['arm_stages'], 1):
         head = f"  goal {k} ({s['label']}, {s['goal']}): {s.get('status', 'not finished')}"
         if 'arrival_s' in s:
@@ -109,6 +110,7 @@ def _arm_lines(summary):
             head += (f"; t_min {s['t_min']:.4f} s, arrival {s['arrival_s']:.4f} s, final error "
                      f"{s['final_error']:.2e} rad" + ('' if s['at_rest'] else ' (NOT at rest)')
                      + f", min clearance {s['min_clearance']:.4f} m, {s['cycles']} cycle(s) "
-                     f"replanned, {s['kept']} kept{latency}")
+                     f"replanned, {s['kept']} kept{latency}; estimate "
+                     f"{s.get('payload_estimate') or 'none'}")
         lines.append(head)
     return lines
