@@ -63,8 +63,8 @@ def _timed(repeats, call):
 
 def run_case(name, with_obstacle, n_int, fraction, drift, repeats):
     """One row: the replan problem solved cold, warm (two ways), by IPOPT and FATROP."""
-    start, goal, obstacles = SCENARIOS[name]
-    obstacles = obstacles if with_obstacle else ()
+    start, goal, sets = SCENARIOS[name]
+    obstacles = sets['1 sphere'] if with_obstacle else ()
     spheres_file = os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml')
     arm = load_arm(name)
     n = arm.n

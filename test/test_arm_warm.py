@@ -70,9 +70,12 @@ def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(p
     warm = solve(replan, initial_guess=rest)
     assert cold.status is Status.SOLVED and warm.status is Status.SOLVED, warm.message
     assert 'warm start with multipliers' in warm.message
-    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-6)
-    # The remainder is nearly optimal: far fewer Newton steps than from the cold start.
+    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-12)
+    # The remainder is nearly optimal: far fewer Newton steps than from the cold start (on
+    # the plan itself a few: the warm start's acceptable level needs 3 in a row, not 10).
     assert warm.iterations <= cold.iterations // 2, (warm.iterations, cold.iterations)
+    if drift == 0.0:
+        assert warm.iterations <= 4, warm.message
     _check(replan, warm)
 
 

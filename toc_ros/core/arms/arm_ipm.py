@@ -120,6 +120,7 @@ class ArmInteriorPoint:
         self.constr_tol = constr_tol
         self.mu_min = tol / 10.0
         self.mu_init = mu_init
+        self.accept_iterations = ACCEPT_ITERATIONS
         n_int, nx = self.n_int, self.nx
         self.work = riccati.work_arrays(n_int, nx, n)
         self.linalg_time = 0.0
@@ -291,7 +292,7 @@ class ArmInteriorPoint:
             # ACCEPT_ITERATIONS iterations in a row with the full constraint tolerance.
             acceptable = acceptable + 1 if (e0 <= ACCEPT_TOL
                                             and primal <= self.constr_tol) else 0
-            if acceptable >= ACCEPT_ITERATIONS:
+            if acceptable >= self.accept_iterations:
                 status = 'acceptable'
                 break
             if iteration >= max_iterations:

@@ -69,6 +69,16 @@ WARM_EXACT = 1e-6
 MU_WARM_EXACT = 1e-9
 MU_WARM_DRIFT = 1e-7
 WARM_PUSH = 1e-6
+# A warm start with multipliers begins at the optimum of a neighbouring problem: its acceptable
+# level (arm_ipm.py) needs this many iterations in a row, not the cold start's 10.  Where the
+# last digits of the dual infeasibility are out of reach (arm_ipm's docstring: degenerate
+# problems), the cold count cost Panda replans at N = 60 eight more iterations at the same
+# t_f (benchmarks/RESULTS.md, "Arms: a payload ...").
+WARM_ACCEPT_ITERATIONS = 3
+# ... and it switches to the exact curvature (hessian='auto', below) after WARM_CHEAP cheap
+# iterations, within its WARM_BUDGET (with the cold CHEAP_ITERATIONS it never did: a UR5 replan
+# 1e-3 off its plan at N = 60 spent the 60 warm iterations, then 63 cold ones).
+WARM_CHEAP = 15
 # Curvature of the dynamics (arm_ipm.py's hessian) with hessian='auto': none first (one
 # Pinocchio derivative call per interval, enough for most problems), then exact (2n + 1
 # calls) from the same iterate, multipliers and barrier parameter once the run has not
@@ -80,7 +90,9 @@ CHEAP_ITERATIONS = 60
 # the free optimum is solved within FREE_BUDGET iterations.
 LINE_DETOURS = 2
 FREE_BUDGET = 300
-# Every start but the last gets at most START_BUDGET iterations (the last one the rest).
+# Every start but the last gets at most START_BUDGET iterations; the last one the rest of the
+# budget only when no start converged (a UR5 case spent 1727 iterations there, 11 s, after a
+# start had converged in 86).
 START_BUDGET = 150
 # A run within this (relative) of the free optimum's time ends the search of the starts.
 FREE_REACHED = 1e-7
@@ -255,7 +267,7 @@ def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
     return starts or [(*line, 'line')]
 
 
-def run_ipm(ipm, budget, should_stop, hessian):
+def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
     """Run ipm within budget iterations with the curvature hessian ('auto': see above)."""
     if ipm.ev.integrator == 'rk4':
         hessian = 'none'            # no curvature of the RK4 steps (rk4_steps.py)
@@ -263,7 +275,7 @@ def run_ipm(ipm, budget, should_stop, hessian):
         ipm.hessian = hessian
         return ipm.run(budget, should_stop)
     ipm.hessian = 'none'
-    run = ipm.run(min(budget, CHEAP_ITERATIONS), should_stop)
+    run = ipm.run(min(budget, cheap), should_stop)
     if (run.status not in ('max_iterations', 'line_search_failed')
             or run.iterations >= budget):
         return run
@@ -313,8 +325,8 @@ def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, ru
         ipm = ArmInteriorPoint(evaluator, x0, xg)
         ipm.start(states, torques, t_f)
         allowed = budget - iterations
-        if index < len(starts) - 1:
-            allowed = min(allowed, START_BUDGET)
+        if index < len(starts) - 1 or best is not None:
+            allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
         run = run_ipm(ipm, allowed, should_stop, hessian)
         iterations += run.iterations
         linalg_time += ipm.linalg_time
@@ -386,8 +398,11 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         mu = MU_INIT if duals is None else (MU_WARM_EXACT if drift <= WARM_EXACT
                                             else MU_WARM_DRIFT)
         ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=mu)
+        if duals is not None:
+            ipm.accept_iterations = WARM_ACCEPT_ITERATIONS
         ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH)
-        run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian)
+        run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian,
+                      CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
         iterations += run.iterations
         linalg_time += ipm.linalg_time
         runs.append(f'warm start{" with multipliers" if duals else ""}: {_run_summary(run)}')
