@@ -134,6 +134,8 @@ def test_solver_node_settings_plan_with_the_payload_and_estimate_it():
     assert config().model.payload_mass == 0.0
     errors, _ = checked(flat(replan__estimate=['payload_mass', 'hand_mass']))
     assert any('payload_mass only' in e and 'hand_mass' in e for e in errors), errors
+    errors, _ = checked(flat(replan__estimate=['payload_mass', 'payload_mass']))
+    assert any('replan.estimate' in e and 'distinct' in e for e in errors), errors
     errors, _ = checked(flat(robot__payload_mass=-1.0))
     assert any('robot.payload_mass' in e for e in errors), errors
 
@@ -154,3 +156,15 @@ def test_recordings_name_the_payload_planned_with():
         params = {}
     params = arm_parameters(Run(), 'panda', record)
     assert params['robot.payload_mass'] == 0.8
+
+
+def test_an_estimate_the_arm_cannot_make_is_a_reason_not_a_crash():
+    from toc_ros.core.replan_policy import OnlineEstimate
+    online = OnlineEstimate()
+    model = _plan_model('panda')
+    state = np.zeros(14)
+    online.add(model, ['payload_mass', 'payload_mass'], 2.0, 0.0, state, np.zeros(7))
+    built, why = online.model(model, 0.0)
+    assert built is None and 'distinct' in why, why
+    online.add(model, ['payload_mass'], 2.0, 0.01, state, np.zeros(7))
+    assert online.model(model, 0.0) == (None, '0 of 20 sample pairs')

@@ -248,10 +248,18 @@ def arm_errors(params, model):
     if params.get('robot.model_parameters'):
         errors.append('robot.model_parameters: not used by URDF arms (the URDF is the model; '
                       'limits: robot.joint_limits)')
-    other = sorted(set(params.get('replan.estimate') or ()) - set(ARM_ESTIMATES))
+    estimate = tuple(params.get('replan.estimate') or ())
+    other = sorted(set(estimate) - set(ARM_ESTIMATES))
     if other:
         errors.append(f'replan.estimate: URDF arms estimate {", ".join(ARM_ESTIMATES)} only '
                       f'(a point mass at robot.tip_link), not {", ".join(other)}')
+    elif estimate and not model.pending:
+        from toc_ros.core.estimation import ParameterEstimator
+        from toc_ros.core.models.base import ModelError
+        try:        # the estimator the joint_states will feed: duplicates, the window
+            ParameterEstimator(model, estimate, float(params['replan.estimate_window']))
+        except ModelError as exc:
+            errors.append(f'replan.estimate: {exc}')
     if not str(params['base_frame']).strip('/'):
         errors.append('base_frame must not be empty')
     count, limit = len(params.get(SPHERES, ())), int(params['obstacles.max_count'])

@@ -43,7 +43,7 @@ import numpy as np
 
 from toc_ros.core.estimation import estimate_text, ParameterEstimator
 from toc_ros.core.executing_plan import nearest_node
-from toc_ros.core.models import with_actuator_lag
+from toc_ros.core.models import ModelError, with_actuator_lag
 from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.replan import predict, stop_later_is_clear
 
@@ -393,12 +393,13 @@ class OnlineEstimate:
         self._lock = threading.Lock()
         self._estimator = None
         self._key = None
+        self._refused = ''          # why the estimator of the current key could not be made
         self._hold = EstimateHold(change)
 
     def reset(self):
         """Forget every sample and the held estimate (new estimation settings)."""
         with self._lock:
-            self._estimator, self._key = None, None
+            self._estimator, self._key, self._refused = None, None, ''
             self._hold.clear()
 
     def add(self, joint_model, names, window, t, state, effort):
@@ -406,9 +407,14 @@ class OnlineEstimate:
         key = (joint_model, tuple(names), float(window))
         with self._lock:
             if key != self._key:      # new robot data or estimation settings
-                self._estimator, self._key = ParameterEstimator(*key), key
+                self._key = key
                 self._hold.clear()
-            self._estimator.add(t, state[0::2], state[1::2], effort)
+                try:
+                    self._estimator, self._refused = ParameterEstimator(*key), ''
+                except ModelError as exc:   # e.g. a URDF arm loaded after the names were set
+                    self._estimator, self._refused = None, str(exc)
+            if self._estimator is not None:
+                self._estimator.add(t, state[0::2], state[1::2], effort)
 
     def model(self, joint_model, actuator_lag):
         """
@@ -420,7 +426,7 @@ class OnlineEstimate:
         with self._lock:
             estimator = self._estimator
             if estimator is None or estimator.model_ != joint_model:
-                return None, 'no samples yet'
+                return None, self._refused or 'no samples yet'
 
             def build(values):
                 model = estimator.model(values)
