@@ -59,6 +59,10 @@ def test_every_goal_is_reached_and_printed(panda_demo):
     # The plans assume 1 kg in the hand, the plant carries 1.2 kg: the replan cycles' online
     # estimate (from joint_states efforts) finds the plant's payload by the last goal.
     assert summary['payload_kg'] == 1.2 and summary['planned_payload_kg'] == 1.0
+    # The plant's own minimum time (its payload, the same problem) is what arrival is compared
+    # with: solved, and near the plan's (0.2 kg more in the hand; the velocity limits bind).
+    for stage in stages:
+        assert stage['t_min_plant'] == pytest.approx(stage['t_min'], rel=0.2), stage
     estimate = stages[-1]['payload_estimate']
     assert estimate.startswith('payload_mass='), estimate
     assert float(estimate.split('=')[1]) == pytest.approx(1.2, rel=0.05), estimate

@@ -176,6 +176,7 @@ class PandaDemo(Demo):
         result['goal_q'] = goal_q
         out.stage(f'goal {number}: SOLVED, t_min {report.t_f:.4f} s '
                   f'({len(first.points)} points)')
+        obstacles_at_start = self.sent[-1][1]
         schedule = [(first_received + delay, rows) for delay, rows in stage.moving]
 
         def move_sphere():
@@ -203,11 +204,32 @@ class PandaDemo(Demo):
         result.update(self._measure(samples, goal_q, first, first_received, reports),
                       at_rest=at_rest)
         result['reached'] = at_rest and result['final_error'] <= checks.SETTLE_POSITION
+        result['t_min_plant'] = self._plant_minimum_time(first, goal_q, obstacles_at_start)
         out.stage(f"goal {number}: {'at rest' if at_rest else 'NOT at rest'}, arrival "
-                  f"{result['arrival_s']:.3f} s (t_min {report.t_f:.3f} s), final error "
+                  f"{result['arrival_s']:.3f} s (t_min {report.t_f:.3f} s planned, "
+                  f"{result['t_min_plant']:.3f} s of the plant), final error "
                   f"{result['final_error']:.2e} rad, min clearance "
                   f"{result['min_clearance']:.4f} m, {result['cycles']} cycle(s) replanned "
                   f"({result['kept']} kept), estimate {result['payload_estimate'] or 'none'}")
+
+    def _plant_minimum_time(self, first, goal_q, obstacles):
+        """
+        Return the plant's own minimum time [s] of the goal's first problem (nan if unsolved).
+
+        The same start (the first plan's first point), goal, obstacles, margin and grid, with
+        the payload the plant carries: what the issue's 'true plant's minimum time' means.
+        """
+        from toc_ros.core import Problem, solve
+        from toc_ros.core.arms import default_spheres, load_arm
+        from toc_ros.core.arms.arm_solve import ArmRobot
+        from toc_ros.core.arms.payload import with_payload
+        arm = with_payload(load_arm('panda'), PAYLOAD_KG, 'panda_hand')
+        point = first.points[0]
+        result = solve(Problem(model=ArmRobot(arm, default_spheres(arm)),
+                               x0=tuple(point.positions) + tuple(point.velocities),
+                               x_goal=tuple(goal_q), obstacles=tuple(obstacles), margin=MARGIN,
+                               n_intervals=len(first.points) - 1))
+        return result.final_time if result.status is Status.SOLVED else math.nan
 
     def _measure(self, samples, goal_q, first, first_received, reports):
         """Arrival, final error, clearance over the samples, cycles and their latencies."""
