@@ -168,3 +168,20 @@ def test_an_estimate_the_arm_cannot_make_is_a_reason_not_a_crash():
     assert built is None and 'distinct' in why, why
     online.add(model, ['payload_mass'], 2.0, 0.01, state, np.zeros(7))
     assert online.model(model, 0.0) == (None, '0 of 20 sample pairs')
+
+
+def test_a_payload_the_arm_cannot_hold_is_named_when_the_solve_fails():
+    from toc_ros.core import Problem, solve, Status
+    from toc_ros.core.arms import default_spheres, load_arm
+    from toc_ros.core.arms.arm_solve import ArmRobot
+    from toc_ros.core.arms.validate import check_holdable
+    arm = with_payload(load_arm('panda'), 50.0, 'panda_hand')
+    goal = (0.5, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785)
+    with pytest.raises(ArmError, match='panda_joint4 needs 262.9 N m against gravity'):
+        check_holdable(arm, goal)
+    check_holdable(load_arm('panda'), goal)     # without the payload it holds
+    result = solve(Problem(model=ArmRobot(arm, default_spheres(arm)),
+                           x0=(0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785), x_goal=goal,
+                           n_intervals=40))
+    assert result.status is not Status.SOLVED
+    assert 'cannot hold it at rest (with a payload of 50 kg)' in result.message, result.message

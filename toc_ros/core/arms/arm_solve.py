@@ -46,7 +46,7 @@ from .arm_warm import rollout, UnusableGuess, warm_point
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
-from .validate import check_state
+from .validate import check_holdable, check_state
 from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violations
 
 # Positions and velocities of the re-integrated states may exceed a bound by rounding only.
@@ -429,6 +429,13 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         status = Status.STALLED
     message = (f'{"; ".join(runs)} (interior-point iterations, by start): t_f = {run.t:.6f} '
                f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}')
+    if status in (Status.STALLED, Status.MAX_ITERATIONS) and not np.any(xg[robot.arm.n:]):
+        # A likely cause worth naming (not refused: a goal reached at rest for an instant is
+        # a valid problem even when the efforts cannot hold it there).
+        try:
+            check_holdable(robot.arm, xg[:robot.arm.n])
+        except ArmError as exc:
+            message += f'; note: {exc}'
     history = np.zeros((run.history.shape[0], 4))
     if run.history.shape[0]:
         history[:, 0] = np.arange(1, run.history.shape[0] + 1)

@@ -36,6 +36,28 @@ def joint_vector(arm, values, what):
     return vector
 
 
+def check_holdable(arm, q, what='goal'):
+    """
+    Raise ArmError when the efforts cannot hold the arm at rest at q (gravity beyond an effort).
+
+    A goal at rest the arm cannot hold is reached for an instant at best (it falls at once):
+    the usual cause of a failed solve with a payload (robot.payload_mass) too heavy for the
+    shoulder.  The torques are RNEA's at rest.
+    """
+    import pinocchio as pin
+    data = arm.model.createData()
+    hold = pin.rnea(arm.model, data, np.asarray(q, dtype=float), np.zeros(arm.n),
+                    np.zeros(arm.n))
+    excess = np.abs(hold) - arm.effort
+    i = int(np.argmax(excess))
+    if excess[i] > 0.0:
+        payload = arm.source.get('payload_mass')
+        carrying = f' (with a payload of {payload:g} kg)' if payload else ''
+        raise ArmError(f'{what}: the arm cannot hold it at rest{carrying}: {arm.joint_names[i]} '
+                       f'needs {abs(hold[i]):.4g} N m against gravity, its effort limit is '
+                       f'{arm.effort[i]:.4g}')
+
+
 def check_state(arm, q, v=None, what='start', spheres=None, obstacles=None, margin=0.0,
                 self_collision=True, velocity_slack=0.0):
     """
