@@ -120,11 +120,16 @@ def test_estimator_finds_the_payload_of_a_mujoco_plant(true_mass, planned):
     assert values is not None, estimator.status
     assert estimator._pairs >= MIN_PAIRS
     assert abs(values['payload_mass'] - true_mass) < 0.03 * max(true_mass, 1.0), values
-    estimated = estimator.model(values) if values['payload_mass'] >= 0.0 else None
-    if estimated is not None:
+    estimated = estimator.model(values)
+    if values['payload_mass'] >= 0.0:
         assert estimated.payload_mass == values['payload_mass']
         assert estimated.robot.arm.source['payload_mass'] == values['payload_mass'] or \
             values['payload_mass'] == 0.0
+    else:       # a plant without payload may fit slightly below 0: refused with the reason
+        assert estimated is None and 'payload mass must be finite and >= 0' in estimator.status
+    # A negative value is refused with the reason, never raised into the caller (a cycle).
+    assert estimator.model({'payload_mass': -0.01}) is None
+    assert 'estimate refused' in estimator.status and '>= 0' in estimator.status
 
 
 def test_solver_node_settings_plan_with_the_payload_and_estimate_it():

@@ -35,7 +35,7 @@ from toc_ros.arm_cli import tip_link
 from toc_ros.core import SolverOptions
 from toc_ros.core.arms import ArmError, default_spheres, load_arm, load_spheres
 from toc_ros.core.arms.arm_solve import ArmRobot
-from toc_ros.core.arms.payload import inverse_dynamics, with_payload
+from toc_ros.core.arms.payload import with_payload
 from toc_ros.core.problem import Problem, ProblemError
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -115,14 +115,15 @@ class ArmPlanModel(PendingArm):
                             values.get('payload_mass', self.payload_mass))
 
     def check(self):
-        """Return what is wrong with the parameters (empty: usable)."""
-        return [] if self.payload_mass >= 0.0 else [
-            f'payload_mass {self.payload_mass:g} kg is negative']
+        """Return what is wrong with the parameters: nothing (construction refuses bad ones)."""
+        return []
 
     def inverse_dynamics_with(self, values):
         """Return tau(q, dq, ddq) (RNEA) of this arm with the payload of values (estimation)."""
-        mass = values.get('payload_mass', self.payload_mass)
-        return inverse_dynamics(with_payload(self.bare_robot.arm, mass, self.payload_link))
+        arm = with_payload(self.bare_robot.arm, values.get('payload_mass', self.payload_mass),
+                           self.payload_link)
+        data = arm.model.createData()       # its own: the estimator runs off the solver thread
+        return lambda q, dq, ddq: arm.inverse_dynamics(q, dq, ddq, data)
 
     def positions(self, states):
         """Return q of states (..., 2 n)."""

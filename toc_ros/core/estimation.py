@@ -178,7 +178,11 @@ class ParameterEstimator:
         values = self.estimate() if values is None else values
         if values is None:
             return None
-        model = self.model_.with_parameters(values)
+        try:
+            model = self.model_.with_parameters(values)
+        except ValueError as exc:     # values the model cannot be built with (e.g. mass < 0)
+            self.status = f'estimate refused: {exc}'
+            return None
         problems = model.check()
         if problems:
             self.status = f'estimate refused: {"; ".join(problems)}'

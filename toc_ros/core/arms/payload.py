@@ -54,15 +54,4 @@ def with_payload(arm, mass, link):
     return dataclasses.replace(arm, model=model, data=model.createData(), source=source)
 
 
-def inverse_dynamics(arm):
-    """Return tau(q, dq, ddq) = RNEA of the arm's model (its own Pinocchio Data)."""
-    model = arm.model
-    data = model.createData()
-
-    def tau(q, dq, ddq):
-        return pin.rnea(model, data, np.asarray(q, dtype=float), np.asarray(dq, dtype=float),
-                        np.asarray(ddq, dtype=float)).copy()
-    return tau
-
-
-__all__ = ['inverse_dynamics', 'with_payload']
+__all__ = ['with_payload']

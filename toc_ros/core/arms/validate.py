@@ -44,10 +44,8 @@ def check_holdable(arm, q, what='goal'):
     the usual cause of a failed solve with a payload (robot.payload_mass) too heavy for the
     shoulder.  The torques are RNEA's at rest.
     """
-    import pinocchio as pin
-    data = arm.model.createData()
-    hold = pin.rnea(arm.model, data, np.asarray(q, dtype=float), np.zeros(arm.n),
-                    np.zeros(arm.n))
+    hold = arm.inverse_dynamics(np.asarray(q, dtype=float), np.zeros(arm.n), np.zeros(arm.n),
+                                arm.model.createData())
     excess = np.abs(hold) - arm.effort
     i = int(np.argmax(excess))
     if excess[i] > 0.0:
