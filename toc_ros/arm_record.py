@@ -31,6 +31,7 @@ import os
 from typing import Tuple
 
 from toc_ros import arm_config
+from toc_ros.core.models import ModelChoice
 from toc_ros.core.problem import ProblemError
 
 SHIPPED = 'shipped'             # arm_spheres_source of the package's sets (panda, ur5)
@@ -94,11 +95,8 @@ class ArmRecord:
 
 def _payload(text):
     """Return the payload mass of a report's model_parameters ('payload_mass=M' or '')."""
-    for entry in str(text).split(','):
-        name, _, value = entry.partition('=')
-        if name.strip() == PAYLOAD:
-            return float(value)
-    return 0.0
+    entries = tuple(entry for entry in str(text).split(',') if entry.strip())
+    return float(ModelChoice(parameters=entries).parameter_values().get(PAYLOAD, 0.0))
 
 
 @functools.lru_cache(maxsize=8)
