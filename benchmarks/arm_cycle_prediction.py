@@ -17,11 +17,13 @@ How well a replan cycle's start is predicted on a recorded Panda demo run (offli
 
     python benchmarks/arm_cycle_prediction.py RUN_DIR HORIZON_S
 
-For every joint_states sample during a plan, the state HORIZON_S later is predicted three
-ways and compared with the recorded one (interpolated): 'open' (the cycles' predictor,
-core/replan.py: RK4 of pinocchio.aba under the plan's torques from the measured state, the
-plan model with 1 kg in the hand), 'shift' (the measured state moved by the plan's own change
-over the horizon: the tracking error persists) and 'mix' (their mean).
+For every joint_states sample while a plan is the one executed (before the next plan's
+stamp), the state HORIZON_S later is predicted four ways and compared with the recorded one
+(interpolated): 'open' (the cycles' predictor off the plan, core/replan.py: RK4 of
+pinocchio.aba under the plan's torques from the measured state, the plan model with 1 kg in
+the hand), 'shift' (the measured state moved by the plan's own change over the horizon: the
+tracking error persists), 'mix' (their mean) and 'plan' (the plan's own state then: the
+cycles' start on the plan, replan.stitch; the tracking controller removes the error).
 """
 
 import sys
@@ -54,14 +56,17 @@ def errors(samples, plans, horizon):
     arm = with_payload(load_arm('panda'), 1.0, 'panda_hand')
     times = np.array([s[0] for s in samples])
     states = np.array([np.concatenate([s[1], s[2]]) for s in samples])
-    out = {'open': [], 'shift': [], 'mix': []}
-    for plan in plans:
+    out = {'open': [], 'shift': [], 'mix': [], 'plan': []}
+    for index, plan in enumerate(plans):
         start = _stamp(plan)
+        # Only while this plan is the one executed: the next one replaces it at its stamp.
+        until = _stamp(plans[index + 1]) if index + 1 < len(plans) else np.inf
         grid = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
                          for p in plan.points])
         path = np.array([list(p.positions) + list(p.velocities) for p in plan.points])
         torques = np.array([p.effort for p in plan.points])[:-1]
-        during = (times > start + 0.02) & (times < start + grid[-1] - horizon - 0.01)
+        during = ((times > start + 0.02) & (times < start + grid[-1] - horizon - 0.01)
+                  & (times + horizon < until))
         for k in np.flatnonzero(during):
             later = times[k] + horizon
             j = np.searchsorted(times, later)
@@ -73,8 +78,9 @@ def errors(samples, plans, horizon):
             open_loop = _predict_arm(arm, states[k], grid, torques, s0, s1)
             moved = np.array([np.interp(s1, grid, c) - np.interp(s0, grid, c) for c in path.T])
             shift = states[k] + moved
+            on_plan = np.array([np.interp(s1, grid, c) for c in path.T])
             for name, guess in (('open', open_loop), ('shift', shift),
-                                ('mix', 0.5 * (open_loop + shift))):
+                                ('mix', 0.5 * (open_loop + shift)), ('plan', on_plan)):
                 gap = np.abs(guess - actual)
                 out[name].append((gap[:7].max(), gap[7:].max()))
     return out

@@ -63,6 +63,11 @@ def test_every_goal_is_reached_and_printed(panda_demo):
     # with: solved, and near the plan's (0.2 kg more in the hand; the velocity limits bind).
     for stage in stages:
         assert stage['t_min_plant'] == pytest.approx(stage['t_min'], rel=0.2), stage
+        # Arrival (within ARRIVAL_TOL, as in every toc_ros analysis) comes no later than the
+        # arm settles within 1e-3 rad, and a perfect execution of the plant's plan arrives
+        # no later than that plan ends.
+        assert 0.0 < stage['arrival_s'] <= stage['settled_s'], stage
+        assert 0.0 < stage['plant_arrival_s'] <= stage['t_min_plant'] + 1e-9, stage
     estimate = stages[-1]['payload_estimate']
     assert estimate.startswith('payload_mass='), estimate
     assert float(estimate.split('=')[1]) == pytest.approx(1.2, rel=0.05), estimate

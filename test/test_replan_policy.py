@@ -396,6 +396,44 @@ def test_a_due_cycle_starts_from_the_state_predicted_to_its_plan_node():
                              6.0, 3) is None
 
 
+def test_a_cycle_on_track_starts_on_the_plans_own_state_and_off_track_predicted():
+    """replan.stitch: within it the plan's node state (no jump), beyond it the prediction."""
+    executing = make_plan(start=50.0, result=FakeResult(N))
+    k, lead = 30, 0.025
+    t = 50.0 + executing.times[k]
+    node = int(np.flatnonzero(executing.times >= t + 0.004 + lead - 50.0 - 1e-12)[0])
+    measured = executing.states[k] + np.array([0.004, 0.01, -0.003, 0.0])
+    far = executing.states[k] + np.array([0.03, 0.01, -0.003, 0.0])
+    starts = {}
+    for stitch in (0.0, 0.005, 0.02):
+        settings = SimpleNamespace(replan_deviation=0.05, replan_min_remaining=0.15,
+                                   replan_stitch=stitch)
+        for name, state in (('near', measured), ('far', far)):
+            cycle = policy.next_cycle(executing, state, t, t + 0.004, 7.0, lead, settings,
+                                      6.0, 3)
+            assert cycle.stamp_s == pytest.approx(50.0 + executing.times[node])
+            starts[stitch, name] = cycle.start
+    # On track (0.004 rad off, within 0.005 and 0.02): exactly the plan's state at the node.
+    for stitch in (0.005, 0.02):
+        assert np.array_equal(starts[stitch, 'near'], executing.states[node])
+    # Off track (0.03 rad), or stitching off: the measured state predicted to the node.
+    predicted = starts[0.0, 'near']
+    assert np.max(np.abs(predicted - executing.states[node])) > 1e-3
+    for stitch in (0.0, 0.005, 0.02):
+        assert np.array_equal(starts[stitch, 'far'], starts[0.0, 'far'])
+    assert np.max(np.abs(starts[0.0, 'far'][0] - executing.states[node][0])) > 0.02
+    # -1 (the default) by model: predicted for a planar model, on the plan for a URDF arm
+    # within ARM_STITCH (the arm's prediction is not needed there).
+    np.testing.assert_allclose(policy.cycle_start_state(
+        executing, measured, executing.times[k], executing.times[node], 0.004, -1.0),
+        predicted, rtol=0.0, atol=1e-12)
+    arm_plan = SimpleNamespace(model=SimpleNamespace(is_arm=True), times=executing.times,
+                               states=executing.states)
+    assert np.array_equal(policy.cycle_start_state(
+        arm_plan, measured, executing.times[k], executing.times[node],
+        policy.ARM_STITCH, -1.0), executing.states[node])
+
+
 def test_a_cycle_problem_keeps_the_warm_starts_grid_within_its_budget():
     result = FakeResult(N)
     executing = make_plan(start=0.0, result=result)

@@ -34,7 +34,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from toc_ros import config, conversions
-from toc_ros.analysis.closed_loop import latency_stats
+from toc_ros.analysis.closed_loop import arrival_time, latency_stats
 from toc_ros.core import Status
 from toc_ros.demo import checks
 from toc_ros.demo.run import Demo, DemoError, PROGRESS
@@ -204,20 +204,24 @@ class PandaDemo(Demo):
         result.update(self._measure(samples, goal_q, first, first_received, reports),
                       at_rest=at_rest)
         result['reached'] = at_rest and result['final_error'] <= checks.SETTLE_POSITION
-        result['t_min_plant'] = self._plant_minimum_time(first, goal_q, obstacles_at_start)
+        plant = self._plant_reference(first, goal_q, obstacles_at_start)
+        result.update(t_min_plant=plant['t_min'], plant_arrival_s=plant['arrival_s'])
         out.stage(f"goal {number}: {'at rest' if at_rest else 'NOT at rest'}, arrival "
-                  f"{result['arrival_s']:.3f} s (t_min {report.t_f:.3f} s planned, "
-                  f"{result['t_min_plant']:.3f} s of the plant), final error "
+                  f"{result['arrival_s']:.3f} s (the plant's best plan "
+                  f"{result['plant_arrival_s']:.3f} s, t_min {report.t_f:.3f} s planned, "
+                  f"{result['t_min_plant']:.3f} s of the plant), within "
+                  f"{checks.SETTLE_POSITION:g} rad at {result['settled_s']:.3f} s, final error "
                   f"{result['final_error']:.2e} rad, min clearance "
                   f"{result['min_clearance']:.4f} m, {result['cycles']} cycle(s) replanned "
                   f"({result['kept']} kept), estimate {result['payload_estimate'] or 'none'}")
 
-    def _plant_minimum_time(self, first, goal_q, obstacles):
+    def _plant_reference(self, first, goal_q, obstacles):
         """
-        Return the plant's own minimum time [s] of the goal's first problem (nan if unsolved).
+        Return {'t_min', 'arrival_s'} of the plant's own best plan of the goal (nan unsolved).
 
         The same start (the first plan's first point), goal, obstacles, margin and grid, with
-        the payload the plant carries: what the issue's 'true plant's minimum time' means.
+        the payload the plant carries: what the issue's 'true plant's minimum time' means;
+        arrival_s is that plan's own arrival_time, what a perfect execution of it scores.
         """
         from toc_ros.core import Problem, solve
         from toc_ros.core.arms import default_spheres, load_arm
@@ -229,7 +233,11 @@ class PandaDemo(Demo):
                                x0=tuple(point.positions) + tuple(point.velocities),
                                x_goal=tuple(goal_q), obstacles=tuple(obstacles), margin=MARGIN,
                                n_intervals=len(first.points) - 1))
-        return result.final_time if result.status is Status.SOLVED else math.nan
+        if result.status is not Status.SOLVED:
+            return {'t_min': math.nan, 'arrival_s': math.nan}
+        positions = np.asarray(result.states)[:, :arm.n]
+        return {'t_min': result.final_time,
+                'arrival_s': arrival_time(np.asarray(result.time_grid), positions, goal_q)}
 
     def _measure(self, samples, goal_q, first, first_received, reports):
         """Arrival, final error, clearance over the samples, cycles and their latencies."""
@@ -239,16 +247,14 @@ class PandaDemo(Demo):
                       for _, m in samples])
         times = np.array([t for t, _ in samples])
         errors = np.max(np.abs(q - np.asarray(goal_q)), axis=1)
-        outside = np.flatnonzero(errors > checks.SETTLE_POSITION)
-        # Arrival: the first sample from which on the arm stays within the tolerance, from the
-        # first plan's start (its header.stamp, on the node clock like joint_states' stamps).
+        # From the first plan's start (its header.stamp, on the node clock like joint_states'
+        # stamps): arrival as everywhere in toc_ros (analysis.closed_loop.ARRIVAL_TOL), and
+        # when the arm stays within the demo's at-rest tolerance (the PD's last millimetres).
         stamp0 = first.header.stamp.sec + 1e-9 * first.header.stamp.nanosec
         stamps = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
                            for _, m in samples])
-        arrival = (float(stamps[outside[-1] + 1] - stamp0)
-                   if len(outside) and outside[-1] + 1 < len(stamps) else math.nan)
-        if not len(outside):
-            arrival = 0.0
+        arrival = max(0.0, arrival_time(stamps, q, goal_q) - stamp0)
+        settled = max(0.0, arrival_time(stamps, q, goal_q, tol=checks.SETTLE_POSITION) - stamp0)
         arm = load_arm('panda')
         spheres = default_spheres(arm)
         centres, _ = sphere_kinematics_batch(spheres, q)
@@ -261,7 +267,8 @@ class PandaDemo(Demo):
         latencies = [r.latency_s for r in reports if r.event == EVENT_REPLANNED]
         # The online estimate the last cycle of the motion had (replan.estimate).
         estimate = next((r.estimate for r in reversed(reports) if r.estimate), '')
-        return dict(latency_stats(latencies), arrival_s=arrival, payload_estimate=estimate,
+        return dict(latency_stats(latencies), arrival_s=arrival, settled_s=settled,
+                    payload_estimate=estimate,
                     final_error=float(errors[-1]), min_clearance=worst,
                     cycles=len(latencies),
                     kept=sum(r.event == EVENT_REPLAN_KEPT for r in reports),

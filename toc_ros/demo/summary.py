@@ -108,10 +108,11 @@ def _arm_lines(summary):
             latency = ('' if not s['latencies'] else
                        f", replan latency median/p99 {1e3 * s['latency_median_s']:.1f}/"
                        f"{1e3 * s['latency_p99_s']:.1f} ms")
-            plant = s.get('t_min_plant', math.nan)
-            head += (f"; t_min {s['t_min']:.4f} s (the plant's {plant:.4f} s), arrival "
-                     f"{s['arrival_s']:.4f} s ({100.0 * (s['arrival_s'] / plant - 1.0):+.0f} % vs "
-                     f"the plant's), final error "
+            plant = s.get('plant_arrival_s', math.nan)
+            head += (f"; t_min {s['t_min']:.4f} s (the plant's {s['t_min_plant']:.4f} s), arrival "
+                     f"{s['arrival_s']:.4f} s ({100.0 * (s['arrival_s'] / plant - 1.0):+.1f} % vs "
+                     f"the plant's best plan, {plant:.4f} s), within 1e-3 rad at "
+                     f"{s['settled_s']:.4f} s, final error "
                      f"{s['final_error']:.2e} rad" + ('' if s['at_rest'] else ' (NOT at rest)')
                      + f", min clearance {s['min_clearance']:.4f} m, {s['cycles']} cycle(s) "
                      f"replanned, {s['kept']} kept{latency}; estimate "

@@ -57,8 +57,9 @@ class SolverNodeSettings:
     # Receding-horizon replanning (fast mode): see solver_node's module docstring.
     replan_rate: float = setting(
         20.0, 'rate of replan cycles while a fast-mode plan executes: each solves to the same '
-        'goal from the latest joint_states (predicted forward by replan.lead), warm-started '
-        'from the rest of the executing plan; 0 = off (plan once per goal)', unit='Hz',
+        'goal from replan.lead ahead on the executing plan (or from the latest joint_states '
+        'predicted forward when the robot is off the plan, replan.stitch), warm-started from '
+        'the rest of the executing plan; 0 = off (plan once per goal)', unit='Hz',
         low=0.0, high=200.0, ros_name='replan.rate')
     replan_min_remaining: float = setting(
         0.15, 'no replan cycles once less than this is left of the executing plan (the '
@@ -67,6 +68,16 @@ class SolverNodeSettings:
         0.02, 'largest |q - q_ref| over the joints (measured against the executing plan) that '
         'starts a replan cycle at once instead of at the next replan.rate tick; 0 = off',
         unit='rad or m', low=0.0, high=1e3, ros_name='replan.deviation')
+    replan_stitch: float = setting(
+        -1.0, "while the measured joint positions are within this of the executing plan's "
+        "(max |q - q_ref|), a replan cycle starts on the plan's own state at its start node: "
+        'the tracking controller holds the robot on its reference, and the new plan continues '
+        'that reference without a jump; farther off, it starts from the measured state '
+        "predicted forward under the plan's controls (open loop); 0 = always predicted; "
+        '-1 = by model: 0.02 for URDF arms (light wrist links under a stiff tracker: the open '
+        'loop drifts off within tens of ms), 0 for the planar models (heavy links: the cycles '
+        'correct a model mismatch from the measurement)',
+        unit='rad or m', low=-1.0, high=1e3, ros_name='replan.stitch')
     replan_max_nodes: int = setting(
         150, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
         'most this many intervals (fewer intervals, faster cycles)', low=20, high=100000,
