@@ -70,12 +70,16 @@ def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(p
     warm = solve(replan, initial_guess=rest)
     assert cold.status is Status.SOLVED and warm.status is Status.SOLVED, warm.message
     assert 'warm start with multipliers' in warm.message
-    assert warm.final_time == pytest.approx(cold.final_time, rel=1e-12)
-    # The remainder is nearly optimal: far fewer Newton steps than from the cold start (on
-    # the plan itself a few: the warm start's acceptable level needs 3 in a row, not 10).
+    # The remainder is nearly optimal: far fewer Newton steps than from the cold start.
     assert warm.iterations <= cold.iterations // 2, (warm.iterations, cold.iterations)
     if drift == 0.0:
-        assert warm.iterations <= 4, warm.message
+        # On the plan itself it is the solution (its multipliers scaled to the remainder's
+        # T row): taken as it is, the same t_f as the cold solve within its tolerance.
+        assert warm.iterations == 0, warm.message
+        assert warm.final_time == rest.final_time
+        assert warm.final_time == pytest.approx(cold.final_time, rel=1e-8)
+    else:
+        assert warm.final_time == pytest.approx(cold.final_time, rel=1e-12)
     _check(replan, warm)
 
 

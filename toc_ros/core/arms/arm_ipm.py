@@ -121,6 +121,9 @@ class ArmInteriorPoint:
         self.mu_min = tol / 10.0
         self.mu_init = mu_init
         self.accept_iterations = ACCEPT_ITERATIONS
+        # A warm start at the solution of the same problem (a remainder of a plan, the robot on
+        # it) is taken as it is when already acceptable: its solve met the acceptable level.
+        self.accept_at_start = False
         n_int, nx = self.n_int, self.nx
         self.work = riccati.work_arrays(n_int, nx, n)
         self.linalg_time = 0.0
@@ -169,6 +172,7 @@ class ArmInteriorPoint:
                         float(value))
             self.prox = float(duals['prox'])
             self._safeguard_duals()
+        self.rescale_duals = duals is not None
         self.penalty = 1.0
         self.delta_last = 0.0
         self.filter = []
@@ -255,6 +259,27 @@ class ArmInteriorPoint:
         dx[-1] = 0.0
         return dx, dv, d_t, lam, delta
 
+    def _rescale_duals(self, terms):
+        """
+        Scale a warm start's multipliers so that its stationarity in T holds; True if scaled.
+
+        Stationarity in the states and controls is homogeneous in the multipliers (the
+        objective is T alone), so one factor fixes the T row without disturbing them.  A
+        remainder's multipliers miss that row by the change of the discrete Hamiltonian over
+        the part cut off (constant in continuous time, O(h) here), which otherwise costs
+        iterations.
+        """
+        lam_part = float(np.einsum('ki,ki->', terms['c'], self.lam[1:]))
+        total = lam_part - self.zlt + self.zut
+        if not (math.isfinite(total) and total < 0.0):
+            return False
+        scale = -1.0 / total
+        if not 0.5 <= scale <= 2.0:
+            return False
+        for name in DUAL_NAMES:
+            setattr(self, name, getattr(self, name) * scale)
+        return True
+
     def _merit(self, x, v, t, s, defect, values):
         return ipm_kernels.merit(x[1:-1], v, t, s, defect, values, *self._bounds(), self.mu)
 
@@ -280,6 +305,11 @@ class ArmInteriorPoint:
             terms = self.ev.stage_terms(self.x, self.v, self.t, self.lam, self.hessian)
             values, grads, curvature = self.ev.clearance_terms(
                 self.x[1:-1, :n], self.z)
+            if self.rescale_duals:
+                self.rescale_duals = False
+                if self._rescale_duals(terms):
+                    values, grads, curvature = self.ev.clearance_terms(
+                        self.x[1:-1, :n], self.z)
             dual, primal, compl, s_d, s_c = self._errors(terms, grads, values)
             e0 = max(dual / s_d, compl / s_c)
             if not np.isfinite(e0 + primal):
@@ -292,7 +322,8 @@ class ArmInteriorPoint:
             # ACCEPT_ITERATIONS iterations in a row with the full constraint tolerance.
             acceptable = acceptable + 1 if (e0 <= ACCEPT_TOL
                                             and primal <= self.constr_tol) else 0
-            if acceptable >= self.accept_iterations:
+            if acceptable >= self.accept_iterations or (
+                    acceptable and iteration == 0 and self.accept_at_start):
                 status = 'acceptable'
                 break
             if iteration >= max_iterations:

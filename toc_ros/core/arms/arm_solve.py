@@ -69,6 +69,10 @@ WARM_EXACT = 1e-6
 MU_WARM_EXACT = 1e-9
 MU_WARM_DRIFT = 1e-7
 WARM_PUSH = 1e-6
+# ... but a guess at the solution itself (within WARM_EXACT, with multipliers) only as far as
+# strictly inside: its bounds' slacks are ~ mu / z, and a push of WARM_PUSH on a joint at its
+# velocity limit would open Euler defects of 2e-6 that cost two iterations to close.
+WARM_PUSH_EXACT = 1e-12
 # A warm start with multipliers begins at the optimum of a neighbouring problem: its acceptable
 # level (arm_ipm.py) needs this many iterations in a row, not the cold start's 10.  Where the
 # last digits of the dual infeasibility are out of reach (arm_ipm's docstring: degenerate
@@ -398,9 +402,11 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         mu = MU_INIT if duals is None else (MU_WARM_EXACT if drift <= WARM_EXACT
                                             else MU_WARM_DRIFT)
         ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=mu)
+        exact = duals is not None and drift <= WARM_EXACT
         if duals is not None:
             ipm.accept_iterations = WARM_ACCEPT_ITERATIONS
-        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH)
+            ipm.accept_at_start = exact
+        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH_EXACT if exact else WARM_PUSH)
         run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian,
                       CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
         iterations += run.iterations
