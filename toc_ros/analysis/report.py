@@ -29,6 +29,7 @@ import numpy as np
 from toc_ros.conversions import ConversionError, joint_state_to_state
 from toc_ros.core import Status
 
+from .closed_loop import ARRIVAL_TOL
 from .recorded_loops import build_closed_loops, ClosedLoop, EVENTS, group_plans, \
     obstacle_clearance, obstacle_schedule
 from .recorded_plans import build_executions, build_plans, Execution, mark_executed, \
@@ -240,9 +241,9 @@ def _closed_loop_markdown(loops):
         return []
     lines = ['## Closed-loop executions', '',
              'Successive plans to one goal (replan cycles, braking, replacements). Times from '
-             'the start of the first plan; arrival: every joint within 1e-3 of the goal from '
-             'then on; final error: max joint error 0.2 s after the end of the last plan; min '
-             'clearance: every link to the true (uninflated) obstacles in force, every '
+             f'the start of the first plan; arrival: every joint within {ARRIVAL_TOL:g} of the '
+             'goal from then on; final error: max joint error 0.2 s after the end of the last '
+             'plan; min clearance: every link to the true (uninflated) obstacles in force, every '
              'joint_states sample. Latency node: latency_s of the replanned reports; '
              'recorded: log time of the trajectory minus that of the joint_states the cycle '
              'started from (its state_stamp). Received after stamp: plans the recorder '
