@@ -33,6 +33,7 @@ import pytest
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from test_mujoco_arm import ROBOTS
+from toc_ros.core.replan_policy import ARM_STITCH
 from toc_ros.progress import EVENT_REPLANNED
 from trajectory_msgs.msg import JointTrajectory
 import yaml
@@ -144,6 +145,26 @@ def test_replan_cycles_follow_the_arm_to_the_goal(loop):
         [r.message for r in replanned if 'warm start with multipliers' not in r.message]
     latencies = sorted(r.latency_s for r in replanned)
     assert latencies[len(latencies) // 2] < 0.2, latencies
+    # A cycle measured within replan.stitch of the executing plan (the default for arms:
+    # ARM_STITCH) starts on that plan's reference at its stamp: the commanded reference goes
+    # on without a jump.
+    plans = sorted((m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, m)
+                   for m in loop['client'].messages('trajectory', since) if m.points)
+    joined = 0
+    for cycle in replanned:
+        if cycle.deviation > ARM_STITCH:
+            continue
+        index = min(range(len(plans)), key=lambda i: abs(plans[i][0] - cycle.plan_stamp))
+        assert index > 0
+        (before, previous), (_, new) = plans[index - 1], plans[index]
+        times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                 for p in previous.points]
+        at = cycle.plan_stamp - before
+        reference = [np.interp(at, times, [p.positions[j] for p in previous.points])
+                     for j in range(7)]
+        np.testing.assert_allclose(new.points[0].positions, reference, atol=1e-6)
+        joined += 1
+    assert joined >= 1, [(r.deviation, r.message) for r in replanned]
 
 
 def test_a_sphere_moved_into_the_way_is_avoided_over_every_sample(loop):
