@@ -34,7 +34,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from toc_ros import config, conversions
-from toc_ros.analysis.closed_loop import arrival_time, latency_stats
+from toc_ros.analysis.closed_loop import arrival_time, ARRIVAL_TOL, latency_stats
 from toc_ros.core import Status
 from toc_ros.demo import checks
 from toc_ros.demo.run import Demo, DemoError, PROGRESS
@@ -253,8 +253,10 @@ class PandaDemo(Demo):
         stamp0 = first.header.stamp.sec + 1e-9 * first.header.stamp.nanosec
         stamps = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
                            for _, m in samples])
-        arrival = max(0.0, arrival_time(stamps, q, goal_q) - stamp0)
-        settled = max(0.0, arrival_time(stamps, q, goal_q, tol=checks.SETTLE_POSITION) - stamp0)
+        # (nan: not there by the last sample; an arm at the goal already arrived at 0.)
+        arrival, settled = (
+            float(np.clip(arrival_time(stamps, q, goal_q, tol=tol) - stamp0, 0.0, None))
+            for tol in (ARRIVAL_TOL, checks.SETTLE_POSITION))
         arm = load_arm('panda')
         spheres = default_spheres(arm)
         centres, _ = sphere_kinematics_batch(spheres, q)
