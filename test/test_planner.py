@@ -189,6 +189,23 @@ def test_a_goal_is_solved_published_at_the_start_lead_and_reported(solved):
     assert plan.start == stamp(msg) and request.path is port.paths[0]
 
 
+def test_a_goal_is_planned_with_the_online_estimate_once_one_is_in_use():
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    assert port.reports[-1].estimate == ''
+    assert p.plans.current()[0].model is not None
+    configured_t_f = port.reports[-1].t_f
+    heavier = CylindricalRobot(RobotParams(hand_mass=60.0))     # the online estimate
+    port.estimate = (heavier, 'hand_mass=60')
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    final = port.reports[-1]
+    assert final.status is Status.SOLVED and final.estimate == 'hand_mass=60'
+    assert p.plans.current()[0].model is heavier
+    # A heavier hand under the same torque bounds takes longer (the model was really used).
+    assert final.t_f > configured_t_f * 1.01
+    p.worker.stop()
+
+
 def test_refused_goals_are_reported_with_the_reason_and_never_queued():
     p, port = planner()
     assert p.submit(lambda _c: np.array([0.3, 0.0, 5.0, 0.0]), 'goal_joints') is None

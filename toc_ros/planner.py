@@ -290,11 +290,12 @@ class Planner:
         except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
             self.refuse(request.source, str(exc))
             return
-        if request.source == goals.REPLAN:
-            # The goal's execution goes on: plan with the model its replan cycles use.
-            estimated = port.estimated_model(config)[0]
-            if estimated is not None:
-                problem = problem.with_model(estimated)
+        # With an online estimate in use, a goal is planned with the model its replan cycles
+        # use: the robot.* values are known to be off, and a first cycle on another model
+        # cannot warm-start from the goal's plan (a slow first cycle, then a jump).
+        estimated, estimate = port.estimated_model(config)
+        if estimated is not None:
+            problem = problem.with_model(estimated)
         if margin is not None:
             self._log.warning(
                 f'replanning from inside the obstacle margin with margin {margin:.4g} m')
@@ -326,7 +327,7 @@ class Planner:
             goal=tuple(float(v) for v in np.round(request.goal, 9)),
             obstacles_hash=schema.obstacles_hash(problem.obstacles, problem.margin),
             margin=problem.margin, data_revision=revision, event=request.event,
-            **config.model_keys())
+            estimate=estimate if estimated is not None else '', **config.model_keys())
         if status is not result.status:
             report = dataclasses.replace(report, status=status, level=None)
         text = (f'{status.value} for goal from {request.source}: {message} '

@@ -120,8 +120,8 @@ class ProgressReport:
     state_stamp: Optional[float] = None
     # Published cycles: the node clock when the trajectory was published [s] (before plan_stamp).
     published_stamp: Optional[float] = None
-    # Replan cycles with replan.estimate: the estimated model parameters planned with,
-    # 'name=value, ...', or 'none: <reason>' while there is no usable estimate.
+    # With replan.estimate: the estimated model parameters planned with, 'name=value, ...';
+    # replan cycles say 'none: <reason>' while there is no usable estimate, goals ''.
     estimate: str = ''
 
     @property

@@ -101,7 +101,7 @@ class SolverNodeSettings:
     replan_estimate: Tuple[str, ...] = setting(
         (), 'model parameters (e.g. hand_mass, inertia; m_p) that the replan cycles estimate '
         'online from joint_states (position, velocity and effort = the applied u) and plan '
-        'with; goals are planned with the robot.* values; empty = off',
+        'with, and so do new goals once an estimate is in use; empty = off',
         ros_name='replan.estimate', ros_type='string_array')
     replan_estimate_window: float = setting(
         2.0, 'time constant of the exponential forgetting of the online estimation (older '
