@@ -164,7 +164,7 @@ def test_recordings_name_the_payload_planned_with():
 
 
 def test_an_estimate_the_arm_cannot_make_is_a_reason_not_a_crash():
-    from toc_ros.core.replan_policy import OnlineEstimate
+    from toc_ros.core.online_estimate import OnlineEstimate
     online = OnlineEstimate()
     model = _plan_model('panda')
     state = np.zeros(14)

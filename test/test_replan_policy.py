@@ -32,6 +32,7 @@ from toc_ros.core.executing_plan import (braking_plan, ExecutingPlan, goal_warm_
                                          true_conflict_time, violation)
 from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
+from toc_ros.core.online_estimate import EstimateHold
 from toc_ros.core.replan import BRAKE_REST_SPEED, BRAKE_SMOOTHING_SPEED
 
 MODEL = CylindricalRobot()
@@ -314,7 +315,7 @@ def test_the_planned_estimate_changes_only_when_it_moved_enough():
     def build(values):
         built.append(dict(values))
         return ('model', values['m'])
-    hold = policy.EstimateHold()
+    hold = EstimateHold()
     assert hold.update({'m': 50.0}, build) == ('model', 50.0)
     assert hold.update({'m': 50.4}, build) == ('model', 50.0)      # 0.8 %: kept
     assert hold.update({'m': 50.6}, build) == ('model', 50.6)      # 1.2 %: follows

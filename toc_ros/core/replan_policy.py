@@ -29,21 +29,17 @@ forward by a lead (the time the solve and the transport need).  This module deci
   cycle (``retry_after_failed_cycle``);
 - the obstacle margin of the replan out of a braking stop that ended inside the margin
   (``recovery_margin``);
-- when the cycles' model follows the online estimate (``EstimateHold``);
 - what abandoning a goal does to the executing plan (``cancel_goal_action``);
 - where a goal solved while the robot brakes starts (``braking_rest_start``).
 """
 
 import dataclasses
 import math
-import threading
 from typing import Any
 
 import numpy as np
 
-from toc_ros.core.estimation import estimate_text, ParameterEstimator
 from toc_ros.core.executing_plan import nearest_node
-from toc_ros.core.models import ModelError, with_actuator_lag
 from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.replan import predict, stop_later_is_clear
 
@@ -84,9 +80,6 @@ BRAKE_STEP_S = 0.002
 # Step of the stop simulated to decide whether braking can wait: its path stays within 3e-4
 # (rad, m) of the BRAKE_STEP_S one, at a sixth of the time.
 BRAKE_CHECK_STEP_S = 0.01
-# The cycles' model follows the online estimate when a parameter moved by more than this
-# (relative) from the one planned with.
-ESTIMATE_CHANGE = 0.01
 # Reasons of a replan cycle.
 RATE, DEVIATION, DATA_CHANGE = 'rate', 'deviation', 'data change'
 
@@ -366,104 +359,6 @@ def recovery_margin(model, start, rows, margin):
     if gap >= margin or gap <= 0.0:
         return None
     return 0.5 * gap
-
-
-class EstimateHold:
-    """
-    The online estimate the cycles plan with, changed only when it moved enough.
-
-    The model planned with changes only when a parameter moved by more than change (relative)
-    from the one held: successive cycles then solve the same problem, and each warm start (the
-    previous cycle's optimum) stays nearly optimal.
-    """
-
-    def __init__(self, change=ESTIMATE_CHANGE):
-        self.change = change
-        self.values = None       # the estimate planned with
-        self.model = None        # its model
-
-    def clear(self):
-        """Forget the held estimate (new settings, no estimate)."""
-        self.values, self.model = None, None
-
-    def moved(self, values):
-        """Tell whether values differ from the held estimate by more than the change."""
-        held = self.values
-        return held is None or held.keys() != values.keys() or any(
-            abs(values[k] - held[k]) > self.change * abs(held[k]) for k in values)
-
-    def update(self, values, build):
-        """
-        Return the model to plan with for the estimate values (None: no model).
-
-        build(values) makes the model of an estimate (None when it cannot); it is called only
-        when the estimate moved.
-        """
-        if values is None:
-            self.clear()
-            return None
-        if self.moved(values):
-            model = build(values)
-            if model is None:
-                return None
-            self.values, self.model = dict(values), model
-        return self.model
-
-
-class OnlineEstimate:
-    """
-    The online estimate of the replan cycles: fed by measured states, read by the cycles.
-
-    Thread-safe.  A new joint model, estimated names or window starts a new estimator; the
-    model the cycles plan with follows the estimate through an EstimateHold.
-    """
-
-    def __init__(self, change=ESTIMATE_CHANGE):
-        self._lock = threading.Lock()
-        self._estimator = None
-        self._key = None
-        self._refused = ''          # why the estimator of the current key could not be made
-        self._hold = EstimateHold(change)
-
-    def reset(self):
-        """Forget every sample and the held estimate (new estimation settings)."""
-        with self._lock:
-            self._estimator, self._key, self._refused = None, None, ''
-            self._hold.clear()
-
-    def add(self, joint_model, names, window, t, state, effort):
-        """Add one sample: joint state [q1, dq1, ...] at time t [s] with the applied efforts."""
-        key = (joint_model, tuple(names), float(window))
-        with self._lock:
-            if key != self._key:      # new robot data or estimation settings
-                self._key = key
-                self._hold.clear()
-                try:
-                    self._estimator, self._refused = ParameterEstimator(*key), ''
-                except ModelError as exc:   # e.g. a URDF arm loaded after the names were set
-                    self._estimator, self._refused = None, str(exc)
-            if self._estimator is not None:
-                self._estimator.add(t, state[0::2], state[1::2], effort)
-
-    def model(self, joint_model, actuator_lag):
-        """
-        Return (model with the online estimate or None, its text or the reason for none).
-
-        joint_model: the current robot's joint model (an estimator of another is ignored);
-        actuator_lag: the lag [s] the planned model assumes.
-        """
-        with self._lock:
-            estimator = self._estimator
-            if estimator is None or estimator.model_ != joint_model:
-                return None, self._refused or 'no samples yet'
-
-            def build(values):
-                model = estimator.model(values)
-                return None if model is None else with_actuator_lag(model, actuator_lag)
-            model = self._hold.update(estimator.estimate(), build)
-            if model is None:
-                return None, estimator.status
-            return model, estimate_text(self._hold.values)
 
 
 # What abandoning a goal does to the executing plan (cancel_goal_action).

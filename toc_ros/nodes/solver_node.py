@@ -53,7 +53,7 @@ from toc_ros import arm_config, arm_goals, conversions, execution, goal_requests
 from toc_ros import progress as schema
 from toc_ros.arm_inputs import ArmInputs
 from toc_ros.arm_markers import arm_markers
-from toc_ros.core import replan_policy as policy
+from toc_ros.core.online_estimate import OnlineEstimate
 from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
@@ -109,7 +109,7 @@ class SolverNode(Node):
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
         self._publish_lock = threading.Lock()
-        self._estimate = policy.OnlineEstimate()    # replan.estimate: fed by joint_states
+        self._estimate = OnlineEstimate()    # replan.estimate: fed by joint_states
         self._arm_inputs = ArmInputs()      # URDF arms: obstacle markers, robot_description
         self._kernels = KernelLoader(self._config.model, self._on_kernels_loaded,
                                      self._on_kernels_failed)
