@@ -81,7 +81,15 @@ MIN_ALPHA = 1e-12
 DELTA_FIRST = 1e-4
 DELTA_MAX = 1e40
 ACCEPT_TOL = 1e-6
-PROX_INIT = 1.0
+# The first proximal weight: small from a cold start, whose first steps from the line start
+# are mostly full ones (1.0 cost every Euler cold solve the iterations that lowered it;
+# benchmarks/RESULTS.md, "Arms: a smaller first proximal weight") ... but PROX_GUARDED on
+# RK4 steps, which never get the dynamics' curvature (rk4_steps.py: the proximal term is all
+# the curvature their first steps have; from 1e-4 a UR5 RK4 solve failed its line search),
+# and from a primal guess without multipliers (start(prox=...)), which it keeps from
+# wandering off while the multipliers form (6 iterations on the plan, 14 from 1e-4).
+PROX_INIT = 1e-4
+PROX_GUARDED = 1.0
 PROX_MAX = 1e8
 ACCEPT_ITERATIONS = 10
 ROUNDING = 10.0 * np.finfo(float).eps
@@ -131,13 +139,14 @@ class ArmInteriorPoint:
         self._no_curvature = np.zeros((0, 0, 0))
 
     # Start point ---------------------------------------------------------------------------
-    def start(self, states, controls, t_f, duals=None, push=COLD_PUSH):
+    def start(self, states, controls, t_f, duals=None, push=COLD_PUSH, prox=None):
         """
         Set the primal point, pushed strictly inside the bounds by push (relative), and duals.
 
         duals (warm start: ArmIpmResult.duals() of a run on the same grid, e.g. the remainder
         of a plan): its multipliers, re-centred for mu_init by IPOPT's kappa_sigma safeguard;
-        without them, every bound and sphere dual is mu / slack (a cold start).
+        without them, every bound and sphere dual is mu / slack (a cold start).  prox: the
+        first proximal weight (None: PROX_INIT, PROX_GUARDED on RK4 steps); duals bring theirs.
         """
         self.ev.forget_curvature()
         x = np.array(states, dtype=float)
@@ -162,7 +171,9 @@ class ArmInteriorPoint:
         self.zux = np.where(self.has_u, self.mu / hi[0], 0.0)
         self.zlv, self.zuv = self.mu / lo[1], self.mu / hi[1]
         self.zlt, self.zut = self.mu / lo[2], self.mu / hi[2]
-        self.prox = PROX_INIT
+        if prox is None:
+            prox = PROX_GUARDED if self.ev.integrator == 'rk4' else PROX_INIT
+        self.prox = prox
         if duals is not None:
             for name in DUAL_NAMES:
                 if name not in duals:

@@ -39,7 +39,7 @@ from typing import Optional
 import numpy as np
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY
+from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY, PROX_GUARDED
 from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets, line_detours,
                         line_time, path_torques, timed_start)
 from .arm_warm import rollout, UnusableGuess, warm_point
@@ -292,16 +292,23 @@ def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
 
 
 def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
-    """((states, torques, t_f) or None, iterations): solved without obstacles from line."""
+    """
+    ((states, torques, t_f) or None, iterations, Riccati time): solved without obstacles.
+
+    From line; its Pinocchio calls and time are added to evaluator's counters (the solve's
+    time split covers every run).
+    """
     states, torques, t_f = line
     free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, len(torques),
                         len(evaluator.pairs) > 0, evaluator.integrator)
     ipm = ArmInteriorPoint(free, x0, xg)
     ipm.start(states, torques, t_f)
     run = run_ipm(ipm, budget, should_stop, hessian)
+    evaluator.pin_calls += free.pin_calls
+    evaluator.pin_time += free.pin_time
     if run.status not in ('converged', 'acceptable'):
-        return None, run.iterations
-    return (run.x, run.v * robot.arm.effort, run.t), run.iterations
+        return None, run.iterations, ipm.linalg_time
+    return (run.x, run.v * robot.arm.effort, run.t), run.iterations, ipm.linalg_time
 
 
 def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
@@ -316,9 +323,10 @@ def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, ru
     free = None
     line = cold_start(robot.arm, x0, xg, n_int)
     if evaluator.n_obstacle_rows and evaluator.clearances(line[0][:, :robot.arm.n]).min() < 0.0:
-        free, used = _free_optimum(robot, evaluator, x0, xg, line, hessian,
-                                   min(budget, FREE_BUDGET), should_stop)
+        free, used, free_linalg = _free_optimum(robot, evaluator, x0, xg, line, hessian,
+                                                min(budget, FREE_BUDGET), should_stop)
         iterations += used
+        linalg_time += free_linalg
         runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
                     f'{used} iterations')
     best = run = None
@@ -406,7 +414,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         if duals is not None:
             ipm.accept_iterations = WARM_ACCEPT_ITERATIONS
             ipm.accept_at_start = exact
-        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH_EXACT if exact else WARM_PUSH)
+        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH_EXACT if exact else WARM_PUSH,
+                  prox=PROX_GUARDED if duals is None else None)
         run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian,
                       CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
         iterations += run.iterations
