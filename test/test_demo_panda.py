@@ -52,13 +52,19 @@ def panda_demo(tmp_path_factory):
 def test_every_goal_is_reached_and_printed(panda_demo):
     proc, summary, messages = panda_demo
     stages = summary['arm_stages']
-    assert [s['label'] for s in stages] == ['pick', 'place', 'home']
-    assert [s['goal'] for s in stages] == ['joints', 'pose', 'joints']
+    # The three goals twice: replanning with the plans' model, then with the payload
+    # estimated online (as the planar demo's two replanning runs).
+    assert [s['label'] for s in stages] == ['pick', 'place', 'home'] * 2
+    assert [s['goal'] for s in stages] == ['joints', 'pose', 'joints'] * 2
+    assert [s['run'] for s in stages] == ['replanning'] * 3 + ['replanning + estimation'] * 3
     assert all(s['status'] == 'SOLVED' and s['reached'] for s in stages)
     assert 'goal 2 (place, pose): SOLVED' in proc.stdout and 'wall time' in proc.stdout
+    assert 'replanning + estimation:' in proc.stdout
     # The plans assume 1 kg in the hand, the plant carries 1.2 kg: the replan cycles' online
-    # estimate (from joint_states efforts) finds the plant's payload by the last goal.
+    # estimate (from joint_states efforts) finds the plant's payload by the last goal; the
+    # first run estimates nothing.
     assert summary['payload_kg'] == 1.2 and summary['planned_payload_kg'] == 1.0
+    assert not any(s['payload_estimate'] for s in stages[:3])
     # The plant's own minimum time (its payload, the same problem) is what arrival is compared
     # with: solved, and near the plan's (0.2 kg more in the hand; the velocity limits bind).
     for stage in stages:
@@ -73,22 +79,29 @@ def test_every_goal_is_reached_and_printed(panda_demo):
     assert float(estimate.split('=')[1]) == pytest.approx(1.2, rel=0.05), estimate
     # The joint goals as sent, the pose goal's joints as planned: the arm rests there.
     samples = [(t, np.array(m.position)) for t, m in messages['/joint_states']]
-    for stage, (start, end) in zip(stages, _stage_spans(messages)):
+    spans = _stage_spans(messages, samples)
+    assert len(spans) == len(stages)
+    for stage, (start, end) in zip(stages, spans):
         rest = [q for t, q in samples if start <= t < end][-1]
         assert np.max(np.abs(rest - np.array(stage['goal_q']))) < 1e-3
         if stage['goal'] == 'joints':
             np.testing.assert_allclose(stage['goal_q'], stage['target'], atol=1e-9)
     oracle = ArmOracle(find_panda_urdf().read_text())
-    x, y, z = summary['arm_stages'][1]['target'][:3]
-    reached = oracle.tip(stages[1]['goal_q']).translation
-    assert np.linalg.norm(reached - [x, y, z]) < 1e-3
+    for stage in (s for s in stages if s['goal'] == 'pose'):
+        reached = oracle.tip(stage['goal_q']).translation
+        assert np.linalg.norm(reached - stage['target'][:3]) < 1e-3
 
 
-def _stage_spans(messages):
-    """(start, end) log times of each goal: from its goal message to the next one."""
+def _stage_spans(messages, samples):
+    """
+    (start, end) log times of each goal: from its goal message to the next one, or to the
+    plant's reset between the runs (the first sample that jumps by more than 0.1 rad).
+    """
     sent = sorted([t for t, _ in messages.get('/goal_joints', [])]
                   + [t for t, _ in messages.get('/goal_pose', [])])
-    return list(zip(sent, sent[1:] + [float('inf')]))
+    jumps = [t for (_, a), (t, b) in zip(samples, samples[1:]) if np.max(np.abs(b - a)) > 0.1]
+    return [(start, min([end] + [t for t in jumps if start < t < end]))
+            for start, end in zip(sent, sent[1:] + [float('inf')])]
 
 
 def test_every_sample_clears_the_spheres_in_force(panda_demo):

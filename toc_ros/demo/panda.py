@@ -16,9 +16,11 @@
 toc-demo --robot panda: a pick-and-place-like sequence on the Panda around two spheres.
 
 solver_node and plant_node of config/panda.yaml (the plans assume a 1 kg payload in the hand,
-the MuJoCo plant carries 20 % more, and the replan cycles estimate it online from joint_states;
-replan cycles at 20 Hz), three goals (joint, pose, joint); during the first
-motion one sphere drops onto the route of the second, which plans around it.  Every
+the MuJoCo plant carries 20 % more; replan cycles at 20 Hz), three goals (joint, pose, joint),
+run twice as the planar demo's closed loop (RUNS): replanning with the 1 kg model, then
+replanning with the payload estimated online from joint_states, each from the ready pose (the
+plant's ~/reset).  During the first motion of each run one sphere drops onto the route of the
+second, which plans around it.  Every
 joint_states sample of each motion is checked against the obstacle spheres in force when it
 was received (the core's sphere clearance, no margin); the summary has arrival, final error,
 clearance and cycle latencies.
@@ -31,8 +33,10 @@ import time
 
 from geometry_msgs.msg import PoseStamped
 import numpy as np
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
 from toc_ros import config, conversions
 from toc_ros.analysis.closed_loop import arrival_time, ARRIVAL_TOL, latency_stats
 from toc_ros.core import Status
@@ -42,6 +46,8 @@ from toc_ros.progress import EVENT_REPLAN_KEPT, EVENT_REPLANNED, progress_from_m
 import yaml
 
 PARAMS_FILE = 'panda.yaml'
+# (name, replan.estimate) of each run of the three goals.
+RUNS = (('replanning', ()), ('replanning + estimation', ('payload_mass',)))
 PLANNED_PAYLOAD_KG = 1.0    # robot.payload_mass: at the hand's origin in the plan model
 PAYLOAD_KG = 1.2            # plant_node's payload_mass_offset (+20 %), estimated online
 MARGIN = 0.03               # [m] obstacles.margin of the plans
@@ -80,6 +86,8 @@ class PandaDemo(Demo):
         self.out = printer
         self.deadline = time.monotonic() + args.timeout
         self.stages = STAGES
+        self.stage_count = len(STAGES) * len(RUNS)
+        self.run_name = RUNS[0][0]
         self.closed_loop = False
         self.params_file = None
         params = config.load_parameters(config.default_config_path(PARAMS_FILE), 'solver_node')
@@ -113,7 +121,6 @@ class PandaDemo(Demo):
         plant.setdefault('robot', {})['tip_link'] = 'panda_hand'
         solver.setdefault('robot', {}).update(tip_link='panda_hand',
                                               payload_mass=PLANNED_PAYLOAD_KG)
-        solver.setdefault('replan', {})['estimate'] = ['payload_mass']
         path = os.path.join(log_dir, 'panda_demo.yaml')
         with open(path, 'w') as stream:
             yaml.safe_dump({f'/**/{name}': values for name, values in doc.items()}, stream)
@@ -149,7 +156,7 @@ class PandaDemo(Demo):
         """Send the goal (moving sphere 2 meanwhile), wait for arrival, measure the motion."""
         out, client = self.out, self.client
         result = {'label': stage.label, 'goal': 'joints' if stage.joints else 'pose',
-                  'target': list(stage.joints or stage.pose)}
+                  'target': list(stage.joints or stage.pose), 'run': self.run_name}
         self.summary['arm_stages'].append(result)
         progress_seen = client.count(PROGRESS)
         trajectories_seen = client.count('trajectory')
@@ -277,8 +284,33 @@ class PandaDemo(Demo):
                     samples=len(samples))
 
     def run(self):
-        """Run every stage from the ready pose, with the static sphere and sphere 2 aside."""
-        self._publish_obstacles([STATIC, DROP[0][1]])
-        time.sleep(0.3)
-        for number, stage in enumerate(self.stages, 1):
-            self.run_arm_stage(number, stage)
+        """Run every stage per RUNS from the ready pose, the static sphere and sphere 2 aside."""
+        for name, estimate in RUNS:
+            self.run_name = name
+            self.out.stage(f'{name}: replan.estimate {list(estimate)}')
+            self._publish_obstacles([STATIC, DROP[0][1]])
+            time.sleep(0.3)          # sphere 2 lifted before the arm comes back below it
+            self._set('solver_node', {'replan.estimate': Parameter(
+                'replan.estimate', Parameter.Type.STRING_ARRAY, list(estimate))})
+            # The last goal abandoned (no cycle drives the reset arm back to it), then the arm
+            # back to the ready pose.
+            self._trigger('solver_node/cancel_goal')
+            if not self._trigger('plant_node/reset'):
+                raise DemoError('plant_node refused ~/reset')
+            time.sleep(0.3)          # the solver sees the ready pose on joint_states
+            for number, stage in enumerate(self.stages, 1):
+                self.run_arm_stage(number, stage)
+
+    def _trigger(self, service):
+        """Call a std_srvs/Trigger service of the demo's nodes; return its success."""
+        client = self.client.node.create_client(Trigger, self.client.name(service))
+        try:
+            return self.client.call(client, Trigger.Request(), timeout=10.0).success
+        finally:
+            self.client.node.destroy_client(client)
+
+    def _set(self, node, values):
+        refused = [r.reason for r in self.client.set_parameters(node, values)
+                   if not r.successful]
+        if refused:
+            raise DemoError(f'{node} refused {sorted(values)}: {refused}')

@@ -100,10 +100,16 @@ def format_summary(summary):
 def _arm_lines(summary):
     """Return the summary lines of an arm demo's goals (toc-demo --robot panda)."""
     lines = [f"  Panda on MuJoCo, payload {summary['payload_kg']:g} kg (the plans assume "
-             f"{summary.get('planned_payload_kg', 0.0):g} kg; estimated online), obstacle "
-             f"margin {summary['margin']:g} m:"]
-    for k, s in enumerate(summary['arm_stages'], 1):
-        head = f"  goal {k} ({s['label']}, {s['goal']}): {s.get('status', 'not finished')}"
+             f"{summary.get('planned_payload_kg', 0.0):g} kg), obstacle margin "
+             f"{summary['margin']:g} m; the three goals with replanning, then with replanning "
+             'and the payload estimated online:']
+    run, k = None, 0
+    for s in summary['arm_stages']:
+        if s.get('run') != run:
+            run, k = s.get('run'), 0
+            lines.append(f'  {run}:')
+        k += 1
+        head = f"    goal {k} ({s['label']}, {s['goal']}): {s.get('status', 'not finished')}"
         if 'arrival_s' in s:
             latency = ('' if not s['latencies'] else
                        f", replan latency median/p99 {1e3 * s['latency_median_s']:.1f}/"
