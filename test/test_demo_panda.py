@@ -94,8 +94,10 @@ def test_every_goal_is_reached_and_printed(panda_demo):
 
 def _stage_spans(messages, samples):
     """
-    (start, end) log times of each goal: from its goal message to the next one, or to the
-    plant's reset between the runs (the first sample that jumps by more than 0.1 rad).
+    Return the (start, end) log times of each goal.
+
+    From its goal message to the next one, or to the plant's reset between the runs (the
+    first sample that jumps by more than 0.1 rad).
     """
     sent = sorted([t for t, _ in messages.get('/goal_joints', [])]
                   + [t for t, _ in messages.get('/goal_pose', [])])
