@@ -258,6 +258,15 @@ class RosClient:
             raise HarnessError(f'{client.srv_name} did not answer in {timeout} s')
         return future.result()
 
+    def trigger(self, relative, timeout=10.0):
+        """Call a std_srvs/Trigger service of the nodes under test; return its response."""
+        from std_srvs.srv import Trigger
+        client = self.node.create_client(Trigger, self.name(relative))
+        try:
+            return self.call(client, Trigger.Request(), timeout)
+        finally:
+            self.node.destroy_client(client)
+
     def set_parameters(self, node_name, values, timeout=10.0):
         """
         Set parameters of a node one by one; return the SetParametersResults.

@@ -30,7 +30,6 @@ from typing import Optional, Tuple
 import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
-from std_srvs.srv import Trigger
 from toc_ros import conversions
 from toc_ros.analysis.closed_loop import arrival_time, execution_metrics, PlanSpan
 from toc_ros.progress import EVENT_REPLAN_KEPT, EVENT_REPLANNED, progress_from_msg
@@ -143,11 +142,7 @@ def _execute(client, goal_pub, send, model, joint_names, goal_q, obstacles, plan
              timeout):
     if plant:
         _set(client, 'plant_node', plant)
-    reset = client.node.create_client(Trigger, client.name('plant_node/reset'))
-    try:
-        client.call(reset, Trigger.Request(), timeout=10.0)
-    finally:
-        client.node.destroy_client(reset)
+    client.trigger('plant_node/reset')
     schedule = [(_now(client), tuple(tuple(r) for r in obstacles))]
     send(obstacles)
     _wait_obstacles(client, obstacles)

@@ -36,7 +36,6 @@ import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from std_srvs.srv import Trigger
 from toc_ros import config, conversions
 from toc_ros.analysis.closed_loop import arrival_time, ARRIVAL_TOL, latency_stats
 from toc_ros.core import Status
@@ -87,7 +86,6 @@ class PandaDemo(Demo):
         self.deadline = time.monotonic() + args.timeout
         self.stages = STAGES
         self.stage_count = len(STAGES) * len(RUNS)
-        self.run_name = RUNS[0][0]
         self.closed_loop = False
         self.params_file = None
         params = config.load_parameters(config.default_config_path(PARAMS_FILE), 'solver_node')
@@ -152,11 +150,11 @@ class PandaDemo(Demo):
         o.x, o.y, o.z, o.w = stage.pose[3:]
         self.goal_pub.publish(msg)
 
-    def run_arm_stage(self, number, stage):
+    def run_arm_stage(self, number, stage, run):
         """Send the goal (moving sphere 2 meanwhile), wait for arrival, measure the motion."""
         out, client = self.out, self.client
         result = {'label': stage.label, 'goal': 'joints' if stage.joints else 'pose',
-                  'target': list(stage.joints or stage.pose), 'run': self.run_name}
+                  'target': list(stage.joints or stage.pose), 'run': run}
         self.summary['arm_stages'].append(result)
         progress_seen = client.count(PROGRESS)
         trajectories_seen = client.count('trajectory')
@@ -286,7 +284,6 @@ class PandaDemo(Demo):
     def run(self):
         """Run every stage per RUNS from the ready pose, the static sphere and sphere 2 aside."""
         for name, estimate in RUNS:
-            self.run_name = name
             self.out.stage(f'{name}: replan.estimate {list(estimate)}')
             self._publish_obstacles([STATIC, DROP[0][1]])
             time.sleep(0.3)          # sphere 2 lifted before the arm comes back below it
@@ -294,20 +291,12 @@ class PandaDemo(Demo):
                 'replan.estimate', Parameter.Type.STRING_ARRAY, list(estimate))})
             # The last goal abandoned (no cycle drives the reset arm back to it), then the arm
             # back to the ready pose.
-            self._trigger('solver_node/cancel_goal')
-            if not self._trigger('plant_node/reset'):
+            self.client.trigger('solver_node/cancel_goal')
+            if not self.client.trigger('plant_node/reset').success:
                 raise DemoError('plant_node refused ~/reset')
             time.sleep(0.3)          # the solver sees the ready pose on joint_states
             for number, stage in enumerate(self.stages, 1):
-                self.run_arm_stage(number, stage)
-
-    def _trigger(self, service):
-        """Call a std_srvs/Trigger service of the demo's nodes; return its success."""
-        client = self.client.node.create_client(Trigger, self.client.name(service))
-        try:
-            return self.client.call(client, Trigger.Request(), timeout=10.0).success
-        finally:
-            self.client.node.destroy_client(client)
+                self.run_arm_stage(number, stage, name)
 
     def _set(self, node, values):
         refused = [r.reason for r in self.client.set_parameters(node, values)
