@@ -143,6 +143,27 @@ def test_riccati_step_matches_a_dense_kkt_solve():
     np.testing.assert_allclose(nu_out, y[-1], atol=1e-8)
 
 
+def test_line_search_takes_a_step_that_lowers_both_the_violation_and_the_barrier():
+    # Near the solution: the switching rule asks for Armijo on phi; a step whose slope
+    # promised far more than the barrier can give still lowers phi and theta: it is taken as
+    # an h-type step (the filter grows); one that raises phi is not.
+    from toc_ros.core.arms.arm_ipm import ArmInteriorPoint
+    ipm = ArmInteriorPoint.__new__(ArmInteriorPoint)
+    ipm.theta_max, ipm.theta_min, ipm.filter = 1e4, 1e-4, []
+    phi0, theta0, slope = 0.5389882208788, 4.818e-05, -0.53
+    small_gain = {'phi': phi0 - 2.5e-8, 'theta': 1.25e-5}
+    assert ipm._acceptable(small_gain, 1.0, phi0, theta0, slope)
+    assert ipm.filter == [((1.0 - 1e-5) * theta0, phi0 - 1e-8 * theta0)]
+    ipm.filter = []
+    assert not ipm._acceptable({'phi': phi0 + 1e-9, 'theta': 1.25e-5}, 1.0, phi0, theta0,
+                               slope)
+    assert not ipm._acceptable({'phi': phi0 - 2.5e-8, 'theta': theta0}, 1.0, phi0, theta0,
+                               slope)
+    # Armijo met: an f-type step, the filter unchanged.
+    assert ipm._acceptable({'phi': phi0 - 1e-4, 'theta': theta0}, 1.0, phi0, theta0, slope)
+    assert ipm.filter == []
+
+
 def test_riccati_reports_an_indefinite_reduced_hessian():
     n_int, nx, nu = 3, 2, 1
     a = np.tile(np.eye(nx), (n_int, 1, 1))
@@ -447,6 +468,38 @@ def test_a_sphere_on_the_line_near_a_joint_limit_is_passed_as_well_as_ipopt_does
             nlp.solve((result.states, result.controls, result.final_time))]
     best = min(out['t_f'] for out in runs if out['success'])
     assert result.final_time <= best * (1 + 1e-3)
+
+
+@pytest.mark.slow
+def test_a_sphere_passed_the_better_way_found_by_the_free_optimums_other_bends(monkeypatch):
+    # A Panda goal of the random one-sphere suite: the free optimum bent the nearest way
+    # (and the bent lines) pass the sphere on a side that costs 10 % more time; another bend
+    # of the free optimum finds the better way, which IPOPT confirms.
+    pytest.importorskip('casadi')
+    from toc_ros.bench.arm_problem import ArmProblem
+    from toc_ros.bench.arm_reference import ArmTranscription
+    from toc_ros.core.arms import arm_solve
+    robot = _robot('panda')
+    start = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+    goal = (0.223, -1.361, 0.816, -2.333, 0.026, 2.178, -0.06)
+    middle = robot.arm.frame_position(0.5 * (np.array(start) + goal), robot.spheres.links[-1])
+    obstacles = ((*middle, 0.08),)
+    problem = Problem(model=robot, x0=start, x_goal=goal, obstacles=obstacles, margin=MARGIN,
+                      n_intervals=30)
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    spec = _independent_check('panda', result, obstacles, start=start, goal=goal)
+    monkeypatch.setattr(arm_solve, 'FREE_BENDS', 1)
+    one_bend = solve(problem)
+    assert one_bend.status is Status.SOLVED, one_bend.message
+    assert one_bend.final_time > 1.05 * result.final_time
+    nlp = ArmTranscription(ArmProblem(spec), 30, 'euler', 'ipopt')
+    from_one_bend = nlp.solve((one_bend.states, one_bend.controls, one_bend.final_time))
+    from_result = nlp.solve((result.states, result.controls, result.final_time))
+    assert from_result['success'], from_result['status']
+    assert result.final_time <= from_result['t_f'] * (1 + 1e-4)
+    if from_one_bend['success']:
+        assert result.final_time <= from_one_bend['t_f'] * (1 + 1e-3)
 
 
 @pytest.mark.parametrize('name', ['panda', 'ur5'])

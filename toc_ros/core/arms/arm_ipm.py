@@ -136,6 +136,7 @@ class ArmInteriorPoint:
         self.work = riccati.work_arrays(n_int, nx, n)
         self.linalg_time = 0.0
         self.factorizations = 0
+        self.primal = math.inf
         self._no_curvature = np.zeros((0, 0, 0))
 
     # Start point ---------------------------------------------------------------------------
@@ -322,6 +323,7 @@ class ArmInteriorPoint:
                     values, grads, curvature = self.ev.clearance_terms(
                         self.x[1:-1, :n], self.z)
             dual, primal, compl, s_d, s_c = self._errors(terms, grads, values)
+            self.primal = primal        # (read by should_stop callbacks: arm_solve.py)
             e0 = max(dual / s_d, compl / s_c)
             if not np.isfinite(e0 + primal):
                 status = 'numerical_failure'
@@ -373,17 +375,12 @@ class ArmInteriorPoint:
 
     def _line_search(self, terms, values, grads, dx, dv, d_t, lam_qp):
         """Backtracking on the l1 merit; updates the iterate and duals; returns alpha."""
-        n, mu = self.n, self.mu
+        mu = self.mu
         frac = max(0.99, 1.0 - mu)
-        ds, dz = np.empty_like(self.s), np.empty_like(self.z)
-        dzlx, dzux = np.empty_like(self.zlx), np.empty_like(self.zux)
-        dzlv, dzuv = np.empty_like(self.zlv), np.empty_like(self.zuv)
         # Fraction to the boundary (primal and dual), the bound-dual steps of the condensed
         # system and the barrier objective's slope along the step.
-        alpha_max, alpha_dual, dzlt, dzut, slope = ipm_kernels.step_to_boundary(
-            dx[1:-1], dv, d_t, grads, values, self.s, self.z, self.x[1:-1], self.v, self.t,
-            self.zlx, self.zux, self.zlv, self.zuv, self.zlt, self.zut, *self._bounds(), mu,
-            frac, ds, dzlx, dzux, dzlv, dzuv, dz)
+        direction = self._direction(values, grads, dx, dv, d_t, lam_qp, frac)
+        alpha_max, slope = direction['alpha_max'], direction['slope']
         # IPOPT's filter line search on (theta = l1 constraint violation, phi = barrier
         # objective), with its switching rule and constants.
         phi0, theta0 = self._merit(self.x, self.v, self.t, self.s, terms['defect'], values)
@@ -392,42 +389,82 @@ class ArmInteriorPoint:
             self.theta_min = 1e-4 * max(1.0, theta0)
         alpha = alpha_max
         self.alpha_max = alpha_max
-        accepted = False
         while alpha >= MIN_ALPHA:
-            xt = self.x + alpha * dx
-            vt = self.v + alpha * dv
-            tt = self.t + alpha * d_t
-            st = self.s + alpha * ds
-            defect = self.ev.defects(xt, vt, tt)
-            vals = self.ev.clearances(xt[1:-1, :n])
-            phi, theta = self._merit(xt, vt, tt, st, defect, vals)
-            if np.isfinite(phi) and theta <= self.theta_max and not self._in_filter(theta, phi):
-                rounding = ROUNDING * abs(phi0)
-                switching = slope < 0.0 and alpha * (-slope) ** 2.3 > theta0 ** 1.1
-                if theta0 <= self.theta_min and switching:
-                    if phi <= phi0 + ARMIJO * alpha * slope + rounding:
-                        accepted = True         # f-type: the filter is not augmented
-                        break
-                elif theta <= (1.0 - 1e-5) * theta0 or phi <= phi0 - 1e-8 * theta0 + rounding:
-                    self.filter.append(((1.0 - 1e-5) * theta0, phi0 - 1e-8 * theta0))
-                    accepted = True
-                    break
+            trial = self._trial(direction, alpha)
+            verdict = self._acceptable(trial, alpha, phi0, theta0, slope)
+            if verdict:
+                return self._take(direction, trial, alpha)
             alpha *= 0.5
-        if not accepted:
-            if self.filter:
-                # IPOPT's filter reset heuristic, once: forget the filter and search again.
-                self.filter = []
-                return self._line_search(terms, values, grads, dx, dv, d_t, lam_qp)
-            return None
-        self.x, self.v, self.t, self.s = xt, vt, tt, st
-        ad = alpha_dual
-        self.zlx = self.zlx + ad * dzlx
-        self.zux = self.zux + ad * dzux
-        self.zlv, self.zuv = self.zlv + ad * dzlv, self.zuv + ad * dzuv
-        self.zlt, self.zut = self.zlt + ad * dzlt, self.zut + ad * dzut
+        if self.filter:
+            # IPOPT's filter reset heuristic, once: forget the filter and search again.
+            self.filter = []
+            return self._line_search(terms, values, grads, dx, dv, d_t, lam_qp)
+        return None
+
+    def _direction(self, values, grads, dx, dv, d_t, lam_qp, frac):
+        """Return a primal step with its slack and dual steps and step lengths (a dict)."""
+        out = {'dx': dx, 'dv': dv, 'd_t': d_t, 'lam': lam_qp, 'ds': np.empty_like(self.s),
+               'dz': np.empty_like(self.z), 'dzlx': np.empty_like(self.zlx),
+               'dzux': np.empty_like(self.zux), 'dzlv': np.empty_like(self.zlv),
+               'dzuv': np.empty_like(self.zuv)}
+        (out['alpha_max'], out['alpha_dual'], out['dzlt'], out['dzut'],
+         out['slope']) = ipm_kernels.step_to_boundary(
+            dx[1:-1], dv, d_t, grads, values, self.s, self.z, self.x[1:-1], self.v, self.t,
+            self.zlx, self.zux, self.zlv, self.zuv, self.zlt, self.zut, *self._bounds(),
+            self.mu, frac, out['ds'], out['dzlx'], out['dzux'], out['dzlv'], out['dzuv'],
+            out['dz'])
+        return out
+
+    def _trial(self, direction, alpha):
+        """Return the point alpha along direction, its defects and its (phi, theta)."""
+        trial = {'x': self.x + alpha * direction['dx'], 'v': self.v + alpha * direction['dv'],
+                 't': self.t + alpha * direction['d_t'], 's': self.s + alpha * direction['ds']}
+        trial['defect'] = self.ev.defects(trial['x'], trial['v'], trial['t'])
+        values = self.ev.clearances(trial['x'][1:-1, :self.n])
+        trial['phi'], trial['theta'] = self._merit(trial['x'], trial['v'], trial['t'],
+                                                   trial['s'], trial['defect'], values)
+        return trial
+
+    def _acceptable(self, trial, alpha, phi0, theta0, slope):
+        """Return IPOPT's filter acceptance of a trial point (the filter grows on h-type steps)."""
+        phi, theta = trial['phi'], trial['theta']
+        if not (np.isfinite(phi) and theta <= self.theta_max
+                and not self._in_filter(theta, phi)):
+            return False
+        rounding = ROUNDING * abs(phi0)
+        switching = slope < 0.0 and alpha * (-slope) ** 2.3 > theta0 ** 1.1
+        if theta0 <= self.theta_min and switching:
+            # f-type: the filter is not augmented.
+            if phi <= phi0 + ARMIJO * alpha * slope + rounding:
+                return True
+            # ... or, unlike IPOPT, a step that lowers the violation without raising phi, taken
+            # as an h-type step below.  Near the solution (mu <= 1e-9) a step that moves
+            # controls off their bounds (a switching time moving) has a slope dominated by
+            # mu / slack terms whose slacks are ~ mu: the linear model promises a decrease the
+            # barrier cannot give, Armijo rejects the full step, and the backtracking to an
+            # h-type step raised the proximal weight, whose decay cost ~10 iterations (UR5
+            # free at N = 200: 39 -> 28 iterations; benchmarks/RESULTS.md, "Arms: more ways
+            # around a sphere").
+            if not (phi <= phi0 + rounding and theta <= (1.0 - 1e-5) * theta0):
+                return False
+        if theta <= (1.0 - 1e-5) * theta0 or phi <= phi0 - 1e-8 * theta0 + rounding:
+            self.filter.append(((1.0 - 1e-5) * theta0, phi0 - 1e-8 * theta0))
+            return True
+        return False
+
+    def _take(self, direction, trial, alpha):
+        """Move to trial; the duals by direction's dual step length; return alpha."""
+        self.x, self.v, self.t, self.s = trial['x'], trial['v'], trial['t'], trial['s']
+        ad = direction['alpha_dual']
+        self.zlx = self.zlx + ad * direction['dzlx']
+        self.zux = self.zux + ad * direction['dzux']
+        self.zlv = self.zlv + ad * direction['dzlv']
+        self.zuv = self.zuv + ad * direction['dzuv']
+        self.zlt = self.zlt + ad * direction['dzlt']
+        self.zut = self.zut + ad * direction['dzut']
         if self.z.size:
-            self.z = self.z + ad * dz
-        self.lam = self.lam + alpha * (lam_qp - self.lam)
+            self.z = self.z + ad * direction['dz']
+        self.lam = self.lam + alpha * (direction['lam'] - self.lam)
         self._safeguard_duals()
         return alpha
 

@@ -90,10 +90,20 @@ WARM_CHEAP = 15
 # matters the cheap model wanders without converging (benchmarks/RESULTS.md, "Arms: exact
 # curvature when the cheap model stalls").
 CHEAP_ITERATIONS = 60
-# Around obstacles (arm_start.py, _cold_runs): at most LINE_DETOURS bent lines are tried, and
-# the free optimum is solved within FREE_BUDGET iterations.
+# Around obstacles (arm_start.py, _cold_runs): the free optimum (solved within FREE_BUDGET
+# iterations) bent clear of them in up to FREE_BENDS distinct ways, then up to LINE_DETOURS
+# bent lines.  Each start finds the optimum of its own way around the obstacles; with one
+# bend 3 of 20 random one-sphere cases ended 0.7-10 % above the best of three
+# (benchmarks/RESULTS.md, "Arms: more ways around a sphere").
 LINE_DETOURS = 2
+FREE_BENDS = 3
 FREE_BUDGET = 300
+# A start whose run has settled (barrier parameter <= SETTLED_MU, constraint violation <=
+# SETTLED_PRIMAL: its t_f then moves by less than 0.1 %) more than ABANDON_GAP above the best
+# converged start's t_f is abandoned: it is converging to a worse way around.
+SETTLED_MU = 1e-6
+SETTLED_PRIMAL = 1e-5
+ABANDON_GAP = 2e-3
 # Every start but the last gets at most START_BUDGET iterations; the last one the rest of the
 # budget only when no start converged (a UR5 case spent 1727 iterations there, 11 s, after a
 # start had converged in 86).
@@ -263,7 +273,7 @@ def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
             starts.append((states, torques, t_f, 'free optimum'))
         else:
             rate = states[:, n:] * t_f
-            for offsets in detour_offsets(arm, evaluator, states[:, :n]):
+            for offsets in detour_offsets(arm, evaluator, states[:, :n], FREE_BENDS):
                 starts.append((*timed_start(arm, lambda t, o=offsets: bent_states(
                     states[:, :n], rate, o, t), t_f), 'free optimum bent'))
     detours = line_detours(arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)
@@ -339,9 +349,14 @@ def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, ru
         allowed = budget - iterations
         if index < len(starts) - 1 or best is not None:
             allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
-        run = run_ipm(ipm, allowed, should_stop, hessian)
+        abandon = _abandon_above(ipm, best, should_stop)
+        run = run_ipm(ipm, allowed, abandon, hessian)
         iterations += run.iterations
         linalg_time += ipm.linalg_time
+        if abandon.fired:
+            runs.append(f'{start_name}: abandoned after {run.iterations} iterations at t_f = '
+                        f'{run.t:.6f} s (settled above the best start)')
+            continue
         runs.append(f'{start_name}: {_run_summary(run)}')
         if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
             best = run
@@ -362,6 +377,19 @@ def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, ru
         linalg_time += ipm.linalg_time
         runs.append(f'line x{RETRY_SLOWDOWN:g}: {_run_summary(run)}')
     return run, iterations, linalg_time
+
+
+def _abandon_above(ipm, best, should_stop):
+    """should_stop for ipm's run that also fires (.fired) once it settles above best."""
+    def stop():
+        if should_stop():
+            return True
+        stop.fired = (best is not None and ipm.mu <= SETTLED_MU
+                      and ipm.primal <= SETTLED_PRIMAL
+                      and ipm.t > best.t * (1.0 + ABANDON_GAP))
+        return stop.fired
+    stop.fired = False
+    return stop
 
 
 def _run_summary(run):
