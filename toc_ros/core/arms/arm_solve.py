@@ -40,8 +40,8 @@ import numpy as np
 
 from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY, PROX_GUARDED
-from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets, line_detours,
-                        line_time, path_torques, timed_start)
+from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets,
+                        line_detour_makers, line_detours, line_time, path_torques, timed_start)
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
@@ -256,29 +256,31 @@ def start_point(robot, evaluator, x0, x_goal, n_int):
 
 def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
     """
-    [(states, torques, t_f, name)]: the starts a cold solve tries, in order.
+    [(name, make)]: the starts a cold solve tries, in order; make() -> (states, torques, t_f).
 
     line: cold_start's (states, torques, t_f).  The line start when it clears every sphere
-    row; otherwise the free optimum (free: its
-    (states, torques, t_f), solved without the obstacles), bent clear of them where it is
-    not, and LINE_DETOURS distinct bent lines; the colliding line when none of these exists.
+    row; otherwise the free optimum (free: its (states, torques, t_f), solved without the
+    obstacles) as it is when it clears them, else bent clear of them in up to FREE_BENDS
+    distinct ways, then LINE_DETOURS distinct bent lines; the colliding line when none of
+    these exists.  The bends are found now, each start timed by its make() (only the starts
+    that are run: the search often ends at the first).
     """
     arm, n = robot.arm, robot.arm.n
     if not evaluator.n_pairs or evaluator.clearances(line[0][:, :n]).min() >= 0.0:
-        return [(*line, 'line')]
+        return [('line', lambda: line)]
     starts = []
     if free is not None:
         states, torques, t_f = free
         if evaluator.clearances(states[:, :n]).min() >= 0.0:
-            starts.append((states, torques, t_f, 'free optimum'))
+            starts.append(('free optimum', lambda: free))
         else:
             rate = states[:, n:] * t_f
             for offsets in detour_offsets(arm, evaluator, states[:, :n], FREE_BENDS):
-                starts.append((*timed_start(arm, lambda t, o=offsets: bent_states(
-                    states[:, :n], rate, o, t), t_f), 'free optimum bent'))
-    detours = line_detours(arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)
-    starts += [(*detour, 'detour') for detour in detours]
-    return starts or [(*line, 'line')]
+                starts.append(('free optimum bent', lambda o=offsets: timed_start(
+                    arm, lambda t: bent_states(states[:, :n], rate, o, t), t_f)))
+    starts += [('detour', make) for make in line_detour_makers(
+        arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)]
+    return starts or [('line', lambda: line)]
 
 
 def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
@@ -341,11 +343,11 @@ def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, ru
                     f'{used} iterations')
     best = run = None
     starts = start_points(robot, evaluator, x0, xg, n_int, line, free)
-    for index, (states, torques, t_f, start_name) in enumerate(starts):
+    for index, (start_name, make) in enumerate(starts):
         if run is not None and iterations >= budget:
             break
         ipm = ArmInteriorPoint(evaluator, x0, xg)
-        ipm.start(states, torques, t_f)
+        ipm.start(*make())
         allowed = budget - iterations
         if index < len(starts) - 1 or best is not None:
             allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)

@@ -184,16 +184,27 @@ def timed_start(arm, states_at, t_first):
 
 def line_detours(arm, evaluator, x0, x_goal, n_intervals, count=1):
     """[(states, torques, t_f)] of up to count bent lines clear of the obstacles."""
+    return [make() for make in line_detour_makers(arm, evaluator, x0, x_goal, n_intervals,
+                                                  count)]
+
+
+def line_detour_makers(arm, evaluator, x0, x_goal, n_intervals, count=1):
+    """
+    [make]: up to count bent lines clear of the obstacles, each timed when make() is called.
+
+    The offsets are found now (cheap); timing a start (timed_start: inverse dynamics at every
+    node, on a 5 % grid) costs more and is left to the starts that are run.
+    """
     n = arm.n
     unit = cubic_path(x0, x_goal, 1.0, n_intervals)
-    out = []
-    for offsets in detour_offsets(arm, evaluator, unit[:, :n], count):
+
+    def maker(offsets):
         dq = np.abs(x_goal[:n] - x0[:n]) + np.pi * np.abs(offsets)
         t_first = max(1.5 * float(np.max(dq / arm.velocity)), 0.05)
 
-        def states_at(t_f, offsets=offsets):
+        def states_at(t_f):
             # The cubic's shape depends on t_f when the ends move: rebuilt for each t_f.
             line = cubic_path(x0, x_goal, t_f, n_intervals)
             return bent_states(line[:, :n], line[:, n:] * t_f, offsets, t_f)
-        out.append(timed_start(arm, states_at, t_first))
-    return out
+        return lambda: timed_start(arm, states_at, t_first)
+    return [maker(offsets) for offsets in detour_offsets(arm, evaluator, unit[:, :n], count)]
