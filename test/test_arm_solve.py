@@ -442,6 +442,17 @@ def test_detours_keep_the_joint_limits_and_clear_the_sphere():
     assert np.linalg.norm(detours[0][0] - detours[1][0]) > 0.1        # two distinct ways
 
 
+def _panda_sphere_halfway(goal, n_int):
+    """(robot, start, obstacles, problem): from the ready pose, a sphere where the hand passes."""
+    robot = _robot('panda')
+    start = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+    middle = robot.arm.frame_position(0.5 * (np.array(start) + goal), robot.spheres.links[-1])
+    obstacles = ((*middle, 0.08),)
+    return robot, start, obstacles, Problem(model=robot, x0=start, x_goal=goal,
+                                            obstacles=obstacles, margin=MARGIN,
+                                            n_intervals=n_int)
+
+
 @pytest.mark.slow
 def test_a_sphere_on_the_line_near_a_joint_limit_is_passed_as_well_as_ipopt_does():
     # The same motion solved: the old single detour gave up at the joint limit and the solve
@@ -451,13 +462,8 @@ def test_a_sphere_on_the_line_near_a_joint_limit_is_passed_as_well_as_ipopt_does
     from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
     from toc_ros.core.arms.arm_solve import start_point
-    robot = _robot('panda')
-    start = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
     goal = (-0.814, 0.343, 0.039, -3.022, 0.296, 2.235, 1.056)
-    middle = robot.arm.frame_position(0.5 * (np.array(start) + goal), robot.spheres.links[-1])
-    obstacles = ((*middle, 0.08),)
-    problem = Problem(model=robot, x0=start, x_goal=goal, obstacles=obstacles, margin=MARGIN,
-                      n_intervals=60)
+    robot, start, obstacles, problem = _panda_sphere_halfway(goal, 60)
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
     spec = _independent_check('panda', result, obstacles, start=start, goal=goal)
@@ -479,13 +485,8 @@ def test_a_sphere_passed_the_better_way_found_by_the_free_optimums_other_bends(m
     from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
     from toc_ros.core.arms import arm_solve
-    robot = _robot('panda')
-    start = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
     goal = (0.223, -1.361, 0.816, -2.333, 0.026, 2.178, -0.06)
-    middle = robot.arm.frame_position(0.5 * (np.array(start) + goal), robot.spheres.links[-1])
-    obstacles = ((*middle, 0.08),)
-    problem = Problem(model=robot, x0=start, x_goal=goal, obstacles=obstacles, margin=MARGIN,
-                      n_intervals=30)
+    _, start, obstacles, problem = _panda_sphere_halfway(goal, 30)
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
     spec = _independent_check('panda', result, obstacles, start=start, goal=goal)

@@ -26,7 +26,8 @@ bound and slack duals are condensed into the stage blocks, the Newton step comes
 compiled Riccati recursion (riccati.py) with an inertia correction (a multiple of the identity
 added to the Hessian until every reduced Hessian is positive definite), the step length from
 the fraction-to-the-boundary rule and IPOPT's filter line search (with its switching rule and
-one filter reset), and the barrier parameter falls monotonically
+one filter reset; a step that lowers the violation without raising the barrier objective is
+taken where Armijo's test fails, _acceptable), and the barrier parameter falls monotonically
 (mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier problem is solved to 10 mu).  The
 per-stage arithmetic of an iteration (errors, barrier blocks, steps to the boundary, merit,
 dual safeguard) is compiled (ipm_kernels.py); this class keeps the logic.
