@@ -638,6 +638,31 @@ def test_a_failed_load_is_reported_and_the_node_still_gets_ready(monkeypatch):
     assert [str(e) for e in errors] == ['no compiler']
 
 
+def test_a_braking_stop_into_a_circle_is_left_from_its_state_ahead_not_its_rest():
+    # A circle moved onto where a stop will rest: a goal planned from that rest would be
+    # refused (inside a circle) while the robot brakes into it; it starts from the stop's
+    # node at now + lead instead, from where a plan may still steer clear.
+    from toc_ros.core.obstacles import model_clearance
+    moving = straight_plan(start=10.0, duration=1.0)
+    stop = braking_plan(moving, np.array([0.5, 1.0, 1.0, -0.5]), 10.5, 0.002)
+    rest = stop.states[-1]
+    hand = rest[2] * np.array([math.cos(rest[0]), math.sin(rest[0])])
+    circle = [(hand[0], hand[1], 0.05)]
+    assert model_clearance(stop.model, rest[None, :], circle).min() < 0.0
+    lead = 0.02
+    start, when = policy.braking_rest_start(stop, 10.5, 4, rows=circle, lead=lead)
+    k = int(np.searchsorted(stop.times, stop.elapsed(10.5) + lead))
+    assert 0 < k < len(stop.times) - 1
+    np.testing.assert_array_equal(start, stop.states[k])
+    assert when == pytest.approx(stop.start + stop.times[k])
+    assert model_clearance(stop.model, start[None, :], circle).min() > 0.0
+    # A circle elsewhere: the rest, as without circles.
+    far = [(hand[0] + 1.0, hand[1] + 1.0, 0.05)]
+    start, when = policy.braking_rest_start(stop, 10.5, 4, rows=far, lead=lead)
+    np.testing.assert_array_equal(start, rest)
+    assert when == pytest.approx(stop.start + stop.duration)
+
+
 def test_the_rest_of_a_braking_stop_is_a_goals_start_only_while_the_stop_executes():
     moving = straight_plan(start=10.0, duration=1.0, result='a solve result')
     stop = braking_plan(moving, np.array([0.5, 1.0, 1.0, -0.5]), 10.5, 0.002)

@@ -40,6 +40,8 @@ START_TOLERANCE_M = 1e-3
 REPLAN = 'replan'
 # The start_source of a goal solved while the robot brakes.
 BRAKING_REST = 'braking stop (its rest)'
+# ... and of one solved while the robot brakes into a true circle (policy.braking_rest_start).
+BRAKING_AHEAD = 'braking stop (its state at now + replan.lead: it rests inside a circle)'
 
 
 def start_state(config, measured):
@@ -54,12 +56,15 @@ def goal_start(config, measured, executing, now, measured_time=None):
     Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
 
     While a braking stop executes that the measured state (at measured_time) follows, the
-    stop's rest (policy.braking_rest_start); else start_state.
+    stop's rest (policy.braking_rest_start), or its node at now + replan.lead when its path
+    enters a true circle; else start_state.
     """
+    rows = None if config.is_arm else config.problem.obstacles
     rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0],
-                                     measured, measured_time)
+                                     measured, measured_time, rows, config.node.replan_lead)
     if rest is not None:
-        return rest[0], BRAKING_REST, rest[1]
+        at_rest = rest[1] >= executing.start + executing.duration
+        return rest[0], BRAKING_REST if at_rest else BRAKING_AHEAD, rest[1]
     return (*start_state(config, measured), None)
 
 

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from toc_ros.core.executing_plan import nearest_node
+from toc_ros.core.executing_plan import nearest_node, true_conflict_time
 from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.replan import predict, stop_later_is_clear
 
@@ -348,9 +348,10 @@ def recovery_margin(model, start, rows, margin):
     """
     Return the obstacle margin of a replan from start when start is inside the margin, or None.
 
-    For the replan after a stop: braking may end inside the margin (never inside a true
-    circle, which the plans keep out of), and the plan out of there may use half the start's
-    true clearance as its margin.  None when start clears the margin or is inside a circle.
+    For the replan after a stop: braking may end inside the margin (or pass inside it on its
+    way into a circle that moved: braking_rest_start), and the plan out of there may use half
+    the start's true clearance as its margin.  None when start clears the margin or is inside
+    a circle.
     """
     rows = np.asarray(rows, dtype=float).reshape(-1, 3)
     if not len(rows) or np.shape(start) != (model.nx,):
@@ -387,7 +388,7 @@ def cycle_allowed(plan, replanning, ready):
     return replanning and ready and plan is not None and plan.replannable
 
 
-def braking_rest_start(plan, now, nx, measured=None, measured_time=None):
+def braking_rest_start(plan, now, nx, measured=None, measured_time=None, rows=None, lead=0.0):
     """
     Return (rest state, rest time [s, node clock]) of a braking stop executing at now, or None.
 
@@ -401,6 +402,12 @@ def braking_rest_start(plan, now, nx, measured=None, measured_time=None):
     (another model).  After the stop's end the robot may still be moving (a short stop the
     controller overshot and now pulls back to its held end): the rest holds, from now, until a
     measured state is at rest (then that is the start) or none is known.
+
+    rows (the true circles, planar models): a stop whose path from now enters one (a circle
+    that moved into it after the stop was made) does not rest anywhere a plan may start
+    from: the start is then the stop's node at or after now + lead [s], and its time, so
+    that the plan steers out while the robot still moves (with the recovery margin when it
+    is inside the obstacle margin there).
     """
     if plan is None or not plan.braking or plan.states.shape[1] != nx:
         return None
@@ -409,7 +416,11 @@ def braking_rest_start(plan, now, nx, measured=None, measured_time=None):
             > BRAKING_FOLLOW_TOL:
         return None
     rest = np.array(plan.states[-1], dtype=float)
-    if plan.elapsed(now) < plan.duration:
+    elapsed = plan.elapsed(now)
+    if elapsed < plan.duration:
+        if rows is not None and true_conflict_time(plan, rows, elapsed) is not None:
+            k = min(int(np.searchsorted(plan.times, elapsed + lead)), len(plan.times) - 1)
+            return np.array(plan.states[k], dtype=float), plan.start + float(plan.times[k])
         return rest, plan.start + plan.duration
     if not known or at_rest(plan.model, measured):
         return None
