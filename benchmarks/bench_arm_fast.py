@@ -51,7 +51,8 @@ from toc_ros.bench.arm_reference import ArmTranscription  # noqa: E402
 from toc_ros.core import Problem, solve, Status  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
-from toc_ros.core.arms.arm_solve import ArmRobot, start_point  # noqa: E402
+from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
+from toc_ros.core.arms.cold_runs import start_point  # noqa: E402
 
 MARGIN = 0.02
 SCENARIOS = {name: (sc['start'], sc['goal'], sc['obstacles'])

@@ -46,7 +46,8 @@ from toc_ros.bench.arm_reference import ArmTranscription  # noqa: E402
 from toc_ros.core import Problem, Status  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres, sphere_centres  # noqa: E402
 from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
-from toc_ros.core.arms.arm_solve import ArmRobot, solve_arm, start_point  # noqa: E402
+from toc_ros.core.arms.arm_solve import ArmRobot, solve_arm  # noqa: E402
+from toc_ros.core.arms.cold_runs import start_point  # noqa: E402
 from toc_ros.core.problem import SolverOptions  # noqa: E402
 
 MARGIN = 0.02

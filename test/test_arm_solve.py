@@ -394,7 +394,8 @@ def test_a_motion_the_cheap_curvature_model_cannot_finish_is_solved_with_exact_c
     pytest.importorskip('casadi')
     from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
-    from toc_ros.core.arms.arm_solve import CHEAP_ITERATIONS, slowed, solve_arm
+    from toc_ros.core.arms.arm_solve import solve_arm
+    from toc_ros.core.arms.cold_runs import CHEAP_ITERATIONS, slowed
     start, goal = (0, -0.785, 0, -2.356, 0, 1.571, 0.785), (0.9, 0.25, 0, -2.0, 0, 2.25, 1.6)
     robot = _robot('panda')
     problem = Problem(model=robot, x0=start, x_goal=goal, n_intervals=20)
@@ -461,7 +462,7 @@ def test_a_sphere_on_the_line_near_a_joint_limit_is_passed_as_well_as_ipopt_does
     pytest.importorskip('casadi')
     from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
-    from toc_ros.core.arms.arm_solve import start_point
+    from toc_ros.core.arms.cold_runs import start_point
     goal = (-0.814, 0.343, 0.039, -3.022, 0.296, 2.235, 1.056)
     robot, start, obstacles, problem = _panda_sphere_halfway(goal, 60)
     result = solve(problem)
@@ -484,13 +485,13 @@ def test_a_sphere_passed_the_better_way_found_by_the_free_optimums_other_bends(m
     pytest.importorskip('casadi')
     from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
-    from toc_ros.core.arms import arm_solve
+    from toc_ros.core.arms import cold_runs
     goal = (0.223, -1.361, 0.816, -2.333, 0.026, 2.178, -0.06)
     _, start, obstacles, problem = _panda_sphere_halfway(goal, 30)
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
     spec = _independent_check('panda', result, obstacles, start=start, goal=goal)
-    monkeypatch.setattr(arm_solve, 'FREE_BENDS', 1)
+    monkeypatch.setattr(cold_runs, 'FREE_BENDS', 1)
     one_bend = solve(problem)
     assert one_bend.status is Status.SOLVED, one_bend.message
     assert one_bend.final_time > 1.05 * result.final_time

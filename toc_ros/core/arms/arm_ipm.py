@@ -48,7 +48,7 @@ one Pinocchio derivative call per interval); 'exact' adds the dynamics' curvatur
 differences of Pinocchio's analytical derivatives (2 n + 1 calls per interval, see
 arm_eval.py).  The cheap model converges on most problems in 15-30 iterations at a
 fraction of the cost; where the dynamics' curvature matters it wanders without converging,
-and solve_arm then switches the same run to 'exact' (arm_solve.run_ipm; the attribute
+and solve_arm then switches the same run to 'exact' (cold_runs.run_ipm; the attribute
 hessian is read every iteration).  A proximal term rho I (a
 trust region in Levenberg-Marquardt form: raised when the line search backtracks, lowered
 after full steps) bounds the steps where the model has little curvature; it changes the
@@ -324,7 +324,7 @@ class ArmInteriorPoint:
                     values, grads, curvature = self.ev.clearance_terms(
                         self.x[1:-1, :n], self.z)
             dual, primal, compl, s_d, s_c = self._errors(terms, grads, values)
-            self.primal = primal        # (read by should_stop callbacks: arm_solve.py)
+            self.primal = primal        # (read by should_stop callbacks: cold_runs.py)
             e0 = max(dual / s_d, compl / s_c)
             if not np.isfinite(e0 + primal):
                 status = 'numerical_failure'
@@ -392,8 +392,7 @@ class ArmInteriorPoint:
         self.alpha_max = alpha_max
         while alpha >= MIN_ALPHA:
             trial = self._trial(direction, alpha)
-            verdict = self._acceptable(trial, alpha, phi0, theta0, slope)
-            if verdict:
+            if self._acceptable(trial, alpha, phi0, theta0, slope):
                 return self._take(direction, trial, alpha)
             alpha *= 0.5
         if self.filter:

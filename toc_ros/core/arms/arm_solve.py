@@ -39,10 +39,9 @@ from typing import Optional
 import numpy as np
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import ArmInteriorPoint, MU_INIT, MU_INIT_RETRY, PROX_GUARDED
-from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets,
-                        line_detour_makers, line_detours, line_time, path_torques, timed_start)
+from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED
 from .arm_warm import rollout, UnusableGuess, warm_point
+from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
 from .model import ArmError, ArmModel
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
@@ -52,7 +51,6 @@ from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violation
 # Positions and velocities of the re-integrated states may exceed a bound by rounding only.
 BOUND_TOL = 1e-9
 MAX_INTERVALS = 100000
-RETRY_SLOWDOWN = 1.5
 # A start may exceed a velocity limit by this fraction: a measured state that the tracking
 # carried past a limit the plan rides (replanning from it must be possible); the plan keeps
 # every limit from node 1 on when the efforts can slow the joint down that fast (else the
@@ -79,37 +77,10 @@ WARM_PUSH_EXACT = 1e-12
 # problems), the cold count cost Panda replans at N = 60 eight more iterations at the same
 # t_f (benchmarks/RESULTS.md, "Arms: a payload ...").
 WARM_ACCEPT_ITERATIONS = 3
-# ... and it switches to the exact curvature (hessian='auto', below) after WARM_CHEAP cheap
+# ... and it switches to the exact curvature (hessian='auto', cold_runs.py) after WARM_CHEAP cheap
 # iterations, within its WARM_BUDGET (with the cold CHEAP_ITERATIONS it never did: a UR5 replan
 # 1e-3 off its plan at N = 60 spent the 60 warm iterations, then 63 cold ones).
 WARM_CHEAP = 15
-# Curvature of the dynamics (arm_ipm.py's hessian) with hessian='auto': none first (one
-# Pinocchio derivative call per interval, enough for most problems), then exact (2n + 1
-# calls) from the same iterate, multipliers and barrier parameter once the run has not
-# converged after CHEAP_ITERATIONS or its line search failed: where the dynamics' curvature
-# matters the cheap model wanders without converging (benchmarks/RESULTS.md, "Arms: exact
-# curvature when the cheap model stalls").
-CHEAP_ITERATIONS = 60
-# Around obstacles (arm_start.py, _cold_runs): the free optimum (solved within FREE_BUDGET
-# iterations) bent clear of them in up to FREE_BENDS distinct ways, then up to LINE_DETOURS
-# bent lines.  Each start finds the optimum of its own way around the obstacles; with one
-# bend 3 of 20 random one-sphere cases ended 0.7-10 % above the best of three
-# (benchmarks/RESULTS.md, "Arms: more ways around a sphere").
-LINE_DETOURS = 2
-FREE_BENDS = 3
-FREE_BUDGET = 300
-# A start whose run has settled (barrier parameter <= SETTLED_MU, constraint violation <=
-# SETTLED_PRIMAL: its t_f then moves by less than 0.1 %) more than ABANDON_GAP above the best
-# converged start's t_f is abandoned: it is converging to a worse way around.
-SETTLED_MU = 1e-6
-SETTLED_PRIMAL = 1e-5
-ABANDON_GAP = 2e-3
-# Every start but the last gets at most START_BUDGET iterations; the last one the rest of the
-# budget only when no start converged (a UR5 case spent 1727 iterations there, 11 s, after a
-# start had converged in 86).
-START_BUDGET = 150
-# A run within this (relative) of the free optimum's time ends the search of the starts.
-FREE_REACHED = 1e-7
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -238,168 +209,6 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator=
         self_clearance=self_clear, self_constrained=robot.self_collision)
 
 
-def slowed(arm, x0, x_goal, n_int, t_f):
-    """(states, torques) of the cubic line start over the final time t_f."""
-    states = cubic_path(x0, x_goal, t_f, n_int)
-    return states, np.clip(path_torques(arm, states, t_f), -arm.effort, arm.effort)
-
-
-def start_point(robot, evaluator, x0, x_goal, n_int):
-    """(states, torques, t_f, name): the line start, or a detour when the line collides."""
-    states, torques, t_f = cold_start(robot.arm, x0, x_goal, n_int)
-    if evaluator.n_pairs and evaluator.clearances(states[:, :robot.arm.n]).min() < 0.0:
-        detours = line_detours(robot.arm, evaluator, x0, x_goal, n_int)
-        if detours:
-            return (*detours[0], 'detour')
-    return states, torques, t_f, 'line'
-
-
-def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
-    """
-    [(name, make)]: the starts a cold solve tries, in order; make() -> (states, torques, t_f).
-
-    line: cold_start's (states, torques, t_f).  The line start when it clears every sphere
-    row; otherwise the free optimum (free: its (states, torques, t_f), solved without the
-    obstacles) as it is when it clears them, else bent clear of them in up to FREE_BENDS
-    distinct ways, then LINE_DETOURS distinct bent lines; the colliding line when none of
-    these exists.  The bends are found now, each start timed by its make() (only the starts
-    that are run: the search often ends at the first).
-    """
-    arm, n = robot.arm, robot.arm.n
-    if not evaluator.n_pairs or evaluator.clearances(line[0][:, :n]).min() >= 0.0:
-        return [('line', lambda: line)]
-    starts = []
-    if free is not None:
-        states, torques, t_f = free
-        if evaluator.clearances(states[:, :n]).min() >= 0.0:
-            starts.append(('free optimum', lambda: free))
-        else:
-            rate = states[:, n:] * t_f
-            for offsets in detour_offsets(arm, evaluator, states[:, :n], FREE_BENDS):
-                starts.append(('free optimum bent', lambda o=offsets: timed_start(
-                    arm, lambda t: bent_states(states[:, :n], rate, o, t), t_f)))
-    starts += [('detour', make) for make in line_detour_makers(
-        arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)]
-    return starts or [('line', lambda: line)]
-
-
-def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
-    """Run ipm within budget iterations with the curvature hessian ('auto': see above)."""
-    if ipm.ev.integrator == 'rk4':
-        hessian = 'none'            # no curvature of the RK4 steps (rk4_steps.py)
-    if hessian != 'auto':
-        ipm.hessian = hessian
-        return ipm.run(budget, should_stop)
-    ipm.hessian = 'none'
-    run = ipm.run(min(budget, cheap), should_stop)
-    if (run.status not in ('max_iterations', 'line_search_failed')
-            or run.iterations >= budget):
-        return run
-    ipm.hessian = 'exact'
-    rest = ipm.run(budget - run.iterations, should_stop)
-    rest.iterations += run.iterations
-    rest.history = np.vstack([run.history, rest.history])
-    rest.exact_from = run.iterations
-    return rest
-
-
-def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
-    """
-    ((states, torques, t_f) or None, iterations, Riccati time): solved without obstacles.
-
-    From line; its Pinocchio calls and time are added to evaluator's counters (the solve's
-    time split covers every run).
-    """
-    states, torques, t_f = line
-    free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, len(torques),
-                        len(evaluator.pairs) > 0, evaluator.integrator)
-    ipm = ArmInteriorPoint(free, x0, xg)
-    ipm.start(states, torques, t_f)
-    run = run_ipm(ipm, budget, should_stop, hessian)
-    evaluator.pin_calls += free.pin_calls
-    evaluator.pin_time += free.pin_time
-    if run.status not in ('converged', 'acceptable'):
-        return None, run.iterations, ipm.linalg_time
-    return (run.x, run.v * robot.arm.effort, run.t), run.iterations, ipm.linalg_time
-
-
-def _cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
-    """(best run, iterations, Riccati time) from the cold starts; runs gets a line per run."""
-    # Around obstacles a cold solve finds the local optimum of its start's way around them:
-    # every start of start_points is solved and the best converged run kept (the search
-    # ends early at the free optimum's time: the obstacles then cost nothing).  When none
-    # converges after a failure (line search, numerics), one more run from the line slowed
-    # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start: further
-    # inside the torque limits) with IPOPT's default first barrier parameter (0.1).
-    iterations, linalg_time = 0, 0.0
-    free = None
-    line = cold_start(robot.arm, x0, xg, n_int)
-    if evaluator.n_obstacle_rows and evaluator.clearances(line[0][:, :robot.arm.n]).min() < 0.0:
-        free, used, free_linalg = _free_optimum(robot, evaluator, x0, xg, line, hessian,
-                                                min(budget, FREE_BUDGET), should_stop)
-        iterations += used
-        linalg_time += free_linalg
-        runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
-                    f'{used} iterations')
-    best = run = None
-    starts = start_points(robot, evaluator, x0, xg, n_int, line, free)
-    for index, (start_name, make) in enumerate(starts):
-        if run is not None and iterations >= budget:
-            break
-        ipm = ArmInteriorPoint(evaluator, x0, xg)
-        ipm.start(*make())
-        allowed = budget - iterations
-        if index < len(starts) - 1 or best is not None:
-            allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
-        abandon = _abandon_above(ipm, best, should_stop)
-        run = run_ipm(ipm, allowed, abandon, hessian)
-        iterations += run.iterations
-        linalg_time += ipm.linalg_time
-        if abandon.fired:
-            runs.append(f'{start_name}: abandoned after {run.iterations} iterations at t_f = '
-                        f'{run.t:.6f} s (settled above the best start)')
-            continue
-        runs.append(f'{start_name}: {_run_summary(run)}')
-        if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
-            best = run
-        free_reached = (best is not None and free is not None
-                        and best.t <= free[2] * (1.0 + FREE_REACHED))
-        if run.status == 'stopped' or free_reached:
-            break       # (free_reached: the obstacles cost no time, no start can do better)
-    if best is not None:
-        return best, iterations, linalg_time
-    if run is not None and run.status in ('line_search_failed', 'numerical_failure') \
-            and iterations < budget:
-        t_f = RETRY_SLOWDOWN * line_time(robot.arm, x0, xg)
-        states, torques = slowed(robot.arm, x0, xg, n_int, t_f)
-        ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=MU_INIT_RETRY)
-        ipm.start(states, torques, t_f)
-        run = run_ipm(ipm, budget - iterations, should_stop, hessian)
-        iterations += run.iterations
-        linalg_time += ipm.linalg_time
-        runs.append(f'line x{RETRY_SLOWDOWN:g}: {_run_summary(run)}')
-    return run, iterations, linalg_time
-
-
-def _abandon_above(ipm, best, should_stop):
-    """should_stop for ipm's run that also fires (.fired) once it settles above best."""
-    def stop():
-        if should_stop():
-            return True
-        stop.fired = (best is not None and ipm.mu <= SETTLED_MU
-                      and ipm.primal <= SETTLED_PRIMAL
-                      and ipm.t > best.t * (1.0 + ABANDON_GAP))
-        return stop.fired
-    stop.fired = False
-    return stop
-
-
-def _run_summary(run):
-    exact = getattr(run, 'exact_from', None)
-    return (f'{run.status} after {run.iterations} iterations'
-            + ('' if exact is None else f' (exact curvature from iteration {exact + 1})'))
-
-
 def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
               hessian='auto'):
     """Solve an arm Problem in fast mode; never raises for bad input (INVALID_INPUT)."""
@@ -450,11 +259,11 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
                       CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
         iterations += run.iterations
         linalg_time += ipm.linalg_time
-        runs.append(f'warm start{" with multipliers" if duals else ""}: {_run_summary(run)}')
+        runs.append(f'warm start{" with multipliers" if duals else ""}: {run_summary(run)}')
     if run is None or (run.status not in ('converged', 'acceptable', 'stopped')
                        and iterations < budget):
         # A poor guess is solved from scratch rather than reported as a failure.
-        run, cold_iterations, cold_linalg = _cold_runs(
+        run, cold_iterations, cold_linalg = cold_runs(
             robot, evaluator, x0, xg, n_int, hessian, budget - iterations, should_stop, runs)
         iterations += cold_iterations
         linalg_time += cold_linalg

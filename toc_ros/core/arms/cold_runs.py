@@ -1,0 +1,222 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The cold start of an arm solve: its starts, tried in turn, and the best converged run kept.
+
+The line start when it clears the obstacles; around them the free optimum (solved first)
+bent clear in up to FREE_BENDS ways and LINE_DETOURS bent lines (start_points), each run
+within its budget, a settled run above the best abandoned, the search ended at the free
+optimum's time (cold_runs).  run_ipm: one run with the curvature model 'auto' (cheap, then
+exact where the cheap one stalls), also for solve_arm's warm starts.
+"""
+
+import numpy as np
+
+from .arm_eval import ArmEvaluator
+from .arm_ipm import ArmInteriorPoint, MU_INIT_RETRY
+from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets,
+                        line_detour_makers, line_detours, line_time, path_torques, timed_start)
+
+# When no start converges after a failure: one more run from the line slowed down this much.
+RETRY_SLOWDOWN = 1.5
+# Curvature of the dynamics (arm_ipm.py's hessian) with hessian='auto': none first (one
+# Pinocchio derivative call per interval, enough for most problems), then exact (2n + 1
+# calls) from the same iterate, multipliers and barrier parameter once the run has not
+# converged after CHEAP_ITERATIONS or its line search failed: where the dynamics' curvature
+# matters the cheap model wanders without converging (benchmarks/RESULTS.md, "Arms: exact
+# curvature when the cheap model stalls").
+CHEAP_ITERATIONS = 60
+# Around obstacles (arm_start.py, cold_runs): the free optimum (solved within FREE_BUDGET
+# iterations) bent clear of them in up to FREE_BENDS distinct ways, then up to LINE_DETOURS
+# bent lines.  Each start finds the optimum of its own way around the obstacles; with one
+# bend 3 of 20 random one-sphere cases ended 0.7-10 % above the best of three
+# (benchmarks/RESULTS.md, "Arms: more ways around a sphere").
+LINE_DETOURS = 2
+FREE_BENDS = 3
+FREE_BUDGET = 300
+# A start whose run has settled (barrier parameter <= SETTLED_MU, constraint violation <=
+# SETTLED_PRIMAL: its t_f then moves by less than 0.1 %) more than ABANDON_GAP above the best
+# converged start's t_f is abandoned: it is converging to a worse way around.
+SETTLED_MU = 1e-6
+SETTLED_PRIMAL = 1e-5
+ABANDON_GAP = 2e-3
+# Every start but the last gets at most START_BUDGET iterations; the last one the rest of the
+# budget only when no start converged (a UR5 case spent 1727 iterations there, 11 s, after a
+# start had converged in 86).
+START_BUDGET = 150
+# A run within this (relative) of the free optimum's time ends the search of the starts.
+FREE_REACHED = 1e-7
+
+
+def slowed(arm, x0, x_goal, n_int, t_f):
+    """(states, torques) of the cubic line start over the final time t_f."""
+    states = cubic_path(x0, x_goal, t_f, n_int)
+    return states, np.clip(path_torques(arm, states, t_f), -arm.effort, arm.effort)
+
+
+def start_point(robot, evaluator, x0, x_goal, n_int):
+    """(states, torques, t_f, name): the line start, or a detour when the line collides."""
+    states, torques, t_f = cold_start(robot.arm, x0, x_goal, n_int)
+    if evaluator.n_pairs and evaluator.clearances(states[:, :robot.arm.n]).min() < 0.0:
+        detours = line_detours(robot.arm, evaluator, x0, x_goal, n_int)
+        if detours:
+            return (*detours[0], 'detour')
+    return states, torques, t_f, 'line'
+
+
+def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
+    """
+    [(name, make)]: the starts a cold solve tries, in order; make() -> (states, torques, t_f).
+
+    line: cold_start's (states, torques, t_f).  The line start when it clears every sphere
+    row; otherwise the free optimum (free: its (states, torques, t_f), solved without the
+    obstacles) as it is when it clears them, else bent clear of them in up to FREE_BENDS
+    distinct ways, then LINE_DETOURS distinct bent lines; the colliding line when none of
+    these exists.  The bends are found now, each start timed by its make() (only the starts
+    that are run: the search often ends at the first).
+    """
+    arm, n = robot.arm, robot.arm.n
+    if not evaluator.n_pairs or evaluator.clearances(line[0][:, :n]).min() >= 0.0:
+        return [('line', lambda: line)]
+    starts = []
+    if free is not None:
+        states, torques, t_f = free
+        if evaluator.clearances(states[:, :n]).min() >= 0.0:
+            starts.append(('free optimum', lambda: free))
+        else:
+            rate = states[:, n:] * t_f
+            for offsets in detour_offsets(arm, evaluator, states[:, :n], FREE_BENDS):
+                starts.append(('free optimum bent', lambda o=offsets: timed_start(
+                    arm, lambda t: bent_states(states[:, :n], rate, o, t), t_f)))
+    starts += [('detour', make) for make in line_detour_makers(
+        arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)]
+    return starts or [('line', lambda: line)]
+
+
+def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
+    """Run ipm within budget iterations with the curvature hessian ('auto': see above)."""
+    if ipm.ev.integrator == 'rk4':
+        hessian = 'none'            # no curvature of the RK4 steps (rk4_steps.py)
+    if hessian != 'auto':
+        ipm.hessian = hessian
+        return ipm.run(budget, should_stop)
+    ipm.hessian = 'none'
+    run = ipm.run(min(budget, cheap), should_stop)
+    if (run.status not in ('max_iterations', 'line_search_failed')
+            or run.iterations >= budget):
+        return run
+    ipm.hessian = 'exact'
+    rest = ipm.run(budget - run.iterations, should_stop)
+    rest.iterations += run.iterations
+    rest.history = np.vstack([run.history, rest.history])
+    rest.exact_from = run.iterations
+    return rest
+
+
+def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
+    """
+    ((states, torques, t_f) or None, iterations, Riccati time): solved without obstacles.
+
+    From line; its Pinocchio calls and time are added to evaluator's counters (the solve's
+    time split covers every run).
+    """
+    states, torques, t_f = line
+    free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, len(torques),
+                        len(evaluator.pairs) > 0, evaluator.integrator)
+    ipm = ArmInteriorPoint(free, x0, xg)
+    ipm.start(states, torques, t_f)
+    run = run_ipm(ipm, budget, should_stop, hessian)
+    evaluator.pin_calls += free.pin_calls
+    evaluator.pin_time += free.pin_time
+    if run.status not in ('converged', 'acceptable'):
+        return None, run.iterations, ipm.linalg_time
+    return (run.x, run.v * robot.arm.effort, run.t), run.iterations, ipm.linalg_time
+
+
+def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
+    """(best run, iterations, Riccati time) from the cold starts; runs gets a line per run."""
+    # Around obstacles a cold solve finds the local optimum of its start's way around them:
+    # every start of start_points is solved and the best converged run kept (the search
+    # ends early at the free optimum's time: the obstacles then cost nothing).  When none
+    # converges after a failure (line search, numerics), one more run from the line slowed
+    # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start: further
+    # inside the torque limits) with IPOPT's default first barrier parameter (0.1).
+    iterations, linalg_time = 0, 0.0
+    free = None
+    line = cold_start(robot.arm, x0, xg, n_int)
+    if evaluator.n_obstacle_rows and evaluator.clearances(line[0][:, :robot.arm.n]).min() < 0.0:
+        free, used, free_linalg = _free_optimum(robot, evaluator, x0, xg, line, hessian,
+                                                min(budget, FREE_BUDGET), should_stop)
+        iterations += used
+        linalg_time += free_linalg
+        runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
+                    f'{used} iterations')
+    best = run = None
+    starts = start_points(robot, evaluator, x0, xg, n_int, line, free)
+    for index, (start_name, make) in enumerate(starts):
+        if run is not None and iterations >= budget:
+            break
+        ipm = ArmInteriorPoint(evaluator, x0, xg)
+        ipm.start(*make())
+        allowed = budget - iterations
+        if index < len(starts) - 1 or best is not None:
+            allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
+        abandon = _abandon_above(ipm, best, should_stop)
+        run = run_ipm(ipm, allowed, abandon, hessian)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        if abandon.fired:
+            runs.append(f'{start_name}: abandoned after {run.iterations} iterations at t_f = '
+                        f'{run.t:.6f} s (settled above the best start)')
+            continue
+        runs.append(f'{start_name}: {run_summary(run)}')
+        if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
+            best = run
+        free_reached = (best is not None and free is not None
+                        and best.t <= free[2] * (1.0 + FREE_REACHED))
+        if run.status == 'stopped' or free_reached:
+            break       # (free_reached: the obstacles cost no time, no start can do better)
+    if best is not None:
+        return best, iterations, linalg_time
+    if run is not None and run.status in ('line_search_failed', 'numerical_failure') \
+            and iterations < budget:
+        t_f = RETRY_SLOWDOWN * line_time(robot.arm, x0, xg)
+        states, torques = slowed(robot.arm, x0, xg, n_int, t_f)
+        ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=MU_INIT_RETRY)
+        ipm.start(states, torques, t_f)
+        run = run_ipm(ipm, budget - iterations, should_stop, hessian)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        runs.append(f'line x{RETRY_SLOWDOWN:g}: {run_summary(run)}')
+    return run, iterations, linalg_time
+
+
+def _abandon_above(ipm, best, should_stop):
+    """should_stop for ipm's run that also fires (.fired) once it settles above best."""
+    def stop():
+        if should_stop():
+            return True
+        stop.fired = (best is not None and ipm.mu <= SETTLED_MU
+                      and ipm.primal <= SETTLED_PRIMAL
+                      and ipm.t > best.t * (1.0 + ABANDON_GAP))
+        return stop.fired
+    stop.fired = False
+    return stop
+
+
+def run_summary(run):
+    exact = getattr(run, 'exact_from', None)
+    return (f'{run.status} after {run.iterations} iterations'
+            + ('' if exact is None else f' (exact curvature from iteration {exact + 1})'))
