@@ -332,8 +332,11 @@ def test_launch_panda_plans_and_the_mujoco_plant_arrives(ws, tmp_path, execute):
 
     def check(_names):
         assert _wait_until(lambda: _solver_ready(log), READY_TIMEOUT), _read(log)
-        sent = ws.run(f'ros2 topic pub --once goal_joints sensor_msgs/msg/JointState '
-                      f'"{{name: [{names}], position: [{goal}]}}"', timeout=60)
+        # --keep-alive: ros2 topic pub's default 0.1 s can end the publisher before the
+        # solver's (volatile) subscription has matched it on a loaded machine: the goal is lost.
+        sent = ws.run(f'ros2 topic pub --once --keep-alive 1 goal_joints '
+                      f'sensor_msgs/msg/JointState "{{name: [{names}], position: [{goal}]}}"',
+                      timeout=60)
         assert sent.returncode == 0, sent.stdout
         assert _wait_until(lambda: 'SOLVED for goal from goal_joints' in _read(log), 120.0), \
             _read(log)
