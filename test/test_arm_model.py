@@ -21,6 +21,7 @@ frame poses against an independent numpy forward kinematics of the URDF (urdf_or
 """
 
 import hashlib
+import json
 
 import numpy as np
 import pytest
@@ -248,3 +249,39 @@ def test_unknown_link_is_refused():
     arm = load_arm('ur5')
     with pytest.raises(ArmError, match="unknown link 'hand'"):
         arm.frame_position(np.zeros(6), 'hand')
+
+
+def test_a_missing_limit_is_given_on_the_command_line(tmp_path):
+    """toc-solve --limit JOINT.KEY=VALUE: the override the refusal names, as load_arm's."""
+    from toc_ros.solve import main
+    urdf = tmp_path / 'toy.urdf'
+    urdf.write_text(toy(elbow_effort='0'))
+    args = ['--model', f'urdf:{urdf}', '--start', '0', '0', '0.05', '--goal', '1', '0.5',
+            '0.1', '--N', '20', '--quiet']
+    refused = tmp_path / 'refused.json'
+    assert main(args + ['--json', str(refused)]) == 4
+    assert '--limit elbow.effort=VALUE' in json.loads(refused.read_text())['message']
+    given = tmp_path / 'given.json'
+    assert main(args + ['--limit', 'elbow.effort=20', '--json', str(given)]) == 0
+    # The same solve as the original URDF's (elbow effort 20).
+    original = tmp_path / 'original.urdf'
+    original.write_text(toy())
+    same = tmp_path / 'same.json'
+    assert main(['--model', f'urdf:{original}'] + args[2:] + ['--json', str(same)]) == 0
+    assert json.loads(given.read_text())['final_time'] == json.loads(
+        same.read_text())['final_time']
+    bad = tmp_path / 'bad.json'
+    assert main(args + ['--limit', 'elbow.torque=20', '--json', str(bad)]) == 4
+    assert "--limit entry 'elbow.torque'" in json.loads(bad.read_text())['message']
+
+
+def test_locking_a_joint_named_like_a_link_is_refused_with_the_reason():
+    # Pinocchio's buildReducedModel looks the locked joint up among all frames by name; a link
+    # of the same name makes that ambiguous (example-robot-data's so100 'gripper').
+    clash = toy().replace('link name="c"', 'link name="slide"').replace(
+        '<child link="c"/>', '<child link="slide"/>').replace(
+        '<parent link="c"/>', '<parent link="slide"/>')
+    assert load_arm(clash).n == 3
+    with pytest.raises(ArmError, match="cannot lock the joints 'slide': a link of the URDF "
+                                       'has the same name'):
+        load_arm(clash, joints=['spin', 'elbow'])

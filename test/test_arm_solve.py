@@ -602,3 +602,45 @@ def test_cli_refuses_a_sphere_file_naming_unknown_links(tmp_path, capsys):
                  '--goal', '0.1', '0', '0', '-2', '0', '2', '0.8'])
     assert code == 4
     assert 'unknown link' in capsys.readouterr().err
+
+
+def test_toy_arm_with_a_continuous_joint_passes_the_independent_check():
+    # arm_check.py builds the URDF with Pinocchio's own parser, where the continuous joint is
+    # (cos, sin); the solver's model makes it an unbounded angle (model.py).
+    from test_arm_model import toy
+    from toc_ros.bench.arm_check import check_trajectory
+    from toc_ros.bench.arm_problem import ArmSpec
+    from toc_ros.core.arms.arm_solve import ArmViolations
+    arm = load_arm(toy())
+    assert arm.continuous.tolist() == [True, False, False]
+    start, goal = (2.5, 0.0, 0.05), (-2.9, 0.5, 0.1)       # the spin joint passes +-pi
+    result = solve(Problem(x0=start, x_goal=goal, model=arm, n_intervals=40))
+    assert result.status is Status.SOLVED, result.message
+    check = check_trajectory(ArmSpec(urdf=toy(), joints=arm.joint_names, start=start,
+                                     goal=goal), result.final_time, result.controls,
+                             'euler', result.states)
+    assert check['defect'] < 1e-9 and check['terminal_error'] < 1e-6
+    assert check['max_position_excess'] == 0.0 and check['max_velocity_excess'] <= 1e-9
+    assert ArmViolations(0.0, 2e-6, np.inf, 0.0, 0.0).exceeded() == [
+        'terminal error 2e-06 > 1e-06']
+
+
+def test_an_unstable_open_loop_motion_is_solved_inaccurately_with_the_reason():
+    # The Kinova j2s6s200's light wrist: its Euler motion amplifies the solver's 1e-13 defects
+    # to ~1e-4 at the goal when the controls are integrated again from the start.
+    from toc_ros.bench.arm_check import check_trajectory
+    from toc_ros.bench.arm_problem import ArmSpec
+    from toc_ros.core.arms.model import example_robot_data_dir
+    urdf = Path(example_robot_data_dir()) / 'kinova_description' / 'robots' / 'kinova.urdf'
+    joints = tuple(f'j2s6s200_joint_{i}' for i in range(1, 7))
+    start = (2.0572, 1.1777, 1.3141, -2.0763, 2.826, 2.9174)
+    goal = (1.8432, 0.8703, 2.0061, -1.1038, 3.0916, 3.0916)
+    arm = load_arm(f'urdf:{urdf}', joints=joints)
+    result = solve(Problem(x0=start, x_goal=goal, model=arm, n_intervals=60))
+    assert result.status is Status.SOLVED_INACCURATE and result.status.exit_code() == 1
+    assert 'converged' in result.message
+    assert 'SOLVED_INACCURATE: re-integrated from the start, terminal error' in result.message
+    check = check_trajectory(ArmSpec(urdf=str(urdf), joints=joints, start=start, goal=goal),
+                             result.final_time, result.controls, 'euler', result.states)
+    assert check['defect'] < 1e-9       # the independent integration agrees with the states
+    assert check['terminal_error'] > 1e-6

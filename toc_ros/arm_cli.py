@@ -17,7 +17,8 @@ toc-solve for URDF arms: --model panda | ur5 | urdf:PATH (toc_ros.solve hands th
 
     toc-solve --model panda --start Q1..Q7 [DQ1..DQ7]
               (--goal Q1..Q7 [DQ1..DQ7] | --goal-pose X Y Z [QX QY QZ QW] [--tip LINK])
-              [--joints j1,...,jn] [--locked NAME=VALUE ...] [--collision-spheres FILE]
+              [--joints j1,...,jn] [--locked NAME=VALUE ...] [--limit JOINT.KEY=VALUE ...]
+              [--collision-spheres FILE]
               [--sphere X Y Z R ...] [--margin M] [--self-collision]
               [--integrator euler|rk4] [--N N]
               [--max-iterations M] [--timeout S] [--json OUT] [--quiet]
@@ -74,6 +75,10 @@ def build_parser():
     p.add_argument('--locked', action='append', metavar='NAME=VALUE', default=[],
                    help='value of a joint that is not planned (default 0 clamped into its '
                         'limits); repeat for several')
+    p.add_argument('--limit', action='append', metavar='JOINT.KEY=VALUE', default=[],
+                   help='override a URDF limit, KEY one of effort [N m or N], velocity [rad/s '
+                        'or m/s], lower, upper [rad or m] (like robot.joint_limits of the '
+                        'node); repeat for several')
     p.add_argument('--collision-spheres', metavar='FILE',
                    help='YAML link_name: [[x, y, z, r], ...] (default: the shipped set of the '
                         'Panda / UR5)')
@@ -120,8 +125,8 @@ def tip_link(model_name, arm, link=None):
 
 def robot_key(args):
     """Return the arguments that make the robot of load_robot (a cache key)."""
-    return (args.model, args.joints, tuple(args.locked), args.collision_spheres,
-            bool(args.self_collision))
+    return (args.model, args.joints, tuple(args.locked), tuple(args.limit),
+            args.collision_spheres, bool(args.self_collision))
 
 
 def load_robot(args):
@@ -138,7 +143,9 @@ def load_robot(args):
             locked[name.strip()] = float(value)
         except ValueError:
             raise ArmError(f'--locked {entry!r}: {value!r} is not a number') from None
-    arm = load_arm(args.model, joints=args.joints, locked=locked)
+    from toc_ros.arm_config import limit_overrides
+    arm = load_arm(args.model, joints=args.joints, locked=locked,
+                   limits=limit_overrides(args.limit, '--limit') or None)
     if args.collision_spheres:
         return ArmRobot(arm, load_spheres(args.collision_spheres, arm), args.self_collision)
     return ArmRobot.shipped(arm, args.self_collision)

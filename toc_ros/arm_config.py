@@ -114,16 +114,16 @@ def _entries(values, what, example):
         yield left, value
 
 
-def limit_overrides(entries):
-    """Return {joint: {key: value}} of robot.joint_limits entries 'JOINT.KEY=VALUE'."""
+def limit_overrides(entries, what='robot.joint_limits'):
+    """Return {joint: {key: value}} of entries 'JOINT.KEY=VALUE' (what: their name in errors)."""
     limits = {}
-    for left, value in _entries(entries, 'robot.joint_limits', 'JOINT.KEY=VALUE'):
+    for left, value in _entries(entries, what, 'JOINT.KEY=VALUE'):
         joint, dot, key = left.rpartition('.')
         if not dot or not joint or key not in LIMIT_KEYS:
-            raise ProblemError(f'robot.joint_limits entry {left!r}: give JOINT.KEY with KEY one '
+            raise ProblemError(f'{what} entry {left!r}: give JOINT.KEY with KEY one '
                                f'of {", ".join(LIMIT_KEYS)}')
         if key in limits.setdefault(joint, {}):
-            raise ProblemError(f'robot.joint_limits gives {left} twice')
+            raise ProblemError(f'{what} gives {left} twice')
         limits[joint][key] = value
     return limits
 

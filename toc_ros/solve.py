@@ -55,7 +55,10 @@ def build_parser():
     parser.add_argument('--model', metavar='NAME|FILE',
                         help="robot model: 'cylindrical' (default), 'planar_2r' or a model file "
                              '(.yaml; a bare name is also looked up in config/models); sets '
-                             'robot.model')
+                             'robot.model.  URDF arms: panda, ur5 or urdf:PATH, with options of '
+                             'their own (--joints, --locked, --limit, --collision-spheres, '
+                             '--sphere X Y Z R, --goal-pose ...): see toc-solve --model panda '
+                             '--help')
     parser.add_argument('--param', action='append', metavar='NAME=VALUE',
                         help='model parameter, e.g. l1=0.9; repeat for several (added to '
                              'robot.model_parameters)')

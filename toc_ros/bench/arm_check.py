@@ -67,11 +67,12 @@ def example_robot_urdf(name):
 
 def pinocchio_model(urdf, joints, locked=None):
     """
-    (model, q_index, v_index) of Pinocchio for the planned joints, the others locked.
+    (model, q_index, v_index, continuous) of Pinocchio for the planned joints, others locked.
 
     Locked joints take their given value or 0, clamped into Pinocchio's limits for them.
     q_index, v_index: the Pinocchio configuration and velocity index of each planned joint, in
-    the caller's order (revolute and prismatic joints only: one coordinate each).
+    the caller's order.  Revolute and prismatic joints have one coordinate; a continuous joint
+    (continuous[i]) is Pinocchio's unbounded revolute joint, (cos, sin) at q_index, q_index + 1.
     """
     import pinocchio as pin
     text = str(urdf)
@@ -94,14 +95,17 @@ def pinocchio_model(urdf, joints, locked=None):
                 value = min(max(value, full.lowerPositionLimit[i]), full.upperPositionLimit[i])
             q_ref[i] = value
     model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full
-    q_index, v_index = [], []
+    q_index, v_index, continuous = [], [], []
     for name in joints:
         jid = model.getJointId(name)
-        if jid >= model.njoints or model.joints[jid].nq != 1:
-            raise ValueError(f'joint {name}: not a one-coordinate joint of the Pinocchio model')
+        if jid >= model.njoints or model.joints[jid].nv != 1 or model.joints[jid].nq not in (
+                1, 2):
+            raise ValueError(f'joint {name}: not a one-degree-of-freedom joint of the '
+                             'Pinocchio model')
         q_index.append(model.joints[jid].idx_q)
         v_index.append(model.joints[jid].idx_v)
-    return model, np.asarray(q_index), np.asarray(v_index)
+        continuous.append(model.joints[jid].nq == 2)
+    return model, np.asarray(q_index), np.asarray(v_index), np.asarray(continuous, dtype=bool)
 
 
 def check_trajectory(spec, t_f, controls, integrator='euler', states=None):
@@ -116,7 +120,7 @@ def check_trajectory(spec, t_f, controls, integrator='euler', states=None):
     """
     import pinocchio as pin
     from .arm_problem import load_spheres
-    model, idx, vdx = pinocchio_model(spec.urdf, spec.joints, spec.locked)
+    model, idx, vdx, continuous = pinocchio_model(spec.urdf, spec.joints, spec.locked)
     data = model.createData()
     n = len(spec.joints)
     controls = np.asarray(controls, dtype=float)
@@ -125,7 +129,8 @@ def check_trajectory(spec, t_f, controls, integrator='euler', states=None):
 
     def full_q(q):
         out = pin.neutral(model)
-        out[idx] = q
+        out[idx] = np.where(continuous, np.cos(q), q)
+        out[idx[continuous] + 1] = np.sin(q[continuous])
         return out
 
     def accel(x, u):
@@ -153,7 +158,7 @@ def check_trajectory(spec, t_f, controls, integrator='euler', states=None):
             xs[k + 1] = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         else:
             raise ValueError(f'unknown integrator {integrator!r}')
-    lower, upper, effort, velocity = _limits(model, idx, vdx, spec)
+    lower, upper, effort, velocity = _limits(model, idx, vdx, continuous, spec)
     q, qd = xs[:, :n], xs[:, n:]
     out = {
         'terminal_error': float(np.max(np.abs(xs[-1] - xg))),
@@ -182,9 +187,10 @@ def check_trajectory(spec, t_f, controls, integrator='euler', states=None):
     return out
 
 
-def _limits(model, idx, vdx, spec):
-    lower = np.array(model.lowerPositionLimit[idx], dtype=float)
-    upper = np.array(model.upperPositionLimit[idx], dtype=float)
+def _limits(model, idx, vdx, continuous, spec):
+    # A continuous joint's angle is unbounded (Pinocchio's limits there bound cos and sin).
+    lower = np.where(continuous, -np.inf, model.lowerPositionLimit[idx]).astype(float)
+    upper = np.where(continuous, np.inf, model.upperPositionLimit[idx]).astype(float)
     effort = np.array(model.effortLimit[vdx], dtype=float)
     velocity = np.array(model.velocityLimit[vdx], dtype=float)
     for i, name in enumerate(spec.joints):

@@ -121,6 +121,19 @@ class ArmViolations(Violations):
                 and self.max_velocity_excess <= BOUND_TOL
                 and (not self.self_constrained or self.self_clearance >= -CLEARANCE_TOL))
 
+    def exceeded(self):
+        """Return 'name value > tolerance' of every measure outside its SOLVED tolerance."""
+        checks = (('control excess', self.max_control_excess, 0.0, False),
+                  ('terminal error', self.terminal_error, TERMINAL_TOL, False),
+                  ('clearance', self.min_clearance, -CLEARANCE_TOL, True),
+                  ('position excess', self.max_position_excess, BOUND_TOL, False),
+                  ('velocity excess', self.max_velocity_excess, BOUND_TOL, False),
+                  ('self clearance', self.self_clearance if self.self_constrained
+                   else math.inf, -CLEARANCE_TOL, True))
+        return [f'{name} {value:.3g} {"<" if below else ">"} {tol:.3g}'
+                for name, value, tol, below in checks
+                if (value < tol if below else value > tol)]
+
     def as_dict(self):
         """Plain-float dict (JSON)."""
         out = super().as_dict()
@@ -283,6 +296,14 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         status = Status.STALLED
     message = (f'{"; ".join(runs)} (interior-point iterations, by start): t_f = {run.t:.6f} '
                f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}')
+    if status is Status.SOLVED_INACCURATE:
+        # Converged, but the measures re-taken on the controls integrated again from the start
+        # (open loop) miss a tolerance: say which, and why that can happen after convergence.
+        why = (f" (open loop: the discretised motion amplifies the solver's residual defects, "
+               f'{run.primal:.1e}, over the horizon; it is unstable)'
+               if violations.terminal_error > TERMINAL_TOL else '')
+        message += ('; SOLVED_INACCURATE: re-integrated from the start, '
+                    + ', '.join(violations.exceeded()) + why)
     if status in (Status.STALLED, Status.MAX_ITERATIONS) and not np.any(xg[robot.arm.n:]):
         # A likely cause worth naming (not refused: a goal reached at rest for an instant is
         # a valid problem even when the efforts cannot hold it there).

@@ -56,6 +56,9 @@ import pinocchio as pin
 
 GRAVITY = (0.0, 0.0, -9.81)
 LIMIT_KEYS = ('effort', 'velocity', 'lower', 'upper')
+# How a user gives a missing limit, in each of the interfaces.
+LIMITS_HOW = ("toc-solve --limit {joint}.{key}=VALUE, the node's robot.joint_limits "
+              "'{joint}.{key}=VALUE', or load_arm(limits={{'{joint}': {{'{key}': VALUE}}}})")
 ONE_DOF_TYPES = ('revolute', 'continuous', 'prismatic')
 
 # Named arms shipped by the example-robot-data wheel: URDF below its robots/ folder and the
@@ -243,7 +246,8 @@ def _joint_limits(joint, override, planned=True):
     else:
         if 'lower' not in values or 'upper' not in values:
             raise ArmError(f'joint {joint.name!r} has no lower/upper position limit: give '
-                           'them in limits')
+                           f'them ({LIMITS_HOW.format(joint=joint.name, key="lower")}, and '
+                           'upper)')
         lower, upper = values['lower'], values['upper']
         if not math.isfinite(lower) or not math.isfinite(upper):
             raise ArmError(f'joint {joint.name!r}: position limits must be finite, got '
@@ -466,7 +470,7 @@ def load_arm(source, joints=None, locked=None, limits=None):
         for key, value in (('effort', effort), ('velocity', velocity)):
             if not value > 0:
                 raise ArmError(f'joint {name!r} has no {key} limit in the URDF (0 or missing): '
-                               f'give one in limits')
+                               f'give one ({LIMITS_HOW.format(joint=name, key=key)})')
         rows.append((lower, upper, velocity, effort, continuous))
     lower, upper, velocity, effort, continuous = (np.array(col) for col in zip(*rows))
 
@@ -474,7 +478,15 @@ def load_arm(source, joints=None, locked=None, limits=None):
     for name, value in lock_values.items():
         q_ref[full.idx_qs[full.getJointId(name)]] = value
     lock_ids = [full.getJointId(name) for name in lock_values]
-    model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full.copy()
+    try:
+        model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full.copy()
+    except ValueError as exc:
+        # Pinocchio 3/4 looks joints up by name among the frames when it locks them: a link
+        # named like a locked joint (e.g. so100's 'gripper') makes the lookup ambiguous.
+        clash = sorted(set(lock_values) & {joint.child for joint in urdf_joints.values()})
+        raise ArmError(f'Pinocchio cannot lock the joints {", ".join(map(repr, clash))}: a link '
+                       'of the URDF has the same name; plan them (--joints) or rename the link '
+                       f'or the joint ({exc})' if clash else f'locking joints: {exc}') from None
     # Pinocchio's own limit fields follow the overrides (continuous: left unbounded-ish).
     model.effortLimit = effort.astype(float)
     model.velocityLimit = velocity.astype(float)
