@@ -604,7 +604,7 @@ def test_cli_refuses_a_sphere_file_naming_unknown_links(tmp_path, capsys):
     assert 'unknown link' in capsys.readouterr().err
 
 
-def test_toy_arm_with_a_continuous_joint_passes_the_independent_check():
+def test_toy_arms_with_a_continuous_or_a_clashing_joint_pass_the_independent_check():
     # arm_check.py builds the URDF with Pinocchio's own parser, where the continuous joint is
     # (cos, sin); the solver's model makes it an unbounded angle (model.py).
     from test_arm_model import toy
@@ -623,6 +623,17 @@ def test_toy_arm_with_a_continuous_joint_passes_the_independent_check():
     assert check['max_position_excess'] == 0.0 and check['max_velocity_excess'] <= 1e-9
     assert ArmViolations(0.0, 2e-6, np.inf, 0.0, 0.0).exceeded() == [
         'terminal error 2e-06 > 1e-06']
+    # A locked joint named like a link (test_arm_model.py), in both implementations.
+    clash = toy().replace('link name="c"', 'link name="slide"').replace(
+        '<child link="c"/>', '<child link="slide"/>').replace(
+        '<parent link="c"/>', '<parent link="slide"/>')
+    arm = load_arm(clash, joints=['spin', 'elbow'], locked={'slide': 0.15})
+    result = solve(Problem(x0=start[:2], x_goal=goal[:2], model=arm, n_intervals=40))
+    assert result.status is Status.SOLVED, result.message
+    check = check_trajectory(ArmSpec(urdf=clash, joints=arm.joint_names, start=start[:2],
+                                     goal=goal[:2], locked={'slide': 0.15}),
+                             result.final_time, result.controls, 'euler', result.states)
+    assert check['defect'] < 1e-9 and check['terminal_error'] < 1e-6
 
 
 def test_an_unstable_open_loop_motion_is_solved_inaccurately_with_the_reason():

@@ -94,7 +94,16 @@ def pinocchio_model(urdf, joints, locked=None):
             if name not in locked:
                 value = min(max(value, full.lowerPositionLimit[i]), full.upperPositionLimit[i])
             q_ref[i] = value
+    # buildReducedModel finds a locked joint by name among all frames: a link of the same name
+    # (so100's 'gripper') is renamed while it runs.
+    clashing = [f for f in full.frames
+                if f.type == pin.FrameType.BODY and f.name in {full.names[j] for j in lock_ids}]
+    for frame in clashing:
+        frame.name += ' (link)'
     model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full
+    for frame in model.frames:
+        if frame.name.endswith(' (link)'):
+            frame.name = frame.name[:-len(' (link)')]
     q_index, v_index, continuous = [], [], []
     for name in joints:
         jid = model.getJointId(name)

@@ -56,6 +56,8 @@ import pinocchio as pin
 
 GRAVITY = (0.0, 0.0, -9.81)
 LIMIT_KEYS = ('effort', 'velocity', 'lower', 'upper')
+# Suffix of link frames renamed while joints of the same name are locked (_reduced).
+RENAMED = '#link'
 # How a user gives a missing limit, in each of the interfaces.
 LIMITS_HOW = ("toc-solve --limit {joint}.{key}=VALUE, the node's robot.joint_limits "
               "'{joint}.{key}=VALUE', or load_arm(limits={{'{joint}': {{'{key}': VALUE}}}})")
@@ -342,6 +344,8 @@ class ArmModel:
         if not isinstance(link, str) or not self.model.existFrame(link):
             known = [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]
             raise ArmError(f'unknown link {link!r} (links: {", ".join(known)})')
+        if self.model.existFrame(link, pin.FrameType.BODY):
+            return self.model.getFrameId(link, pin.FrameType.BODY)      # a link before a joint
         return self.model.getFrameId(link)
 
     def forward_dynamics(self, q, v, tau, data=None):
@@ -379,6 +383,28 @@ class ArmModel:
         """Frame Jacobian (6, n): linear rows first, then angular (reference frame given)."""
         return pin.computeFrameJacobian(self.model, data or self.data, q,
                                         self.frame_id(link), reference).copy()
+
+
+def _reduced(full, lock_ids, q_ref):
+    """Return full with the joints lock_ids locked at q_ref (a copy of full without any)."""
+    if not lock_ids:
+        return full.copy()
+    # Pinocchio's buildReducedModel looks a locked joint up by name among all frames: a link
+    # named like it (example-robot-data's so100 'gripper') makes that ambiguous.  Such links'
+    # frames are renamed while it runs, in full and then in the reduced model.
+    locked = {full.names[j] for j in lock_ids}
+    renamed = [f for f in full.frames if f.name in locked and f.type == pin.FrameType.BODY]
+    for frame in renamed:
+        frame.name += RENAMED
+    try:
+        model = pin.buildReducedModel(full, lock_ids, q_ref)
+    finally:
+        for frame in renamed:
+            frame.name = frame.name[:-len(RENAMED)]
+    for frame in model.frames:
+        if frame.name.endswith(RENAMED):
+            frame.name = frame.name[:-len(RENAMED)]
+    return model
 
 
 def _select_joints(joints, requested, defaults, full):
@@ -478,15 +504,7 @@ def load_arm(source, joints=None, locked=None, limits=None):
     for name, value in lock_values.items():
         q_ref[full.idx_qs[full.getJointId(name)]] = value
     lock_ids = [full.getJointId(name) for name in lock_values]
-    try:
-        model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full.copy()
-    except ValueError as exc:
-        # Pinocchio 3/4 looks joints up by name among the frames when it locks them: a link
-        # named like a locked joint (e.g. so100's 'gripper') makes the lookup ambiguous.
-        clash = sorted(set(lock_values) & {joint.child for joint in urdf_joints.values()})
-        raise ArmError(f'Pinocchio cannot lock the joints {", ".join(map(repr, clash))}: a link '
-                       'of the URDF has the same name; plan them (--joints) or rename the link '
-                       f'or the joint ({exc})' if clash else f'locking joints: {exc}') from None
+    model = _reduced(full, lock_ids, q_ref)
     # Pinocchio's own limit fields follow the overrides (continuous: left unbounded-ish).
     model.effortLimit = effort.astype(float)
     model.velocityLimit = velocity.astype(float)
