@@ -61,8 +61,13 @@ def _problem(name, n_int=50, with_obstacles=True, **changes):
 
 # Riccati step against a dense KKT solve ---------------------------------------------------
 
-def _dense_step(a, b, c, d, hxx, hux, huu, gx, gu):
-    """Solve the stage QP of riccati.py with one dense KKT system (numpy.linalg.solve)."""
+def _dense_step(a, b, c, d, hxx, hux, huu, gx, gu, convex=None):
+    """
+    Solve the stage QP of riccati.py with one dense KKT system (numpy.linalg.solve).
+
+    convex: a list to which True is appended when the Hessian is positive definite on the
+    constraints' null space (the QP has a unique minimum), else False.
+    """
     n_int, nx, nu = b.shape
     # Variables: dT, dx_1..dx_{N-1}, du_0..du_{N-1}; dx_0 = dx_N = 0.
     nvar = 1 + (n_int - 1) * nx + n_int * nu
@@ -98,6 +103,10 @@ def _dense_step(a, b, c, d, hxx, hux, huu, gx, gu):
         rows.append(row)
         rhs.append(-d[k])
     jac = np.vstack(rows)
+    if convex is not None:
+        _, sing, vt = np.linalg.svd(jac)
+        null = vt[np.sum(sing > 1e-12 * sing[0]):].T
+        convex.append(bool(np.min(np.linalg.eigvalsh(null.T @ hess @ null)) > 0.0))
     kkt = np.block([[hess, jac.T], [jac, np.zeros((jac.shape[0], jac.shape[0]))]])
     sol = np.linalg.solve(kkt, np.concatenate([-grad, np.concatenate(rhs)]))
     step = sol[:nvar]
@@ -141,6 +150,49 @@ def test_riccati_step_matches_a_dense_kkt_solve():
     # The multipliers of the steps into x_1..x_N (the dense system's y, same sign).
     np.testing.assert_allclose(lam[1:], y, atol=1e-8)
     np.testing.assert_allclose(nu_out, y[-1], atol=1e-8)
+
+
+def test_riccati_step_with_a_negative_final_time_curvature_is_solved_when_convex():
+    # P_0(T, T) <= 0 at a point of a convex QP (velocity-limited arm motions): dT is solved
+    # with the terminal multipliers, not refused; refused only when the QP is not convex.
+    rng = np.random.default_rng(3)
+    n_int, nx, nu = 6, 4, 2
+    a = np.eye(nx)[None] + 0.1 * rng.normal(size=(n_int, nx, nx))
+    b = rng.normal(size=(n_int, nx, nu))
+    c = 0.3 * rng.normal(size=(n_int, nx))
+    d = 0.1 * rng.normal(size=(n_int, nx))
+    hxx = np.zeros((n_int, nx + 1, nx + 1))
+    for k in range(n_int):
+        m = rng.normal(size=(nx + 1, nx + 1))
+        hxx[k] = m @ m.T + np.eye(nx + 1)
+    hux = 0.1 * rng.normal(size=(n_int, nu, nx + 1))
+    huu = np.array([np.eye(nu) * 2.0 for _ in range(n_int)])
+    gx = rng.normal(size=(n_int, nx + 1))
+    gu = rng.normal(size=(n_int, nu))
+    seen = set()
+    for lowered in (0.0, 2.0, 5.0, 7.0, 10.0, 40.0):
+        h = hxx.copy()
+        h[:, nx, nx] -= lowered        # less curvature in T at every stage
+        work = riccati.work_arrays(n_int, nx, nu)
+        dx, du = np.zeros((n_int + 1, nx)), np.zeros((n_int, nu))
+        lam, nu_out = np.zeros((n_int + 1, nx)), np.zeros(nx)
+        code, d_t = riccati.riccati_solve(a, b, c, d, h, hux, huu, gx, gu, 1.0, *work, dx, du,
+                                          lam, nu_out)
+        convex = []
+        d_t_ref, dx_ref, du_ref, y = _dense_step(a, b, c, d, h, hux, huu, gx, gu, convex)
+        final_time_curvature = work[0][0, nx, nx]
+        seen.add((final_time_curvature > 0.0, convex[0]))
+        if not convex[0]:
+            assert code == riccati.FINAL_TIME_CURVATURE
+            continue
+        assert code == riccati.OK
+        assert d_t == pytest.approx(d_t_ref, rel=1e-9, abs=1e-12)
+        np.testing.assert_allclose(dx[1:-1], dx_ref[1:-1], atol=1e-9)
+        np.testing.assert_allclose(du, du_ref, atol=1e-9)
+        assert np.max(np.abs(dx[-1])) < 1e-9
+        np.testing.assert_allclose(lam[1:], y, atol=1e-8)
+    # Every case: P_0(T, T) > 0 and convex, <= 0 and convex, <= 0 and not convex.
+    assert seen == {(True, True), (False, True), (False, False)}
 
 
 def test_line_search_takes_a_step_that_lowers_both_the_violation_and_the_barrier():
@@ -655,3 +707,33 @@ def test_an_unstable_open_loop_motion_is_solved_inaccurately_with_the_reason():
                              result.final_time, result.controls, 'euler', result.states)
     assert check['defect'] < 1e-9       # the independent integration agrees with the states
     assert check['terminal_error'] > 1e-6
+
+
+def test_polish_takes_the_defects_of_a_trajectory_down_to_rounding():
+    from toc_ros.core.arms.polish import polish
+    problem = _problem('panda', 40, with_obstacles=False)
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    robot = problem.model
+    evaluator = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), MARGIN, 40)
+    v = result.controls / robot.arm.effort
+    noisy = result.states + 1e-8 * np.random.default_rng(5).normal(size=result.states.shape)
+    noisy[0], noisy[-1] = result.states[0], result.states[-1]
+    x, v2, t_f, before, after = polish(evaluator, noisy, v, result.final_time)
+    assert before > 1e-7 and after < 1e-13
+    # Recomputed here: the defects of the returned point, and how little it moved.
+    assert np.max(np.abs(evaluator.defects(x, v2, t_f))) == after
+    assert np.max(np.abs(v2)) <= 1.0
+    assert abs(t_f - result.final_time) < 1e-7 and np.max(np.abs(x - noisy)) < 1e-6
+    assert np.array_equal(x[0], noisy[0]) and np.array_equal(x[-1], noisy[-1])
+
+
+def test_a_long_horizon_whose_rollout_amplifies_the_defects_is_polished_to_solved():
+    # Panda past three spheres at N = 400: converged with defects 7.5e-11, which the open-loop
+    # integration of the SOLVED test turned into a terminal error of 1.4e-6.
+    from benchmarks.bench_arm_fast import SCENARIOS as BENCH
+    start, goal, sets = BENCH['panda']
+    result = solve(_problem('panda', 400, x0=start, x_goal=goal, obstacles=sets['3 spheres']))
+    assert result.status is Status.SOLVED, result.message
+    assert 'defects polished' in result.message
+    _independent_check('panda', result, sets['3 spheres'], start, goal)

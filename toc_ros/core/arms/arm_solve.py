@@ -43,6 +43,7 @@ from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
 from .model import ArmError, ArmModel
+from .polish import polish
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
 from .validate import check_holdable, check_state
@@ -284,6 +285,18 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
     states, violations = measure_arm(robot, x0, xg, controls, run.t, obstacles,
                                      problem.margin, problem.integrator)
     converged = run.status in ('converged', 'acceptable')
+    polished = ''
+    if converged and not violations.feasible():
+        # The open-loop integration amplified the defects left at convergence: take them down
+        # to rounding (polish.py), and keep that when it meets every tolerance.
+        x, v, t_f, before, after = polish(evaluator, run.x, run.v, run.t)
+        again = measure_arm(robot, x0, xg, v * robot.arm.effort[None, :], t_f, obstacles,
+                            problem.margin, problem.integrator)
+        if after < before and again[1].feasible():
+            run.x, run.v, run.t = x, v, t_f
+            controls = v * robot.arm.effort[None, :]
+            states, violations = again
+            polished = f'; defects polished from {before:.1e} to {after:.1e}'
     if converged and violations.feasible():
         status = Status.SOLVED
     elif converged:
@@ -295,7 +308,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
     else:
         status = Status.STALLED
     message = (f'{"; ".join(runs)} (interior-point iterations, by start): t_f = {run.t:.6f} '
-               f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}')
+               f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}'
+               + polished)
     if status is Status.SOLVED_INACCURATE:
         # Converged, but the measures re-taken on the controls integrated again from the start
         # (open loop) miss a tolerance: say which, and why that can happen after convergence.

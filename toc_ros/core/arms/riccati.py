@@ -26,9 +26,16 @@ the backward sweep carries 1 + nx right-hand sides (the step is affine in nu), t
 sweep gives dx_N as an affine function of nu and an nx-by-nx system gives nu.
 
 Inertia: the QP has the right inertia (a minimum of a convex-on-the-constraints problem) when
-every reduced Hessian R_k + B_k^T P B_k is positive definite, the final-time curvature P_0(T, T)
-is positive and the terminal Schur complement is negative definite; otherwise the kernel
-returns the failing test's code and the caller adds a multiple of the identity to H.
+every reduced Hessian R_k + B_k^T P B_k is positive definite and the (1 + nx) system of dT and
+nu that remains, K = [[P_0(T, T), d(dT row)/d nu], [d dx_N / d dT, d dx_N / d nu]], has one
+positive and nx negative eigenvalues; otherwise the kernel returns the failing test's code and
+the caller adds a multiple of the identity to H.  When P_0(T, T) > 0, dT is eliminated first
+and K's inertia is that of the terminal Schur complement (negative definite: a Cholesky
+factor).  P_0(T, T) <= 0 is no reason to correct: at points of velocity-limited motions it is
+often <= 0 while K's inertia is right, and the correction's damped steps then never removed
+the last dual infeasibility (a UR10 around a sphere stalled next to its optimum for hundreds
+of iterations); then dT is kept as a direction of the forward sweep and K is solved whole,
+its inertia from its eigenvalues (jacobi_eigen: no LAPACK here).
 
 No numpy linear algebra inside the kernels: numba's np.dot and np.linalg call SciPy's BLAS and
 LAPACK, and SciPy is not a dependency of toc_ros; the loops below run along contiguous rows
@@ -123,6 +130,145 @@ def work_arrays(n_int, nx, nu):
     return (np.zeros((n_int + 1, nxp, nxp)), np.zeros((n_int + 1, nxp, ncp)),
             np.zeros((n_int, nu, nxp)), np.zeros((n_int, nu, ncp)),
             np.zeros((n_int + 1, nxp, ncp)), np.zeros((n_int, nu, ncp)))
+
+
+@njit(cache=True)
+def jacobi_eigen(a, m, sweeps=60):
+    """
+    Eigen-decomposition of the symmetric a[:m, :m] (overwritten): (values (m,), vectors (m, m)).
+
+    Cyclic Jacobi rotations in a fixed order (deterministic), until the off-diagonal part is
+    below 1e-15 of the norm, at most sweeps sweeps; vectors' columns are the eigenvectors.
+    """
+    vec = np.zeros((m, m))
+    for i in range(m):
+        vec[i, i] = 1.0
+    norm = 0.0
+    for i in range(m):
+        for j in range(m):
+            norm += a[i, j] * a[i, j]
+    for _ in range(sweeps):
+        off = 0.0
+        for i in range(m):
+            for j in range(i + 1, m):
+                off += a[i, j] * a[i, j]
+        if not off > 1e-30 * norm:
+            break
+        for p in range(m - 1):
+            for q in range(p + 1, m):
+                apq = a[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+                root = math.sqrt(theta * theta + 1.0)
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + root)
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                sn = t * c
+                for k in range(m):
+                    akp, akq = a[k, p], a[k, q]
+                    a[k, p] = c * akp - sn * akq
+                    a[k, q] = sn * akp + c * akq
+                for k in range(m):
+                    apk, aqk = a[p, k], a[q, k]
+                    a[p, k] = c * apk - sn * aqk
+                    a[q, k] = sn * apk + c * aqk
+                for k in range(m):
+                    vkp, vkq = vec[k, p], vec[k, q]
+                    vec[k, p] = c * vkp - sn * vkq
+                    vec[k, q] = sn * vkp + c * vkq
+    values = np.empty(m)
+    for i in range(m):
+        values[i] = a[i, i]
+    return values, vec
+
+
+@njit(cache=True)
+def _forward(a_mat, b_mat, c_vec, d_vec, gain, ff, xi, uu, n, nx, nu_, nxi, ncp):
+    """Forward sweep from xi[0]: xi_k, u_k affine in the columns [1; nu; (dT)]."""
+    for k in range(n):
+        uk = uu[k]
+        uk[:] = ff[k]
+        gk = gain[k]
+        xk = xi[k]
+        for i in range(nu_):
+            for j in range(nxi):
+                s = gk[i, j]
+                for c in range(ncp):
+                    uk[i, c] += s * xk[j, c]
+        xn = xi[k + 1]
+        for i in range(nx):
+            for c in range(ncp):
+                xn[i, c] = c_vec[k, i] * xk[nx, c]
+            for j in range(nx):
+                s = a_mat[k, i, j]
+                if s != 0.0:
+                    for c in range(ncp):
+                        xn[i, c] += s * xk[j, c]
+            for j in range(nu_):
+                s = b_mat[k, i, j]
+                if s != 0.0:
+                    for c in range(ncp):
+                        xn[i, c] += s * uk[j, c]
+            xn[i, 0] += d_vec[k, i]
+        for i in range(nx, xi.shape[1]):
+            for c in range(ncp):
+                xn[i, c] = xk[i, c]
+
+
+@njit(cache=True)
+def _final_time_and_nu(pp, pc, xi, n, nx, nu):
+    """
+    Solve K [dT; nu] = -[p_0(T); dx_N(0)] (module docstring) when P_0(T, T) <= 0: (code, dT).
+
+    xi's column 1 + nx is the dT direction.  K's inertia must be (1, nx); the symmetric part
+    is solved through its eigen-decomposition and refined against K itself (its two
+    off-diagonal blocks agree up to rounding).
+    """
+    m = nx + 1
+    dcol = nx + 1
+    k_mat = np.empty((m, m))
+    k_mat[0, 0] = pp[0, nx, nx]
+    for j in range(nx):
+        k_mat[0, 1 + j] = pc[0, nx, 1 + j]
+        k_mat[1 + j, 0] = xi[n, j, dcol]
+        for i in range(nx):
+            k_mat[1 + i, 1 + j] = xi[n, i, 1 + j]
+    sym = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            sym[i, j] = 0.5 * (k_mat[i, j] + k_mat[j, i])
+    values, vec = jacobi_eigen(sym, m)
+    positive = 0
+    negative = 0
+    for i in range(m):
+        if values[i] > 0.0:
+            positive += 1
+        elif values[i] < 0.0:
+            negative += 1
+    if positive != 1 or negative != nx:
+        return FINAL_TIME_CURVATURE, 0.0
+    rhs = np.empty(m)
+    rhs[0] = -pc[0, nx, 0]
+    for i in range(nx):
+        rhs[1 + i] = -xi[n, i, 0]
+    sol = np.zeros(m)
+    res = rhs.copy()
+    for _ in range(4):      # the solve, then three refinements against K
+        for i in range(m):
+            acc = 0.0
+            for j in range(m):
+                acc += vec[j, i] * res[j]
+            acc /= values[i]
+            for j in range(m):
+                sol[j] += vec[j, i] * acc
+        for i in range(m):
+            acc = rhs[i]
+            for j in range(m):
+                acc -= k_mat[i, j] * sol[j]
+            res[i] = acc
+    for i in range(nx):
+        nu[i] = sol[1 + i]
+    return OK, sol[0]
 
 
 @njit(cache=True)
@@ -238,40 +384,27 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
                 pk[i, j] = s
                 pk[j, i] = s
     ptt = pp[0, nx, nx]
-    if not ptt > 0.0:
-        return FINAL_TIME_CURVATURE, 0.0
-    # Forward sweep, affine in nu: xi_k = Xi_k [1; nu], u_k = U_k [1; nu].
+    # Forward sweep, affine in nu: xi_k = Xi_k [1; nu], u_k = U_k [1; nu]; with dT eliminated
+    # when P_0(T, T) > 0, else with dT as one more direction (column 1 + nx).
+    eliminated = ptt > 0.0
     xi[0] = 0.0
-    for c in range(ncol):
-        xi[0, nx, c] = -pc[0, nx, c] / ptt
-    for k in range(n):
-        uk = uu[k]
-        uk[:] = ff[k]
-        gk = gain[k]
-        xk = xi[k]
-        for i in range(nu_):
-            for j in range(nxi):
-                s = gk[i, j]
-                for c in range(ncp):
-                    uk[i, c] += s * xk[j, c]
-        xn = xi[k + 1]
+    if eliminated:
+        for c in range(ncol):
+            xi[0, nx, c] = -pc[0, nx, c] / ptt
+    else:
+        xi[0, nx, ncol] = 1.0
+    _forward(a_mat, b_mat, c_vec, d_vec, gain, ff, xi, uu, n, nx, nu_, nxi, ncp)
+    if not eliminated:
+        code, d_t = _final_time_and_nu(pp, pc, xi, n, nx, nu)
+        if code != OK:
+            return code, 0.0
+        coef = np.zeros(ncol + 1)
+        coef[0] = 1.0
         for i in range(nx):
-            for c in range(ncp):
-                xn[i, c] = c_vec[k, i] * xk[nx, c]
-            for j in range(nx):
-                s = a_mat[k, i, j]
-                if s != 0.0:
-                    for c in range(ncp):
-                        xn[i, c] += s * xk[j, c]
-            for j in range(nu_):
-                s = b_mat[k, i, j]
-                if s != 0.0:
-                    for c in range(ncp):
-                        xn[i, c] += s * uk[j, c]
-            xn[i, 0] += d_vec[k, i]
-        for i in range(nx, nxp):
-            for c in range(ncp):
-                xn[i, c] = xk[i, c]
+            coef[1 + i] = nu[i]
+        coef[ncol] = d_t
+        _step_from(xi, uu, pp, pc, coef, ncol + 1, n, nx, nu_, d_t, dx, du, lam)
+        return OK, d_t
     # dx_N = Xi_N[:nx, 0] + M nu = 0, M = -(terminal Schur complement): negative definite.
     m_mat = np.empty((nx, nx))
     neg = np.empty((nx, nx))
@@ -306,6 +439,16 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
         for i in range(nx):
             nu[i] += rhs[i, 0]
             coef[1 + i] = nu[i]
+    d_t = 0.0
+    for c in range(ncol):
+        d_t += xi[0, nx, c] * coef[c]
+    _step_from(xi, uu, pp, pc, coef, ncol, n, nx, nu_, d_t, dx, du, lam)
+    return OK, d_t
+
+
+@njit(cache=True)
+def _step_from(xi, uu, pp, pc, coef, ncol, n, nx, nu_, d_t, dx, du, lam):
+    """dx, du and lam of the step: the forward sweep's columns [:ncol] combined by coef."""
     for k in range(n + 1):
         for i in range(nx):
             acc = 0.0
@@ -318,9 +461,6 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
                 for c in range(ncol):
                     acc += uu[k, i, c] * coef[c]
                 du[k, i] = acc
-    d_t = 0.0
-    for c in range(ncol):
-        d_t += xi[0, nx, c] * coef[c]
     # lam_k = P_k xi_k + p_k [1; nu] (x rows), k = 1..N.
     for k in range(1, n + 1):
         for i in range(nx):
@@ -332,4 +472,3 @@ def riccati_solve(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, rho,
             lam[k, i] = acc
     for i in range(nx):
         lam[0, i] = 0.0
-    return OK, d_t
