@@ -737,3 +737,22 @@ def test_a_long_horizon_whose_rollout_amplifies_the_defects_is_polished_to_solve
     assert result.status is Status.SOLVED, result.message
     assert 'defects polished' in result.message
     _independent_check('panda', result, sets['3 spheres'], start, goal)
+
+
+def test_ur10_past_a_sphere_does_not_stall_next_to_an_optimum():
+    # The Riccati step refused P_0(T, T) <= 0 as an inertia failure; the correction's damped
+    # steps then stalled every start next to its optimum (0.617280 s after 701 iterations;
+    # IPOPT's best 0.441460 s, 0.455011 s from fast mode's start).
+    from benchmarks.bench_arm_robots import MARGIN as UR10_MARGIN, ROBOTS, UR10_SPHERE, \
+        UR10_SPHERES
+    from toc_ros.core.arms.model import example_robot_data_dir
+    rel, joints, _ = ROBOTS['ur10']
+    arm = load_arm(f'urdf:{Path(example_robot_data_dir()) / rel}', joints=list(joints))
+    start, goal, sphere = UR10_SPHERE
+    problem = Problem(x0=start, x_goal=goal, model=ArmRobot(arm, load_spheres(
+        UR10_SPHERES, arm, self_collision=False)), obstacles=(sphere,), margin=UR10_MARGIN,
+        n_intervals=60)
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert result.final_time < 0.4551 and result.iterations < 400
+    assert result.violations.min_clearance >= -1e-6
