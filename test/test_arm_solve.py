@@ -119,7 +119,8 @@ def _dense_step(a, b, c, d, hxx, hux, huu, gx, gu, convex=None):
     return step[0], dx, du, sol[nvar:].reshape(n_int, nx)
 
 
-def test_riccati_step_matches_a_dense_kkt_solve():
+def _random_stage_qp():
+    """Return (a, b, c, d, hxx, hux, huu, gx, gu) of a random stage QP (6 intervals, nx 4)."""
     rng = np.random.default_rng(3)
     n_int, nx, nu = 6, 4, 2
     a = np.eye(nx)[None] + 0.1 * rng.normal(size=(n_int, nx, nx))
@@ -134,6 +135,12 @@ def test_riccati_step_matches_a_dense_kkt_solve():
     huu = np.array([np.eye(nu) * 2.0 for _ in range(n_int)])
     gx = rng.normal(size=(n_int, nx + 1))
     gu = rng.normal(size=(n_int, nu))
+    return a, b, c, d, hxx, hux, huu, gx, gu
+
+
+def test_riccati_step_matches_a_dense_kkt_solve():
+    a, b, c, d, hxx, hux, huu, gx, gu = _random_stage_qp()
+    n_int, nx, nu = b.shape
     work = (np.zeros((n_int + 1, nx + 1, nx + 1)), np.zeros((n_int + 1, nx + 1, 1 + nx)),
             np.zeros((n_int, nu, nx + 1)), np.zeros((n_int, nu, 1 + nx)),
             np.zeros((n_int + 1, nx + 1, 1 + nx)), np.zeros((n_int, nu, 1 + nx)))
@@ -155,20 +162,8 @@ def test_riccati_step_matches_a_dense_kkt_solve():
 def test_riccati_step_with_a_negative_final_time_curvature_is_solved_when_convex():
     # P_0(T, T) <= 0 at a point of a convex QP (velocity-limited arm motions): dT is solved
     # with the terminal multipliers, not refused; refused only when the QP is not convex.
-    rng = np.random.default_rng(3)
-    n_int, nx, nu = 6, 4, 2
-    a = np.eye(nx)[None] + 0.1 * rng.normal(size=(n_int, nx, nx))
-    b = rng.normal(size=(n_int, nx, nu))
-    c = 0.3 * rng.normal(size=(n_int, nx))
-    d = 0.1 * rng.normal(size=(n_int, nx))
-    hxx = np.zeros((n_int, nx + 1, nx + 1))
-    for k in range(n_int):
-        m = rng.normal(size=(nx + 1, nx + 1))
-        hxx[k] = m @ m.T + np.eye(nx + 1)
-    hux = 0.1 * rng.normal(size=(n_int, nu, nx + 1))
-    huu = np.array([np.eye(nu) * 2.0 for _ in range(n_int)])
-    gx = rng.normal(size=(n_int, nx + 1))
-    gu = rng.normal(size=(n_int, nu))
+    a, b, c, d, hxx, hux, huu, gx, gu = _random_stage_qp()
+    n_int, nx, nu = b.shape
     seen = set()
     for lowered in (0.0, 2.0, 5.0, 7.0, 10.0, 40.0):
         h = hxx.copy()
