@@ -290,3 +290,9 @@ def test_a_joint_named_like_a_link_is_locked():
         assert np.array_equal(arm.frame_position(q, 'tool'), same.frame_position(q, 'tool'))
     assert [f.name for f in arm.full_model.frames] == [
         f.name for f in load_arm(clash).full_model.frames]
+
+
+def test_the_settings_limit_keys_are_the_models():
+    from toc_ros import arm_config
+    from toc_ros.core.arms import urdf
+    assert arm_config.LIMIT_KEYS == urdf.LIMIT_KEYS

@@ -42,8 +42,6 @@ ARM_PREFIXES = ('urdf:',)
 # The keys of toc_ros.core.arms.model.NAMED_ARMS (a test keeps them equal), spelled out so that
 # toc-solve for the planar models does not import Pinocchio.
 ARM_NAMES = ('panda', 'ur5')
-# The tip link of pose goals when --tip (robot.tip_link on the node) is not given.
-DEFAULT_TIPS = {'panda': 'panda_hand', 'ur5': 'tool0'}
 
 
 def is_arm_model_name(name):
@@ -113,16 +111,6 @@ def build_parser():
     return p
 
 
-def tip_link(model_name, arm, link=None):
-    """Return the tip link: link, else the named arm's default, else the last joint's child."""
-    if link:
-        return link
-    if model_name in DEFAULT_TIPS:
-        return DEFAULT_TIPS[model_name]
-    last = arm.joint_names[-1]
-    return next(child for child, (_, joint, _) in arm.links.items() if joint == last)
-
-
 def robot_key(args):
     """Return the arguments that make the robot of load_robot (a cache key)."""
     return (args.model, args.joints, tuple(args.locked), tuple(args.limit),
@@ -131,20 +119,10 @@ def robot_key(args):
 
 def load_robot(args):
     """Return the ArmRobot (arm, collision spheres) of the arguments; ArmError if unusable."""
+    from toc_ros.arm_config import limit_overrides, locked_values
     from toc_ros.core.arms import load_arm, load_spheres
     from toc_ros.core.arms.arm_solve import ArmRobot
-    from toc_ros.core.arms.model import ArmError
-    locked = {}
-    for entry in args.locked:
-        name, sep, value = entry.partition('=')
-        if not sep or not name.strip():
-            raise ArmError(f'--locked takes NAME=VALUE, got {entry!r}')
-        try:
-            locked[name.strip()] = float(value)
-        except ValueError:
-            raise ArmError(f'--locked {entry!r}: {value!r} is not a number') from None
-    from toc_ros.arm_config import limit_overrides
-    arm = load_arm(args.model, joints=args.joints, locked=locked,
+    arm = load_arm(args.model, joints=args.joints, locked=locked_values(args.locked, '--locked'),
                    limits=limit_overrides(args.limit, '--limit') or None)
     if args.collision_spheres:
         return ArmRobot(arm, load_spheres(args.collision_spheres, arm), args.self_collision)
@@ -154,7 +132,7 @@ def load_robot(args):
 def goal_state(args, robot):
     """Return --goal, or the joint positions (at rest) that put the tip at --goal-pose."""
     from toc_ros.core.arms import solve_ik
-    from toc_ros.core.arms.model import ArmError
+    from toc_ros.core.arms.model import ArmError, tip_link
     if args.goal_pose is None:
         return tuple(args.goal)
     pose = list(args.goal_pose)

@@ -42,6 +42,8 @@ ARM_MODELS = ('panda', 'ur5', 'urdf')
 TOPIC_DESCRIPTION = 'robot_description.topic'
 SPHERES = 'obstacles.spheres'
 TOPIC_DEFAULTS = {TOPIC_DESCRIPTION: '', SPHERES: ()}
+# core.arms.urdf.LIMIT_KEYS, spelled out so that the settings do not import Pinocchio (a test
+# keeps them equal).
 LIMIT_KEYS = ('effort', 'velocity', 'lower', 'upper')
 # What replan.estimate can fit for URDF arms (the other inertials are the URDF's).
 ARM_ESTIMATES = ('payload_mass',)
@@ -128,12 +130,12 @@ def limit_overrides(entries, what='robot.joint_limits'):
     return limits
 
 
-def locked_values(entries):
-    """Return {joint: value} of robot.locked_joints entries 'JOINT=VALUE'."""
+def locked_values(entries, what='robot.locked_joints'):
+    """Return {joint: value} of entries 'JOINT=VALUE' (what: their name in errors)."""
     locked = {}
-    for joint, value in _entries(entries, 'robot.locked_joints', 'JOINT=VALUE'):
+    for joint, value in _entries(entries, what, 'JOINT=VALUE'):
         if joint in locked:
-            raise ProblemError(f'robot.locked_joints gives {joint} twice')
+            raise ProblemError(f'{what} gives {joint} twice')
         locked[joint] = value
     return locked
 

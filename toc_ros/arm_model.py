@@ -31,10 +31,10 @@ import numpy as np
 import pinocchio as pin
 
 from toc_ros import conversions
-from toc_ros.arm_cli import tip_link
 from toc_ros.core import SolverOptions
 from toc_ros.core.arms import ArmError, default_spheres, load_arm, load_spheres
 from toc_ros.core.arms.arm_solve import ArmRobot
+from toc_ros.core.arms.model import tip_link
 from toc_ros.core.arms.payload import with_payload
 from toc_ros.core.problem import Problem, ProblemError
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint

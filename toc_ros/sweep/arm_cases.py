@@ -137,10 +137,10 @@ class ArmCaseBuilder:
         if 'goal-pose' in self.base and len(self.base['goal-pose']) not in (3, 7):
             self._error('base.goal-pose takes [X, Y, Z] or [X, Y, Z, QX, QY, QZ, QW], got '
                         f'{len(self.base["goal-pose"])} values')
-        from toc_ros.core.arms.model import ArmError
+        from toc_ros.core.arms.model import ArmError, tip_link
         arm = self.robot.arm
         try:            # the tip link must exist even while no case gives a pose goal yet
-            arm.frame_id(arm_cli.tip_link(self.base['model'], arm, self.base.get('tip')))
+            arm.frame_id(tip_link(self.base['model'], arm, self.base.get('tip')))
         except ArmError as exc:
             self._error(f'base.tip: {exc}')
 
@@ -261,7 +261,7 @@ class ArmCaseBuilder:
         that do not validate, an unknown tip link, or duplicate cases.
         """
         from toc_ros.core import ProblemError
-        from toc_ros.core.arms.model import ArmError
+        from toc_ros.core.arms.model import ArmError, tip_link
         out, seen = [], {}
         arm = self.robot.arm
         for index, values in enumerate(self.sweep.cases()):
@@ -274,7 +274,7 @@ class ArmCaseBuilder:
             try:
                 arm_cli.solver_options(args).validate()
                 if args.goal_pose is not None:
-                    arm.frame_id(arm_cli.tip_link(args.model, arm, args.tip))
+                    arm.frame_id(tip_link(args.model, arm, args.tip))
             except (ProblemError, ArmError) as exc:
                 self._error(f'{where}: {exc}')
             case_id = case_hash(argv, {})
