@@ -118,12 +118,11 @@ class ArmViolations(Violations):
 
     def feasible(self):
         """Return True when within the SOLVED tolerances."""
-        return (super().feasible() and self.max_position_excess <= BOUND_TOL
-                and self.max_velocity_excess <= BOUND_TOL
-                and (not self.self_constrained or self.self_clearance >= -CLEARANCE_TOL))
+        return not self.exceeded()
 
     def exceeded(self):
         """Return 'name value > tolerance' of every measure outside its SOLVED tolerance."""
+        # (name, value, tolerance, a lower bound): NaN is outside every tolerance.
         checks = (('control excess', self.max_control_excess, 0.0, False),
                   ('terminal error', self.terminal_error, TERMINAL_TOL, False),
                   ('clearance', self.min_clearance, -CLEARANCE_TOL, True),
@@ -133,7 +132,7 @@ class ArmViolations(Violations):
                    else math.inf, -CLEARANCE_TOL, True))
         return [f'{name} {value:.3g} {"<" if below else ">"} {tol:.3g}'
                 for name, value, tol, below in checks
-                if (value < tol if below else value > tol)]
+                if not (value >= tol if below else value <= tol)]
 
     def as_dict(self):
         """Plain-float dict (JSON)."""
@@ -290,11 +289,12 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         # The open-loop integration amplified the defects left at convergence: take them down
         # to rounding (polish.py), and keep that when it meets every tolerance.
         x, v, t_f, before, after = polish(evaluator, run.x, run.v, run.t)
-        again = measure_arm(robot, x0, xg, v * robot.arm.effort[None, :], t_f, obstacles,
-                            problem.margin, problem.integrator)
+        torques = v * robot.arm.effort[None, :]
+        again = measure_arm(robot, x0, xg, torques, t_f, obstacles, problem.margin,
+                            problem.integrator)
         if after < before and again[1].feasible():
             run.x, run.v, run.t = x, v, t_f
-            controls = v * robot.arm.effort[None, :]
+            controls = torques
             states, violations = again
             polished = f'; defects polished from {before:.1e} to {after:.1e}'
     if converged and violations.feasible():

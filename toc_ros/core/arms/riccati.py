@@ -253,7 +253,13 @@ def _final_time_and_nu(pp, pc, xi, n, nx, nu):
         rhs[1 + i] = -xi[n, i, 0]
     sol = np.zeros(m)
     res = rhs.copy()
-    for _ in range(4):      # the solve, then three refinements against K
+    for step in range(4):   # the solve, then three refinements against K
+        if step:
+            for i in range(m):
+                acc = rhs[i]
+                for j in range(m):
+                    acc -= k_mat[i, j] * sol[j]
+                res[i] = acc
         for i in range(m):
             acc = 0.0
             for j in range(m):
@@ -261,11 +267,6 @@ def _final_time_and_nu(pp, pc, xi, n, nx, nu):
             acc /= values[i]
             for j in range(m):
                 sol[j] += vec[j, i] * acc
-        for i in range(m):
-            acc = rhs[i]
-            for j in range(m):
-                acc -= k_mat[i, j] * sol[j]
-            res[i] = acc
     for i in range(nx):
         nu[i] = sol[1 + i]
     return OK, sol[0]
