@@ -139,8 +139,11 @@ def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100
     that is less (the ends are fixed).  Repeated minimum-norm corrections at the worst node
     along its worst row's gradient, scaled by the node's sin(pi s) and at most max_step [rad]
     long; a joint whose offset reached the bound that keeps the path within its limits is held
-    there.  From zero offsets, then from restarts seeded random ones (0.5 rad); offsets
-    within distinct [rad] of one found before are not returned again.
+    there.  From zero offsets, then from the mirror image (-o) of each offset o found, then
+    from seeded random ones (0.5 rad), restarts in all; offsets within distinct [rad] of one
+    found before are not returned again.  The mirror image starts the corrections on the
+    other side of the obstacle, which the nearest corrections from zero or a small random
+    seed rarely reach (UR10 past a sphere: the other side is 3 % faster).
     """
     n = arm.n
     bend = np.sin(np.pi * np.linspace(0.0, 1.0, path.shape[0]))
@@ -150,6 +153,7 @@ def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100
     rng = np.random.default_rng(0)
     first = np.zeros(n)
     found = []
+    mirrored = 0
     for _ in range(restarts + 1):
         offsets = _corrected(evaluator, path, bend, low, high, target, first, iterations,
                              max_step)
@@ -158,7 +162,11 @@ def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100
             found.append(offsets)
             if len(found) == count:
                 break
-        first = np.clip(rng.normal(0.0, 0.5, n), low, high)
+        if mirrored < len(found):
+            first = np.clip(-found[mirrored], low, high)
+            mirrored += 1
+        else:
+            first = np.clip(rng.normal(0.0, 0.5, n), low, high)
     return found
 
 
