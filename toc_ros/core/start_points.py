@@ -71,6 +71,25 @@ def interpolation_states(problem, n, t_f=None):
     return states
 
 
+def mirror_starts(problem, states, t_f, joint_sets):
+    """
+    Return a start (states, controls, t_f) per set of joints: their folds in states mirrored.
+
+    A joint's fold is its deviation from the straight interpolation between the ends
+    (interpolation_states over the same t_f, so the ends' positions and velocities match);
+    mirroring negates it: the joint swings the other way with the same timing.
+    """
+    n = states.shape[0] - 1
+    straight = interpolation_states(problem, n, t_f)
+    starts = []
+    for joints in joint_sets:
+        columns = [c for j in joints for c in (2 * j, 2 * j + 1)]
+        mirrored = np.array(states[:, :straight.shape[1]], dtype=float)
+        mirrored[:, columns] = 2.0 * straight[:, columns] - mirrored[:, columns]
+        starts.append(start_along(problem, mirrored, t_f) + (t_f,))
+    return starts
+
+
 def bang_bang_time(distance, v0, v1, acceleration):
     """
     Return the least time [s] of a double integrator from velocity v0 to v1 over distance.
