@@ -34,7 +34,8 @@ import pytest
 
 from toc_ros.core import fast_solver, Problem, solve, SolverOptions, Status
 from toc_ros.core.models import load_model
-from toc_ros.core.start_points import bang_bang_time, fitted_final_time, joint_accelerations
+from toc_ros.core.start_points import bang_bang_time, fitted_final_time, \
+    interpolation_states, joint_accelerations, mirror_starts
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_FILE = ROOT / 'config' / 'models' / 'planar_3r.yaml'
@@ -113,9 +114,9 @@ def test_the_paper_scenario_keeps_its_single_start():
     assert result.final_time == pytest.approx(2.0672762627490937, rel=1e-13)
 
 
-def _casadi_states(problem, controls, t_f):
+def _casadi_states(problem, controls, t_f, params=None):
     from benchmarks import casadi_models as cm
-    f, _, u_max = cm.casadi_model(str(MODEL_FILE))
+    f, _, u_max = cm.casadi_model(str(MODEL_FILE), params)
     tau = t_f / controls.shape[0]
     states = [np.asarray(problem.x0, dtype=float)]
     for u in controls:
@@ -140,3 +141,67 @@ def test_three_link_cold_start_finds_the_direct_optimum():
     q = states[:, 0::2]
     assert np.all(q.max(axis=0) - q.min(axis=0) < 2.0 * math.pi), q.max(axis=0) - q.min(axis=0)
     assert np.all(np.abs(q[:, 1:]) <= math.pi), np.abs(q[:, 1:]).max(axis=0)
+
+
+def test_mirror_starts_negate_the_folds_about_the_straight_interpolation():
+    problem = _three_link_problem()
+    t_f = 0.6
+    straight = interpolation_states(problem, 40, t_f)
+    rng = np.random.default_rng(3)
+    bump = np.sin(np.linspace(0.0, math.pi, 41))[:, None] ** 2 * rng.uniform(-1, 1, (1, 6))
+    folded = straight + bump
+    (same, _, t_same), (mirrored, controls, t_mirrored) = mirror_starts(
+        problem, straight, t_f, [(1, 2)])[0], mirror_starts(problem, folded, t_f, [(1, 2)])[0]
+    np.testing.assert_array_equal(same, straight)     # no fold: nothing to mirror
+    assert t_same == t_mirrored == t_f and controls.shape == (40, 3)
+    # Joints 1 and 2 (columns 2-5) swing the other way; joint 0 and the ends are untouched.
+    np.testing.assert_allclose(mirrored[:, 2:], straight[:, 2:] - bump[:, 2:], atol=1e-12)
+    np.testing.assert_array_equal(mirrored[:, :2], folded[:, :2])
+    np.testing.assert_allclose(mirrored[[0, -1]], folded[[0, -1]], atol=1e-12)
+    twice = mirror_starts(problem, mirrored, t_f, [(1, 2)])[0][0]
+    np.testing.assert_allclose(twice, folded, atol=1e-12)
+
+
+def _segment_distances(segments, centre):
+    """Distance from centre (2,) to each segment (L, 4) = (x1, y1, x2, y2), in numpy."""
+    a, b = segments[:, :2], segments[:, 2:]
+    d = b - a
+    s = np.clip(np.einsum('ij,ij->i', centre - a, d) / np.einsum('ij,ij->i', d, d), 0.0, 1.0)
+    return np.linalg.norm(a + s[:, None] * d - centre, axis=1)
+
+
+@pytest.mark.slow
+def test_three_link_arm_under_gravity_folds_the_other_way_past_two_circles(monkeypatch):
+    # Issue 23's miss (bench_cold_start.py's suite, seed 11, '3R g=9.81 2 circles #0'): the
+    # straight and fitted starts end with the elbow folding down (0.573843 s); IPOPT's best,
+    # 0.556105 s (from the interpolation start over 1.2 x the fitted time), folds it up and
+    # whips the wrist.  The mirror image of fast mode's first optimum starts that basin.
+    pytest.importorskip('casadi')
+    from benchmarks import casadi_models as cm
+    model = load_model(str(MODEL_FILE), g=9.81)
+    q0 = np.array([2.3605960486268645, -0.3861855157864307, -1.2271124048521647])
+    qg = np.array([3.933913477261874, -0.2148821924018005, 1.0560871236436666])
+    circles = ((-1.5809350149534824, 0.9170275547937914, 0.1413750148421464),
+               (-1.7461766042005946, -0.32420072348776213, 0.11341290751279201))
+    problem = Problem(model=model, x0=tuple(float(v) for v in model.state(q0)),
+                      x_goal=tuple(float(v) for v in model.state(qg)), obstacles=circles,
+                      n_intervals=200)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    assert result.final_time <= 0.556105 * (1.0 + 1e-6), result.final_time
+    controls = np.asarray(result.controls)
+    states, u_max = _casadi_states(problem, controls, result.final_time, {'g': 9.81})
+    assert np.all(np.abs(controls) <= u_max[None, :])
+    assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= 1e-6
+    _, segments, _ = cm.casadi_model(str(MODEL_FILE), {'g': 9.81})
+    for x in states:
+        links = np.asarray(segments(x[0::2])).reshape(-1, 4)
+        for cx, cy, radius in circles:
+            assert np.min(_segment_distances(links, np.array([cx, cy]))) >= radius - 1e-6
+    # The wrist swings 5.2 rad back before it turns 7.5 rad up to the goal (IPOPT's best does
+    # the same): beyond its direct motion by less than a revolution.
+    q = states[:, 0::2]
+    assert np.all(q.max(axis=0) - q.min(axis=0) - np.abs(qg - q0) < 2.0 * math.pi)
+    monkeypatch.setattr(fast_solver, 'MIRROR_STARTS', 0)
+    without = solve(problem, SolverOptions(mode='fast'))
+    assert without.final_time > 1.02 * result.final_time, without.final_time

@@ -22,8 +22,8 @@ grid (from 1.5 times the slowest joint's distance over its velocity limit) whose
 and torques stay within the limits.  The CasADi reference (toc_ros/bench/arm_reference.py)
 builds its line start by the same recipe, so both start from the same point.
 
-The straight path may pass through an obstacle, and the interior point does not find its way
-out of a start inside one (it has no restoration phase): such a path is bent,
+The straight path may pass through an obstacle, and the interior point (no restoration phase)
+often does not find its way out of a start inside one: such a path is bent,
 path + offsets * sin(pi s), with offsets found by corrections of the worst clearance
 (detour_offsets), for the line and for any other path (arm_solve.py bends the free optimum).
 """
