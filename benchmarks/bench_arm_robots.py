@@ -19,12 +19,17 @@ For each robot, --count random rest-to-rest motions (every joint from a random s
 its limits, capped to +-pi, by a uniform offset of at most 1 rad, both 0.1 rad inside the
 limits; seeded by the robot's name), Euler, --N intervals, no obstacles; and the UR10 past one
 sphere with the hand-placed four-sphere set of benchmarks/data/arm_spheres_ur10_wrist.yaml.
+With --past-sphere K, for the robots with a rough sphere set (benchmarks/data/
+arm_spheres_<robot>_rough.yaml: xArm7, UR3, Kinova, Z1) also K motions drawn alike (their own
+seed) past one obstacle sphere of radius 0.08 m at the last sphere link's position halfway
+along the straight joint path (the line start collides), start and goal at least 3 cm clear.
 Grippers are locked at 0.  Fast mode (Python API, cold, timed after a warm-up solve) against
 IPOPT (toc_ros/bench/arm_reference.py, the same discretisation) from the straight-line start
 and from fast mode's solution, its best converged t_f the reference; every result re-checked
 independently (toc_ros/bench/arm_check.py, Pinocchio's own URDF parser).
 
     python benchmarks/bench_arm_robots.py [--count 3] [--N 60] [--robots ur10 ...]
+                                          [--past-sphere 4]
 """
 
 import argparse
@@ -43,7 +48,7 @@ from toc_ros.bench.arm_check import check_trajectory  # noqa: E402, I100
 from toc_ros.bench.arm_problem import ArmProblem, ArmSpec  # noqa: E402
 from toc_ros.bench.arm_reference import ArmTranscription  # noqa: E402
 from toc_ros.core import Problem, solve, Status  # noqa: E402
-from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
+from toc_ros.core.arms import load_arm, load_spheres, sphere_centres  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
 from toc_ros.core.arms.model import example_robot_data_dir  # noqa: E402
 
@@ -67,6 +72,9 @@ UR10_SPHERE = ((2.6021, -0.6977, 1.6416, 1.0277, 1.9161, 0.873),
                (2.5222, 0.1167, 1.6854, 1.0052, 1.6318, 0.3537), (-0.62, 0.22, -0.2, 0.15))
 UR10_SPHERES = os.path.join(HERE, 'data', 'arm_spheres_ur10_wrist.yaml')
 MARGIN = 0.02
+ROUGH_SPHERES = {name: os.path.join(HERE, 'data', f'arm_spheres_{name}_rough.yaml')
+                 for name in ('xarm7', 'ur3', 'kinova', 'z1')}
+PAST_RADIUS = 0.08
 
 
 def draw(arm, count, rng):
@@ -78,6 +86,24 @@ def draw(arm, count, rng):
         start = np.round(rng.uniform(low, high), 4)
         goal = np.round(np.clip(start + rng.uniform(-1.0, 1.0, arm.n), low, high), 4)
         cases.append((tuple(start), tuple(goal)))
+    return cases
+
+
+def draw_past_sphere(arm, spheres, count, rng, max_draws=100):
+    """[(start, goal, obstacle)]: draw()'s motions past a sphere at the tip's midpoint."""
+    tip = spheres.links[-1]
+    cases = []
+    for _ in range(max_draws):
+        if len(cases) == count:
+            break
+        (start, goal), = draw(arm, 1, rng)
+        middle = arm.frame_position(0.5 * (np.array(start) + np.array(goal)), tip)
+        obstacle = (*np.round(middle, 4).tolist(), PAST_RADIUS)
+        clear = min(float(np.min(np.linalg.norm(sphere_centres(arm, spheres, np.array(q))
+                                                - middle, axis=1) - spheres.radii))
+                    for q in (start, goal)) - PAST_RADIUS
+        if clear > MARGIN + 0.01:
+            cases.append((start, goal, obstacle))
     return cases
 
 
@@ -139,6 +165,8 @@ def main(argv=None):
     parser.add_argument('--robots', nargs='+', default=list(ROBOTS), choices=list(ROBOTS))
     parser.add_argument('--count', type=int, default=3)
     parser.add_argument('--N', type=int, default=60)
+    parser.add_argument('--past-sphere', type=int, default=0, metavar='K',
+                        help='K motions past a sphere per robot with a rough sphere set')
     args = parser.parse_args(argv)
     robots = example_robot_data_dir()
     rows = []
@@ -155,6 +183,14 @@ def main(argv=None):
             rows.append(run_case('ur10, 1 sphere', urdf, joints, locked, start, goal, args.N,
                                  UR10_SPHERES, (sphere,)))
             print(table(rows[-1:]).splitlines()[2], flush=True)
+        if args.past_sphere and name in ROUGH_SPHERES:
+            spheres = load_spheres(ROUGH_SPHERES[name], arm, self_collision=False)
+            rng = np.random.default_rng(1000 + sum(map(ord, name)))
+            for i, (start, goal, obstacle) in enumerate(
+                    draw_past_sphere(arm, spheres, args.past_sphere, rng)):
+                rows.append(run_case(f'{name} past a sphere #{i}', urdf, joints, locked, start,
+                                     goal, args.N, ROUGH_SPHERES[name], (obstacle,)))
+                print(table(rows[-1:]).splitlines()[2], flush=True)
     print()
     print(table(rows))
 

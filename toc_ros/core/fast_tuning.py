@@ -82,7 +82,7 @@ FIT_BAND = 3.0
 # Mirror-image starts of a model with three or more joints (fast_solver._mirror_attempts):
 # how many, and their (elastic weight, barrier parameter).  One: on the cold-start suite the
 # mirror of all distal joints found both better optima (3.2 % and 0.8 %), the single-joint
-# ones after it nothing more, at 2.5 times the iterations.  The mirrored trajectory is close
+# ones after it nothing more, at 2.5 times the extra iterations.  The mirrored trajectory is close
 # to the other fold's optimum in a narrow basin: from it, mu = 0.01 (the cold attempts')
 # leaves the basin, 1e-6 to 1e-4 stay (benchmarks/RESULTS.md, issue 23's 3R miss).
 MIRROR_STARTS = 1
