@@ -72,6 +72,7 @@ from toc_ros import config, harness  # noqa: E402
 from toc_ros.demo.closed_loop import (  # noqa: E402
     ESTIMATED, MISMATCH, MOVING, MOVING_MARGIN, MOVING_OBSTACLES, NOMINAL_PLANT, PAPER_GOAL_Q,
     PAPER_OBSTACLES, run_execution, true_reference, TRUE_ROBOT)
+from toc_ros.nodes.parameters import SolverNodeSettings  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
 
@@ -196,9 +197,8 @@ def main(argv=None):
                         help='solver.integrator (rk4: the plan is what the plant does under '
                         'its piecewise-constant controls)')
     parser.add_argument('--rate', type=float, default=20.0)
-    parser.add_argument('--max-nodes', type=int, default=150,
-                        help="solver_node's replan.max_nodes (RK4 cycles: 150 keeps the median "
-                        'latency near 10 ms at 20 Hz; the node default is 300)')
+    parser.add_argument('--max-nodes', type=int, default=SolverNodeSettings().replan_max_nodes,
+                        help="solver_node's replan.max_nodes (default: the node's)")
     parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS),
                         choices=list(SCENARIOS))
     parser.add_argument('--configs', nargs='+', type=_config, metavar='CONFIG',

@@ -66,8 +66,8 @@ SCENARIOS = {'cylindrical': ('toc_ros.yaml', STAGES, True),
 CLOSED_LOOP_RUNS = (('open loop', 0.0, ()), ('replanning', 20.0, ()),
                     ('replanning + estimation', 20.0, closed_loop.ESTIMATED))
 CLOSED_LOOP_INTEGRATOR = 'rk4'
-# replan.max_nodes: bounds an RK4 cycle's cost at 20 Hz; 75 rather than the node's default 150
-# halves it, so that fewer cycles miss their deadline when the machine is loaded (their
+# replan.max_nodes: bounds an RK4 cycle's cost at 20 Hz; 75 rather than the node's default 100
+# cuts it by a quarter, so that fewer cycles miss their deadline when the machine is loaded (their
 # 27 ms steps cost the replanned arrival nothing measurable: replanning corrects them).
 CLOSED_LOOP_MAX_NODES = 75
 

@@ -79,7 +79,7 @@ class SolverNodeSettings:
         'correct a model mismatch from the measurement)',
         unit='rad or m', low=-1.0, high=1e3, ros_name='replan.stitch')
     replan_max_nodes: int = setting(
-        150, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
+        100, 'largest N of a replan cycle: the rest of the executing plan is resampled to at '
         'most this many intervals (fewer intervals, faster cycles)', low=20, high=100000,
         ros_name='replan.max_nodes')
     replan_integrator: str = setting(
