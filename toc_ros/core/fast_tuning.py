@@ -80,10 +80,11 @@ NARROW_MARGIN = 0.05
 FIT_FACTORS = (1.0, 2.0)
 FIT_BAND = 3.0
 # Mirror-image starts of a model with three or more joints (fast_solver._mirror_attempts):
-# how many, and their (elastic weight, barrier parameter).  One: on the cold-start suite the
-# mirror of all distal joints found both better optima (3.2 % and 0.8 %), the single-joint
-# ones after it nothing more, at 2.5 times the extra iterations.  The mirrored trajectory is close
+# how many, and their (elastic weight, barrier parameter).  Three (all distal joints, then
+# each alone from the wrist): on 18 random free moves of planar_3r the single-joint mirrors
+# recovered 3 of the 4 optima that the first one missed (+2.1-5.9 % -> within 0.01 %), at
+# ~100-180 more iterations per solve.  The mirrored trajectory is close
 # to the other fold's optimum in a narrow basin: from it, mu = 0.01 (the cold attempts')
 # leaves the basin, 1e-6 to 1e-4 stay (benchmarks/RESULTS.md, issue 23's 3R miss).
-MIRROR_STARTS = 1
+MIRROR_STARTS = 3
 MIRROR_ATTEMPT = (ELASTIC_WEIGHT, 1e-4)
