@@ -231,12 +231,10 @@ class FastSolve(ClassStarts, RunExecution):
         joints = problem.robot_model.n_joints
         if joints < 3 or not found:
             return
-        timeout = self.options.timeout
         source = min(found, key=lambda run: run.t_f)
         sets = [tuple(range(1, joints))] + [(j,) for j in range(joints - 1, 0, -1)]
         for start in mirror_starts(problem, source.ws.x, source.t_f, sets[:MIRROR_STARTS]):
-            if self.done >= 3 * self.limit // 4 or (
-                    timeout is not None and self.clock.elapsed() >= EXPLORE_TIME * timeout):
+            if self.done >= 3 * self.limit // 4 or not self._within_explore_time():
                 return
             self._attempt(grid, n, start, MIRROR_ATTEMPT, found)
 
@@ -471,6 +469,10 @@ class FastSolve(ClassStarts, RunExecution):
         """Return whether a further cold attempt may start (obstacles, budget and time)."""
         if not len(self.problem.obstacles) or self.done >= self.limit // 2:
             return False
+        return self._within_explore_time()
+
+    def _within_explore_time(self):
+        """Return whether, with a timeout, less than EXPLORE_TIME of it has passed."""
         timeout = self.options.timeout
         return timeout is None or self.clock.elapsed() < EXPLORE_TIME * timeout
 
