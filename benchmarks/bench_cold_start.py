@@ -16,14 +16,16 @@
 Fast mode's cold start against a multi-started IPOPT on random free and one-circle problems.
 
     PYTHONPATH=. python benchmarks/bench_cold_start.py [--seed 7] [--count 4] [--N 300]
-        [--circles 0 1 2] [--upward 3] [--no-timing] [--markdown FILE] [--json FILE]
+        [--circles 0 1 2] [--models 2R 3R] [--gravity 0 9.81] [--shoulder 0.8 2.5]
+        [--upward 3] [--no-timing] [--markdown FILE] [--json FILE]
 
 The suite (seeded): planar_2r (built-in) and the three-link arm of config/models/planar_3r.yaml,
 each without gravity and with g = 9.81 m/s^2, each with each of --circles circles (0, 1, 2),
---count random rest-to-rest scenarios per combination: the shoulder turns 0.8-2.5 rad either
-way, the other joints start and end anywhere in [-1.5, 1.5] rad; the circles (radius 0.1-0.2 m
-before the margin) sit near the hand's path (draw), and scenarios whose start or goal the
-core refuses are redrawn.  Explicit Euler, N intervals, t_f0 left at the Problem's default.
+--count random rest-to-rest scenarios per combination (--models, --gravity select): the
+shoulder turns 0.8-2.5 rad (--shoulder) either way, the other joints start and end anywhere
+in [-1.5, 1.5] rad; the circles (radius 0.1-0.2 m before the margin) sit near the hand's
+path (draw), and scenarios whose start or goal the core refuses are redrawn.  Explicit
+Euler, N intervals, t_f0 left at the Problem's default.
 
 Per scenario:
 
@@ -32,8 +34,8 @@ Per scenario:
   controls (measure_violations);
 * IPOPT (benchmarks/reference_solvers.py, the same discretisation) from the interpolation start
   over each t_f0 of IPOPT_STARTS (multiples of the fitted bang-bang time, and the problem's
-  t_f0) and from fast mode's solution (a check of its local optimality); the best feasible t_f
-  of these runs is the reference;
+  t_f0) and from fast mode's solutions, with and without the fitted starts (a check of their
+  local optimality); the best feasible t_f of these runs is the reference;
 * which start gave IPOPT's best, the gaps to it, and whether the result's joints span more
   than a turn beyond the direct motion.
 
@@ -74,13 +76,14 @@ def hand_path(model, q):
     return model.link_segments(q)[:, -1, 2:4]
 
 
-def draw(rng, model, g, circles, n, upward=False):
+def draw(rng, model, g, circles, n, upward=False, shoulder=(0.8, 2.5)):
     """
     Draw one valid rest-to-rest scenario of model with `circles` circles (0, 1 or 2).
 
     The circles sit near the hand's straight joint-space path at its middle (one) or at a
     third and two thirds of it (two).  upward: the shoulder starts in [-1.2, 0.2] rad and
-    rises by 0.8-1.8 rad (against gravity along -y).
+    rises by 0.8-1.8 rad (against gravity along -y); otherwise it turns by shoulder (low,
+    high) [rad] either way.
     """
     joints = model.n_joints
     while True:
@@ -92,7 +95,7 @@ def draw(rng, model, g, circles, n, upward=False):
         else:
             q0 = np.concatenate([[rng.uniform(-math.pi, math.pi)],
                                  rng.uniform(-1.5, 1.5, joints - 1)])
-            qg = np.concatenate([[q0[0] + rng.choice([-1.0, 1.0]) * rng.uniform(0.8, 2.5)],
+            qg = np.concatenate([[q0[0] + rng.choice([-1.0, 1.0]) * rng.uniform(*shoulder)],
                                  rng.uniform(-1.5, 1.5, joints - 1)])
         obstacles = []
         for k in range(circles):
@@ -121,18 +124,19 @@ def upward_fixed(n):
                    obstacles=(circle,), n_intervals=n)
 
 
-def suite(seed, count, n, circle_counts=(0, 1), upward=0):
+def suite(seed, count, n, circle_counts=(0, 1), upward=0, models=tuple(MODELS),
+          gravity=(0.0, 9.81), shoulder=(0.8, 2.5)):
     """Return [(label, problem)] of the random cases and of `upward` vertical 2R ones."""
     rng = np.random.default_rng(seed)
     cases = []
     names = {0: 'free', 1: '1 circle', 2: '2 circles'}
-    for name, source in MODELS.items():
-        for g in (0.0, 9.81):
-            model = load_model(source, g=g)
+    for name in models:
+        for g in gravity:
+            model = load_model(MODELS[name], g=g)
             for circles in circle_counts:
                 for k in range(count):
                     label = f'{name} g={g:g} {names[circles]} #{k}'
-                    cases.append((label, draw(rng, model, g, circles, n)))
+                    cases.append((label, draw(rng, model, g, circles, n, shoulder=shoulder)))
     if upward:
         cases.append(('2R g=9.81 upward 1 circle (bench_planar_2r)', upward_fixed(n)))
         model = load_model('planar_2r', g=9.81)
@@ -174,8 +178,13 @@ def fast(problem, fitted=True):
             'controls': result.controls, 'states': result.states}
 
 
-def ipopt(problem, fast_row):
-    """Return {start label: (t_f or nan)} of IPOPT's runs (nan: failed or infeasible)."""
+def ipopt(problem, fast_row, single_row=None):
+    """
+    Return {start label: (t_f or nan)} of IPOPT's runs (nan: failed or infeasible).
+
+    Besides its interpolation starts, IPOPT starts from fast mode's solution and from the
+    single-start variant's (a local optimum either found is then the reference's too).
+    """
     reference = Reference(problem, 'ipopt')
     fitted = fitted_final_time(problem) or float(problem.t_f0)
     starts = {}
@@ -185,9 +194,12 @@ def ipopt(problem, fast_row):
         starts[label] = interpolation_start(problem, problem.n_intervals, t_f)
     if fast_row['controls'] is not None:
         starts['fast solution'] = (fast_row['states'], fast_row['controls'], fast_row['t_f'])
+    if single_row is not None and single_row['controls'] is not None:
+        starts['single-start solution'] = (single_row['states'], single_row['controls'],
+                                           single_row['t_f'])
     out = {}
     for label, guess in starts.items():
-        run = reference.solve(guess, warm=label == 'fast solution')
+        run = reference.solve(guess, warm=label.endswith('solution'))
         out[label] = run['t_f'] if run['success'] and run['feasible'] else math.nan
     return out
 
@@ -198,15 +210,19 @@ def gap(t_f, best):
         else math.nan
 
 
-def run_suite(seed, count, n, circle_counts=(0, 1), upward=0, only=None):
-    """Solve every scenario of the suite (only: those whose label contains it); return rows."""
+def run_suite(seed, count, n, circle_counts=(0, 1), upward=0, only=None, **draws):
+    """
+    Solve every scenario of the suite (only: those whose label contains it); return rows.
+
+    draws: suite's models, gravity and shoulder.
+    """
     rows = []
-    for label, problem in suite(seed, count, n, circle_counts, upward):
+    for label, problem in suite(seed, count, n, circle_counts, upward, **draws):
         if only and only not in label:
             continue
         new = fast(problem)
         old = fast(problem, fitted=False)
-        runs = ipopt(problem, new)
+        runs = ipopt(problem, new, old)
         best_label = min((k for k in runs if math.isfinite(runs[k])), key=lambda k: runs[k],
                          default=None)
         best = runs[best_label] if best_label else math.nan
@@ -303,6 +319,11 @@ def main(argv=None):
     parser.add_argument('--repeat', type=int, default=5, help='timed solves per timing case')
     parser.add_argument('--circles', type=int, nargs='+', default=[0, 1], choices=(0, 1, 2),
                         help='circle counts of the suite')
+    parser.add_argument('--models', nargs='+', default=list(MODELS), choices=tuple(MODELS))
+    parser.add_argument('--gravity', type=float, nargs='+', default=[0.0, 9.81],
+                        help='g [m/s^2] of the suite (each)')
+    parser.add_argument('--shoulder', type=float, nargs=2, default=[0.8, 2.5],
+                        metavar=('LOW', 'HIGH'), help='range of the shoulder\'s turn [rad]')
     parser.add_argument('--upward', type=int, default=0,
                         help='vertical-plane 2R cases (g = 9.81, the shoulder rising, one '
                         'circle): the one of bench_planar_2r and upward - 1 random ones')
@@ -314,7 +335,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     warm_up()
     rows = run_suite(args.seed, args.count, args.N, tuple(args.circles), args.upward,
-                     args.only)
+                     args.only, models=tuple(args.models), gravity=tuple(args.gravity),
+                     shoulder=tuple(args.shoulder))
     timing = [] if args.no_timing else paper_timing(args.repeat)
     text = markdown(rows, timing, args.seed, args.count, args.N)
     print(text)

@@ -35,7 +35,7 @@ import pytest
 from toc_ros.core import fast_solver, Problem, solve, SolverOptions, Status
 from toc_ros.core.models import load_model
 from toc_ros.core.start_points import bang_bang_time, fitted_final_time, \
-    interpolation_states, joint_accelerations, mirror_starts
+    interpolation_states, joint_accelerations, fold_starts
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_FILE = ROOT / 'config' / 'models' / 'planar_3r.yaml'
@@ -45,7 +45,7 @@ QG = np.array([math.radians(135.0), 0.5, -0.3])
 # over t_f0 (0.6053 s from 1.2 x, 0.571636 s from the others).  The single start over t_f0
 # alone gave 1.3641 s, the wrist spanning 20 rad.
 # IPOPT (benchmarks/reference_solvers.py) started from fast mode's solution, which folds the
-# elbow flat (the mirror-image start, fast_solver._mirror_attempts); IPOPT's multi-start from
+# elbow flat (the mirror-image start, fast_solver._fold_attempts); IPOPT's multi-start from
 # the interpolation starts had found 0.5716361806682665 s at best.
 BEST_3R = 0.5536195612224625
 GAP = 1e-3
@@ -143,23 +143,56 @@ def test_three_link_cold_start_finds_the_direct_optimum():
     assert np.all(np.abs(q[:, 1:]) <= math.pi), np.abs(q[:, 1:]).max(axis=0)
 
 
-def test_mirror_starts_negate_the_folds_about_the_straight_interpolation():
+def test_fold_starts_scale_the_folds_about_the_straight_interpolation():
     problem = _three_link_problem()
     t_f = 0.6
     straight = interpolation_states(problem, 40, t_f)
     rng = np.random.default_rng(3)
     bump = np.sin(np.linspace(0.0, math.pi, 41))[:, None] ** 2 * rng.uniform(-1, 1, (1, 6))
     folded = straight + bump
-    (same, _, t_same), (mirrored, controls, t_mirrored) = mirror_starts(
-        problem, straight, t_f, [(1, 2)])[0], mirror_starts(problem, folded, t_f, [(1, 2)])[0]
+    (same, _, t_same), (mirrored, controls, t_mirrored) = fold_starts(
+        problem, straight, t_f, [((1, 2), -1.0)])[0], fold_starts(
+        problem, folded, t_f, [((1, 2), -1.0)])[0]
     np.testing.assert_array_equal(same, straight)     # no fold: nothing to mirror
     assert t_same == t_mirrored == t_f and controls.shape == (40, 3)
     # Joints 1 and 2 (columns 2-5) swing the other way; joint 0 and the ends are untouched.
     np.testing.assert_allclose(mirrored[:, 2:], straight[:, 2:] - bump[:, 2:], atol=1e-12)
     np.testing.assert_array_equal(mirrored[:, :2], folded[:, :2])
     np.testing.assert_allclose(mirrored[[0, -1]], folded[[0, -1]], atol=1e-12)
-    twice = mirror_starts(problem, mirrored, t_f, [(1, 2)])[0][0]
+    twice = fold_starts(problem, mirrored, t_f, [((1, 2), -1.0)])[0][0]
     np.testing.assert_allclose(twice, folded, atol=1e-12)
+    # Doubling the wrist's fold (columns 4-5) alone: twice its deviation, the rest as given.
+    doubled = fold_starts(problem, folded, t_f, [((2,), 2.0)])[0][0]
+    np.testing.assert_allclose(doubled[:, 4:], straight[:, 4:] + 2.0 * bump[:, 4:], atol=1e-12)
+    np.testing.assert_array_equal(doubled[:, :4], folded[:, :4])
+
+
+def test_three_link_wrist_whipping_a_turn_further_is_found(monkeypatch):
+    # bench_cold_start.py --models 3R --circles 0 --shoulder 1.57 2.62 --count 8 --seed 21,
+    # '3R g=0 free #6': every interpolation start and mirror image ends at 0.569558 s; IPOPT's
+    # best, 0.559160 s (from the interpolation start over 2 x the fitted time), whips the wrist
+    # 6.6 rad out and back where fast mode's first optimum whips it 3.4 rad.  The first
+    # optimum's wrist fold doubled starts that basin.
+    pytest.importorskip('casadi')
+    model = load_model(str(MODEL_FILE))
+    q0 = np.array([-1.4065788024392554, -1.4573453433089454, -0.9220980990701645])
+    qg = np.array([0.9107135834227302, 0.2407785151645907, -0.2951148881375256])
+    problem = Problem(model=model, x0=tuple(float(v) for v in model.state(q0)),
+                      x_goal=tuple(float(v) for v in model.state(qg)), obstacles=(),
+                      n_intervals=300)
+    result = solve(problem, SolverOptions(mode='fast'))
+    assert result.status is Status.SOLVED, result.message
+    assert result.final_time <= 0.559160 * (1.0 + 1e-6), result.final_time
+    controls = np.asarray(result.controls)
+    states, u_max = _casadi_states(problem, controls, result.final_time)
+    assert np.all(np.abs(controls) <= u_max[None, :])
+    assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= 1e-6
+    wrist = states[:, 4]
+    assert np.ptp(wrist) - abs(qg[2] - q0[2]) > 2.0 * math.pi       # the whip of a turn more
+    # The mirror images alone (no doubled wrist) stay in the first optimum's family.
+    monkeypatch.setattr(fast_solver, 'FOLD_STARTS', 2)
+    without = solve(problem, SolverOptions(mode='fast'))
+    assert without.final_time > 1.01 * result.final_time, without.final_time
 
 
 def _segment_distances(segments, centre):
@@ -202,6 +235,6 @@ def test_three_link_arm_under_gravity_folds_the_other_way_past_two_circles(monke
     # the same): beyond its direct motion by less than a revolution.
     q = states[:, 0::2]
     assert np.all(q.max(axis=0) - q.min(axis=0) - np.abs(qg - q0) < 2.0 * math.pi)
-    monkeypatch.setattr(fast_solver, 'MIRROR_STARTS', 0)
+    monkeypatch.setattr(fast_solver, 'FOLD_STARTS', 0)
     without = solve(problem, SolverOptions(mode='fast'))
     assert without.final_time > 1.02 * result.final_time, without.final_time

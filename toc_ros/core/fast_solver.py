@@ -45,7 +45,7 @@ import numpy as np
 from . import homotopy, ipm
 from .class_starts import ClassStarts, relaxation
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
-    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, MAX_REFINE, MIRROR_ATTEMPT, MIRROR_STARTS, \
+    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, MAX_REFINE, FOLD_ATTEMPT, FOLD_SOURCES, FOLD_STARTS, \
     MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, REFINE_BAND, WARM_BUDGET, WARM_EXACT, \
     WARM_PUSH
 from .ip_run import BOUND_PUSH, Stop
@@ -53,7 +53,7 @@ from .ipm_workspace import H_DELTA
 from .result import SolveResult, Status
 from .run_execution import RunExecution
 from .start_points import actuator_states, fitted_final_time, has_actuators, \
-    interpolation_start, interpolation_states, ladder, mirror_starts, resample, resample_duals, \
+    interpolation_start, interpolation_states, ladder, fold_starts, resample, resample_duals, \
     start_along, warm_start_point
 
 CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITERATIONS,
@@ -192,7 +192,7 @@ class FastSolve(ClassStarts, RunExecution):
                 if self.done < self.limit // 2:
                     self._attempt(grid, n, interpolation_start(problem, grid, t_f),
                                   COLD_ATTEMPTS[0], found)
-            self._mirror_attempts(grid, n, found)
+            self._fold_attempts(grid, n, found)
         if grid == n and found:
             # Ties (the same optimum from several starts, within 1e-6): the first attempt.
             shortest = min(run.t_f for run in found)
@@ -213,30 +213,38 @@ class FastSolve(ClassStarts, RunExecution):
                 return run, code
         return first
 
-    def _mirror_attempts(self, grid, n, found):
+    def _fold_attempts(self, grid, n, found):
         """
-        Attempt the mirror images of the shortest converged attempt's folds (3+ joints).
+        Attempt other folds of the shortest converged attempt's distal links (3+ joints).
 
         Optima of a free or obstructed motion of three or more links differ by which way the
-        distal links fold (issue 23: elbow down or up under gravity, 3.2 % apart), and the
-        other fold is a narrow basin that none of the interpolation starts reaches.  The
-        found optimum with its distal joints' deviations from the straight interpolation
-        negated (mirror_starts, the same timing) starts it: all distal joints first, then
-        each alone from the last, at most MIRROR_STARTS, on the attempts' grid with
-        MIRROR_ATTEMPT (a small barrier parameter: the start is a trajectory, not a guess).
-        Within three quarters of the iteration budget and, with a timeout, within
-        EXPLORE_TIME of it.
+        distal links fold (issue 23: elbow down or up under gravity, 3.2 % apart) and by how
+        far the wrist whips, and the other folds are narrow basins that none of the
+        interpolation starts reaches.  The found optimum with its distal joints' deviations
+        from the straight interpolation scaled (fold_starts, the same timing) starts them:
+        mirrored for all distal joints, then for the wrist alone, the wrist's doubled, then
+        each other distal joint's mirrored from the wrist inwards; at most FOLD_STARTS, on
+        the attempts' grid with FOLD_ATTEMPT (a small barrier parameter: the start is a
+        trajectory, not a guess).  Within three quarters of the iteration budget and, with a
+        timeout, within EXPLORE_TIME of it.
         """
         problem = self.problem
         joints = problem.robot_model.n_joints
         if joints < 3 or not found:
             return
-        source = min(found, key=lambda run: run.t_f)
-        sets = [tuple(range(1, joints))] + [(j,) for j in range(joints - 1, 0, -1)]
-        for start in mirror_starts(problem, source.ws.x, source.t_f, sets[:MIRROR_STARTS]):
-            if self.done >= 3 * self.limit // 4 or not self._within_explore_time():
-                return
-            self._attempt(grid, n, start, MIRROR_ATTEMPT, found)
+        wrist = joints - 1
+        variants = [(tuple(range(1, joints)), -1.0), ((wrist,), -1.0), ((wrist,), 2.0)] + \
+            [((j,), -1.0) for j in range(wrist - 1, 0, -1)]
+        sources = []
+        for run in sorted(found, key=lambda run: run.t_f):
+            if all(abs(run.t_f - other.t_f) > 1e-6 * other.t_f for other in sources):
+                sources.append(run)
+        for source in sources[:FOLD_SOURCES]:
+            for start in fold_starts(problem, source.ws.x, source.t_f,
+                                     variants[:FOLD_STARTS]):
+                if self.done >= 3 * self.limit // 4 or not self._within_explore_time():
+                    return
+                self._attempt(grid, n, start, FOLD_ATTEMPT, found)
 
     def _fitted_times(self):
         """

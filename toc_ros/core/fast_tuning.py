@@ -79,12 +79,15 @@ NARROW_MARGIN = 0.05
 # the first, so that where it is fit (within FIT_BAND of the fitted time) nothing changes.
 FIT_FACTORS = (1.0, 2.0)
 FIT_BAND = 3.0
-# Mirror-image starts of a model with three or more joints (fast_solver._mirror_attempts):
-# how many, and their (elastic weight, barrier parameter).  Three (all distal joints, then
-# each alone from the wrist): on 18 random free moves of planar_3r the single-joint mirrors
-# recovered 3 of the 4 optima that the first one missed (+2.1-5.9 % -> within 0.01 %), at
-# ~100-180 more iterations per solve.  The mirrored trajectory is close
-# to the other fold's optimum in a narrow basin: from it, mu = 0.01 (the cold attempts')
-# leaves the basin, 1e-6 to 1e-4 stay (benchmarks/RESULTS.md, issue 23's 3R miss).
-MIRROR_STARTS = 3
-MIRROR_ATTEMPT = (ELASTIC_WEIGHT, 1e-4)
+# Fold starts of a model with three or more joints (fast_solver._fold_attempts): how many,
+# and their (elastic weight, barrier parameter).  Four on three links: the mirror images of
+# all distal joints' folds and of the wrist's, the wrist's doubled, the elbow's mirrored.  On 18 random free moves of
+# planar_3r the single-joint mirrors recovered 3 of the 4 optima that the first one missed
+# (+2.1-5.9 % -> within 0.01 %), at ~100-180 more iterations per solve; on 16 more (seed 21)
+# the doubled wrist recovered both misses (+1.9 %, +5.6 %), optima whose wrist whips a turn
+# further.  Such a start is close to another fold's optimum in a narrow basin: from it,
+# mu = 0.01 (the cold attempts') leaves the basin, 1e-6 to 1e-4 stay (benchmarks/RESULTS.md,
+# issue 23's 3R miss).
+FOLD_STARTS = 4
+FOLD_SOURCES = 2
+FOLD_ATTEMPT = (ELASTIC_WEIGHT, 1e-4)

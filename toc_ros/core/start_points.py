@@ -71,22 +71,24 @@ def interpolation_states(problem, n, t_f=None):
     return states
 
 
-def mirror_starts(problem, states, t_f, joint_sets):
+def fold_starts(problem, states, t_f, variants):
     """
-    Return a start (states, controls, t_f) per set of joints: their folds in states mirrored.
+    Return a start (states, controls, t_f) per variant (joints, factor): their folds scaled.
 
     A joint's fold is its deviation from the straight interpolation between the ends
     (interpolation_states over the same t_f, so the ends' positions and velocities match);
-    mirroring negates it: the joint swings the other way with the same timing.
+    factor -1 mirrors it (the joint swings the other way with the same timing), 2 doubles it
+    (the joint whips twice as far).
     """
     n = states.shape[0] - 1
     straight = interpolation_states(problem, n, t_f)
     starts = []
-    for joints in joint_sets:
+    for joints, factor in variants:
         columns = [c for j in joints for c in (2 * j, 2 * j + 1)]
-        mirrored = np.array(states[:, :straight.shape[1]], dtype=float)
-        mirrored[:, columns] = 2.0 * straight[:, columns] - mirrored[:, columns]
-        starts.append(start_along(problem, mirrored, t_f) + (t_f,))
+        folded = np.array(states[:, :straight.shape[1]], dtype=float)
+        folded[:, columns] = straight[:, columns] + factor * (folded[:, columns] -
+                                                              straight[:, columns])
+        starts.append(start_along(problem, folded, t_f) + (t_f,))
     return starts
 
 
