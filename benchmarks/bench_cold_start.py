@@ -323,7 +323,7 @@ def main(argv=None):
     parser.add_argument('--gravity', type=float, nargs='+', default=[0.0, 9.81],
                         help='g [m/s^2] of the suite (each)')
     parser.add_argument('--shoulder', type=float, nargs=2, default=[0.8, 2.5],
-                        metavar=('LOW', 'HIGH'), help='range of the shoulder\'s turn [rad]')
+                        metavar=('LOW', 'HIGH'), help="range of the shoulder's turn [rad]")
     parser.add_argument('--upward', type=int, default=0,
                         help='vertical-plane 2R cases (g = 9.81, the shoulder rising, one '
                         'circle): the one of bench_planar_2r and upward - 1 random ones')

@@ -34,8 +34,8 @@ import pytest
 
 from toc_ros.core import fast_solver, Problem, solve, SolverOptions, Status
 from toc_ros.core.models import load_model
-from toc_ros.core.start_points import bang_bang_time, fitted_final_time, \
-    interpolation_states, joint_accelerations, fold_starts
+from toc_ros.core.start_points import bang_bang_time, fitted_final_time, fold_starts, \
+    interpolation_states, joint_accelerations
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_FILE = ROOT / 'config' / 'models' / 'planar_3r.yaml'

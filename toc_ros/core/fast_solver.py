@@ -45,16 +45,16 @@ import numpy as np
 from . import homotopy, ipm
 from .class_starts import ClassStarts, relaxation
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
-    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, MAX_REFINE, FOLD_ATTEMPT, FOLD_SOURCES, FOLD_STARTS, \
-    MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, REFINE_BAND, WARM_BUDGET, WARM_EXACT, \
-    WARM_PUSH
+    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, FIT_FACTORS_FOLDING, FOLD_ATTEMPT, FOLD_FINE, \
+    FOLD_SOURCES, FOLD_STARTS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, \
+    REFINE_BAND, WARM_BUDGET, WARM_EXACT, WARM_PUSH
 from .ip_run import BOUND_PUSH, Stop
 from .ipm_workspace import H_DELTA
 from .result import SolveResult, Status
 from .run_execution import RunExecution
-from .start_points import actuator_states, fitted_final_time, has_actuators, \
-    interpolation_start, interpolation_states, ladder, fold_starts, resample, resample_duals, \
-    start_along, warm_start_point
+from .start_points import actuator_states, fitted_final_time, fold_starts, has_actuators, \
+    interpolation_start, interpolation_states, ladder, resample, resample_duals, start_along, \
+    warm_start_point
 
 CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITERATIONS,
                ipm.LINE_SEARCH_FAILED: Status.STALLED, ipm.NUMERICAL_FAILURE: Status.STALLED}
@@ -156,7 +156,9 @@ class FastSolve(ClassStarts, RunExecution):
         none (another number of joints, no hole inside the grid) or none of them converges: the
         interpolation start with the first pair of COLD_ATTEMPTS and, when _explore says so,
         with the other pairs.  The distinct converged ones within REFINE_BAND of the shortest
-        are refined (_finish).  When nothing converges, the N grid from the cold start with each
+        are refined (_finish); with three or more joints, the folds of the attempts' best
+        ones and of the refined result are attempted too (_fold_attempts).  When nothing
+        converges, the N grid from the cold start with each
         barrier parameter of MU_COLD_RETRIES in turn (the central path from another mu can
         lead into another basin).
         """
@@ -200,6 +202,8 @@ class FastSolve(ClassStarts, RunExecution):
                 ipm.CONVERGED
         if found:
             self._finish(found, n, allowance, prefetched)
+        if self.best is not None and grid < n and FOLD_FINE:
+            self._fold_attempts(n, n, [self.best])
         if self.best is not None:
             return self.best, ipm.CONVERGED
         for mu in MU_COLD_RETRIES:
@@ -215,16 +219,17 @@ class FastSolve(ClassStarts, RunExecution):
 
     def _fold_attempts(self, grid, n, found):
         """
-        Attempt other folds of the shortest converged attempt's distal links (3+ joints).
+        Attempt other folds of the shortest converged runs' distal links (3+ joints).
 
         Optima of a free or obstructed motion of three or more links differ by which way the
         distal links fold (issue 23: elbow down or up under gravity, 3.2 % apart) and by how
         far the wrist whips, and the other folds are narrow basins that none of the
-        interpolation starts reaches.  The found optimum with its distal joints' deviations
-        from the straight interpolation scaled (fold_starts, the same timing) starts them:
-        mirrored for all distal joints, then for the wrist alone, the wrist's doubled, then
-        each other distal joint's mirrored from the wrist inwards; at most FOLD_STARTS, on
-        the attempts' grid with FOLD_ATTEMPT (a small barrier parameter: the start is a
+        interpolation starts reaches.  The FOLD_SOURCES shortest distinct runs of found (the
+        converged ones on grid, which the attempts join), each with its distal joints'
+        deviations from the straight interpolation scaled (fold_starts, the same timing),
+        start them: mirrored for all distal joints, then for the wrist alone, the wrist's
+        doubled, then each other distal joint's mirrored from the wrist inwards; at most
+        FOLD_STARTS per source, with FOLD_ATTEMPT (a small barrier parameter: the start is a
         trajectory, not a guess).  Within three quarters of the iteration budget and, with a
         timeout, within EXPLORE_TIME of it.
         """
@@ -251,11 +256,17 @@ class FastSolve(ClassStarts, RunExecution):
         Return the final times [s] of the cold starts that fit the problem (FIT_FACTORS).
 
         Those off the problem's t_f0 by more than FIT_BAND, in order; none when the fitted
-        time cannot be formed (fitted_final_time) or t_f0 is within FIT_BAND of it.
+        time cannot be formed (fitted_final_time) or t_f0 is within FIT_BAND of it.  A model
+        of three or more joints: every one of FIT_FACTORS_FOLDING, whatever t_f0 (its optima
+        differ by how the links fold, and starts of other timing reach other folds).
         """
         fitted = fitted_final_time(self.problem)
+        if fitted is None:
+            return []
+        if self.problem.robot_model.n_joints >= 3:
+            return [factor * fitted for factor in FIT_FACTORS_FOLDING]
         t_f0 = float(self.problem.t_f0)
-        if fitted is None or max(fitted, t_f0) <= FIT_BAND * min(fitted, t_f0):
+        if max(fitted, t_f0) <= FIT_BAND * min(fitted, t_f0):
             return []
         return [factor * fitted for factor in FIT_FACTORS
                 if max(factor * fitted, t_f0) > FIT_BAND * min(factor * fitted, t_f0)]

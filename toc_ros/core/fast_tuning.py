@@ -79,15 +79,22 @@ NARROW_MARGIN = 0.05
 # the first, so that where it is fit (within FIT_BAND of the fitted time) nothing changes.
 FIT_FACTORS = (1.0, 2.0)
 FIT_BAND = 3.0
-# Fold starts of a model with three or more joints (fast_solver._fold_attempts): how many,
-# and their (elastic weight, barrier parameter).  Four on three links: the mirror images of
-# all distal joints' folds and of the wrist's, the wrist's doubled, the elbow's mirrored.  On 18 random free moves of
-# planar_3r the single-joint mirrors recovered 3 of the 4 optima that the first one missed
-# (+2.1-5.9 % -> within 0.01 %), at ~100-180 more iterations per solve; on 16 more (seed 21)
-# the doubled wrist recovered both misses (+1.9 %, +5.6 %), optima whose wrist whips a turn
-# further.  Such a start is close to another fold's optimum in a narrow basin: from it,
-# mu = 0.01 (the cold attempts') leaves the basin, 1e-6 to 1e-4 stay (benchmarks/RESULTS.md,
-# issue 23's 3R miss).
+# ... and of a model with three or more joints: all of these, whatever t_f0.  On 9 random free
+# planar_3r moves that ended above IPOPT's best (IPOPT from the interpolation start over 0.8,
+# 1.2 or 2 x the fitted time), these starts recovered 3 more (6 of 9 instead of 3 of 9).
+FIT_FACTORS_FOLDING = (1.0, 2.0, 0.8, 1.2)
+# Fold starts of a model with three or more joints (fast_solver._fold_attempts): how many per
+# source, from how many distinct cold optima, whether also from the result on the N grid
+# (when the attempts ran on a coarser one), and their (elastic weight, barrier parameter).
+# Four on three links: the mirror images of all distal joints' folds and of the wrist's, the
+# wrist's doubled, the elbow's mirrored.  Optima of three links differ by which way the distal
+# links fold and how far the wrist whips, in narrow basins: from such a start mu = 0.01 (the
+# cold attempts') leaves the basin, 1e-6 to 1e-4 stay.  The coarse grid's basins are not the N
+# grid's (a fast whip's discretisation error), hence the folds on the N grid too.  On 64
+# random free planar_3r moves (N = 300): within 0.1 % of the best known optimum 38 with one
+# mirror source, 47 with these sources, 56 with the N grid's folds too, at 94 / 157 / 315 ms
+# median (benchmarks/RESULTS.md, "Three-link folds").
 FOLD_STARTS = 4
 FOLD_SOURCES = 2
+FOLD_FINE = True
 FOLD_ATTEMPT = (ELASTIC_WEIGHT, 1e-4)
