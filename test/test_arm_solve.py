@@ -746,7 +746,9 @@ def test_an_unstable_open_loop_motion_is_solved_inaccurately_with_the_reason():
     arm = load_arm(f'urdf:{urdf}', joints=joints)
     result = solve(Problem(x0=start, x_goal=goal, model=arm, n_intervals=60))
     assert result.status is Status.SOLVED_INACCURATE and result.status.exit_code() == 1
-    assert 'converged' in result.message
+    # The interior point ends by its tolerances or IPOPT's acceptable level (which of the two
+    # depends on the last bits of the floating-point arithmetic: both happen across machines).
+    assert 'converged' in result.message or 'acceptable after' in result.message
     assert 'SOLVED_INACCURATE: re-integrated from the start, terminal error' in result.message
     check = check_trajectory(ArmSpec(urdf=str(urdf), joints=joints, start=start, goal=goal),
                              result.final_time, result.controls, 'euler', result.states)
