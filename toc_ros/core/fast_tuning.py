@@ -90,10 +90,10 @@ FIT_FACTORS_FOLDING = (1.0, 2.0, 0.8, 1.2)
 # wrist's doubled, the elbow's mirrored.  Optima of three links differ by which way the distal
 # links fold and how far the wrist whips, in narrow basins: from such a start mu = 0.01 (the
 # cold attempts') leaves the basin, 1e-6 to 1e-4 stay.  The coarse grid's basins are not the N
-# grid's (a fast whip's discretisation error), hence the folds on the N grid too.  On 64
-# random free planar_3r moves (N = 300): within 0.1 % of the best known optimum 38 with one
-# mirror source, 47 with these sources, 56 with the N grid's folds too, at 94 / 157 / 315 ms
-# median (benchmarks/RESULTS.md, "Three-link folds").
+# grid's (a fast whip's discretisation error), hence the folds on the N grid too.  On 128
+# random free planar_3r moves (N = 300), with FIT_FACTORS_FOLDING: 116 within 0.1 % of the best
+# known optimum (81 with one mirror source), at 339 ms median (90 ms) (benchmarks/RESULTS.md,
+# "Three-link folds").
 FOLD_STARTS = 4
 FOLD_SOURCES = 2
 FOLD_FINE = True
