@@ -407,6 +407,29 @@ def test_a_late_cycle_keeps_the_plan_and_seeds_the_next():
         assert 'late: ready' in report.message and p.plans.seed.plan is plan
 
 
+def test_a_cycle_whose_deadline_passes_while_its_messages_are_built_is_not_published(
+        monkeypatch):
+    # Solved in time, but building its plan and messages runs past the deadline (a loaded
+    # machine): the check at the last moment before publishing keeps the executing plan.
+    import toc_ros.planner as planner_module
+    built = planner_module.plan_from_result
+
+    def slow_plan_from_result(*args, **kwargs):
+        time.sleep(1.0)                     # past any lead (capped well below a second)
+        return built(*args, **kwargs)
+
+    p, port, plan, state = cycle_setup()
+    monkeypatch.setattr(planner_module, 'plan_from_result', slow_plan_from_result)
+    received = time.monotonic() + 0.5       # the deadline: received + lead
+    assert p.maybe_replan(port.config, state, port.clock, received)
+    finish(p)
+    report = port.reports[-1]
+    assert report.event == schema.EVENT_REPLAN_KEPT, report.message
+    assert p.plans.current()[0] is plan and len(port.trajectories) == 1
+    if report.status is Status.SOLVED:
+        assert 'late: ready' in report.message and p.plans.seed.plan is plan
+
+
 def segment_gap(q1, q2, centre, radius):
     """Clearance of the arm (base to hand, a segment) to a circle [m], recomputed here."""
     tip, centre = hand(q1, q2), np.asarray(centre, dtype=float)

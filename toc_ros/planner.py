@@ -385,6 +385,12 @@ class Planner:
                            if current.is_arm else problem_from_parameters(
                                current.flat, x0=problem.x0, x_goal=problem.x_goal))
                 revision = plans.revision
+            if request.cycle is not None and time.monotonic() > request.cycle.deadline:
+                # Checked again at the last moment: building the messages and taking the lock
+                # take milliseconds on a loaded machine, and a cycle's plan starts at its
+                # stamp, right after the deadline.
+                request.late = True
+                return False
             port.publish_trajectory(trajectory)
             request.published_at = time.monotonic()
             request.published_stamp = port.now()
