@@ -124,15 +124,24 @@ def _casadi_states(problem, controls, t_f, params=None):
     return np.array(states), u_max
 
 
-def test_three_link_cold_start_finds_the_direct_optimum():
-    pytest.importorskip('casadi')
-    problem = _three_link_problem()
+def _solved_free_three_link(q0, qg, n=300):
+    """Solve planar_3r's free rest-to-rest move q0 -> qg; re-integrate it with CasADi."""
+    model = load_model(str(MODEL_FILE))
+    problem = Problem(model=model, x0=tuple(float(v) for v in model.state(q0)),
+                      x_goal=tuple(float(v) for v in model.state(qg)), obstacles=(),
+                      n_intervals=n)
     result = solve(problem, SolverOptions(mode='fast'))
     assert result.status is Status.SOLVED, result.message
     controls = np.asarray(result.controls)
     states, u_max = _casadi_states(problem, controls, result.final_time)
     assert np.all(np.abs(controls) <= u_max[None, :])
     assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= 1e-6
+    return problem, result, states
+
+
+def test_three_link_cold_start_finds_the_direct_optimum():
+    pytest.importorskip('casadi')
+    _, result, states = _solved_free_three_link(Q0, QG)
     np.testing.assert_allclose(result.states, states, rtol=0, atol=1e-8)
     assert result.final_time <= (1.0 + GAP) * BEST_3R, (result.final_time, BEST_3R)
     # No joint makes a revolution (the spinning optimum of a start too slow for the arm turned
@@ -165,21 +174,6 @@ def test_fold_starts_scale_the_folds_about_the_straight_interpolation():
     doubled = fold_starts(problem, folded, t_f, [((2,), 2.0)])[0][0]
     np.testing.assert_allclose(doubled[:, 4:], straight[:, 4:] + 2.0 * bump[:, 4:], atol=1e-12)
     np.testing.assert_array_equal(doubled[:, :4], folded[:, :4])
-
-
-def _solved_free_three_link(q0, qg, n=300):
-    """Solve planar_3r's free rest-to-rest move q0 -> qg; re-integrate it with CasADi."""
-    model = load_model(str(MODEL_FILE))
-    problem = Problem(model=model, x0=tuple(float(v) for v in model.state(q0)),
-                      x_goal=tuple(float(v) for v in model.state(qg)), obstacles=(),
-                      n_intervals=n)
-    result = solve(problem, SolverOptions(mode='fast'))
-    assert result.status is Status.SOLVED, result.message
-    controls = np.asarray(result.controls)
-    states, u_max = _casadi_states(problem, controls, result.final_time)
-    assert np.all(np.abs(controls) <= u_max[None, :])
-    assert np.linalg.norm(states[-1] - np.asarray(problem.x_goal)) <= 1e-6
-    return problem, result, states
 
 
 def test_three_link_wrist_whipping_a_turn_further_is_found(monkeypatch):
