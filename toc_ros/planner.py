@@ -54,6 +54,13 @@ from trajectory_msgs.msg import JointTrajectory
 CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 
 
+def _overdue(request):
+    """Return whether request is a replan cycle past its deadline; mark it late if so."""
+    if request.cycle is not None and time.monotonic() > request.cycle.deadline:
+        request.late = True
+    return request.late
+
+
 class Planner:
     """Solves goals and replan cycles for a node's port; see the module docstring."""
 
@@ -366,8 +373,7 @@ class Planner:
             trajectory = conversions.trajectory_msg(result, names, model,
                                                     conversions.time_msg(0.0))
         now = port.now()
-        if request.cycle is not None and time.monotonic() > request.cycle.deadline:
-            request.late = True         # over the cycle's budget (the lead): keep the old plan
+        if _overdue(request):           # over the cycle's budget (the lead): keep the old plan
             return False
         start = now + lead if stamp_s is None else float(stamp_s)
         if not_before is not None:
@@ -385,11 +391,10 @@ class Planner:
                            if current.is_arm else problem_from_parameters(
                                current.flat, x0=problem.x0, x_goal=problem.x_goal))
                 revision = plans.revision
-            if request.cycle is not None and time.monotonic() > request.cycle.deadline:
+            if _overdue(request):
                 # Checked again at the last moment: building the messages and taking the lock
                 # take milliseconds on a loaded machine, and a cycle's plan starts at its
                 # stamp, right after the deadline.
-                request.late = True
                 return False
             port.publish_trajectory(trajectory)
             request.published_at = time.monotonic()
@@ -479,8 +484,7 @@ class Planner:
             late_by = None
             if result.status is Status.SOLVED and result.has_trajectory:
                 # Published only when its message is ready by the deadline (else late).
-                request.late = time.monotonic() > cycle.deadline
-                published = not request.late and self._publish_plan(
+                published = not _overdue(request) and self._publish_plan(
                     request, result, problem, config, revision, stamp_s=cycle.stamp_s)
                 if request.late:
                     late_by = time.monotonic() - cycle.deadline

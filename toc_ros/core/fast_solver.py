@@ -45,8 +45,8 @@ import numpy as np
 from . import homotopy, ipm
 from .class_starts import ClassStarts, relaxation
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
-    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, FIT_FACTORS_FOLDING, FOLD_ATTEMPT, FOLD_FINE, \
-    FOLD_SOURCES, FOLD_STARTS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, \
+    EXPLORE_TIME, FIT_BAND, FIT_FACTORS, FIT_FACTORS_FOLDING, FOLD_ATTEMPT, FOLD_SOURCES, \
+    FOLD_STARTS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, \
     REFINE_BAND, WARM_BUDGET, WARM_EXACT, WARM_PUSH
 from .ip_run import BOUND_PUSH, Stop
 from .ipm_workspace import H_DELTA
@@ -65,6 +65,11 @@ def _in_band(run, shortest):
     # The band scales with the discretisation error, ~ 1 / intervals.
     band = REFINE_BAND * COARSE_INTERVALS / min(run.n, COARSE_INTERVALS)
     return run.t_f <= (1.0 + band) * shortest
+
+
+def _same_optimum(run, other):
+    """Return whether two converged runs end at the same t_f (within 1e-6, relative)."""
+    return abs(run.t_f - other.t_f) <= 1e-6 * other.t_f
 
 
 def _guess_intervals(guess):
@@ -202,7 +207,7 @@ class FastSolve(ClassStarts, RunExecution):
                 ipm.CONVERGED
         if found:
             self._finish(found, n, allowance, prefetched)
-        if self.best is not None and grid < n and FOLD_FINE:
+        if self.best is not None and grid < n:
             self._fold_attempts(n, n, [self.best])
         if self.best is not None:
             return self.best, ipm.CONVERGED
@@ -242,7 +247,7 @@ class FastSolve(ClassStarts, RunExecution):
             [((j,), -1.0) for j in range(wrist - 1, 0, -1)]
         sources = []
         for run in sorted(found, key=lambda run: run.t_f):
-            if all(abs(run.t_f - other.t_f) > 1e-6 * other.t_f for other in sources):
+            if not any(_same_optimum(run, other) for other in sources):
                 sources.append(run)
         for source in sources[:FOLD_SOURCES]:
             for start in fold_starts(problem, source.ws.x, source.t_f,
@@ -409,8 +414,7 @@ class FastSolve(ClassStarts, RunExecution):
                 break
             if not _in_band(found[k], found[order[0]].t_f):
                 continue
-            same = [i for i, c in enumerate(chosen)
-                    if abs(found[k].t_f - found[c].t_f) <= 1e-6 * found[c].t_f]
+            same = [i for i, c in enumerate(chosen) if _same_optimum(found[k], found[c])]
             if not same:
                 chosen.append(k)
             elif k < chosen[same[0]]:

@@ -84,8 +84,8 @@ FIT_BAND = 3.0
 # 1.2 or 2 x the fitted time), these starts recovered 3 more (6 of 9 instead of 3 of 9).
 FIT_FACTORS_FOLDING = (1.0, 2.0, 0.8, 1.2)
 # Fold starts of a model with three or more joints (fast_solver._fold_attempts): how many per
-# source, from how many distinct cold optima, whether also from the result on the N grid
-# (when the attempts ran on a coarser one), and their (elastic weight, barrier parameter).
+# source, from how many distinct cold optima, and their (elastic weight, barrier parameter);
+# also from the result on the N grid when the attempts ran on a coarser one.
 # Four on three links: the mirror images of all distal joints' folds and of the wrist's, the
 # wrist's doubled, the elbow's mirrored.  Optima of three links differ by which way the distal
 # links fold and how far the wrist whips, in narrow basins: from such a start mu = 0.01 (the
@@ -96,5 +96,4 @@ FIT_FACTORS_FOLDING = (1.0, 2.0, 0.8, 1.2)
 # "Three-link folds").
 FOLD_STARTS = 4
 FOLD_SOURCES = 2
-FOLD_FINE = True
 FOLD_ATTEMPT = (ELASTIC_WEIGHT, 1e-4)
