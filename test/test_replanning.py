@@ -417,7 +417,9 @@ def test_cancel_goal_brakes_to_rest_and_ends_the_cycles(loop):
         r for r in cycle_reports(ctx, since) if r.event == schema.EVENT_REPLANNED],
         10.0, 'a replan cycle')
     time.sleep(max(0.0, mid - time.monotonic()))
-    moving = positions_since(ctx, time.monotonic() - 0.05)
+    # The last state received before the call, however old (a loaded machine can go 50 ms and
+    # more between received joint states).
+    moving = positions_since(ctx, since)
     called = time.monotonic()
     response = ctx.client.call(cancel_goal, Trigger.Request())
     answered = time.monotonic()
