@@ -40,7 +40,8 @@ from toc_ros.execution_state import ExecutionState
 from toc_ros.goal_requests import BRAKING_REST, start_state
 from toc_ros.nodes import parameters
 from toc_ros.nodes.solver_settings import SolverNodeConfig
-from toc_ros.planner import CYCLE_SOURCE, Planner
+from toc_ros.planner import Planner
+from toc_ros.replan_cycles import CYCLE_SOURCE
 from toc_ros.solve_progress import SolveProgress
 
 X0 = (math.pi / 12.0, 0.0, 1.0, 0.0)

@@ -42,8 +42,8 @@ import numpy_model as nm
 import pytest
 from test_solver_fast import _solve_with_cancel
 
-from toc_ros.core import fast_solver, homotopy, ip_run, ipm, Problem, solve, SolverOptions, \
-    start_points, Status, warm_up, workers
+from toc_ros.core import fast_solver, fast_tuning, homotopy, ip_run, ipm, Problem, solve, \
+    SolverOptions, start_points, Status, warm_up, workers
 from toc_ros.core.models import load_model
 from toc_ros.core.obstacles import segment_clearance
 from toc_ros.core.prefetch import Prefetch
@@ -332,14 +332,14 @@ def _candidates(found):
 
 
 def test_candidates_are_the_distinct_optima_in_the_band_and_the_first_attempt_of_equal_ones():
-    band = fast_solver.REFINE_BAND * fast_solver.COARSE_INTERVALS / fast_solver.EXPLORE_INTERVALS
+    band = fast_tuning.REFINE_BAND * fast_tuning.COARSE_INTERVALS / fast_solver.EXPLORE_INTERVALS
     a, b, c = _coarse(0.70), _coarse(0.70 * (1.0 + 0.5 * band)), _coarse(0.70 * (1.0 + 2 * band))
     same = _coarse(0.70 * (1.0 - 1e-7))      # the same optimum as a, slightly shorter
     assert _candidates([c, b, a]) == [a, b]
     assert _candidates([a, same, b]) == [a, b]      # a's attempt came first
     assert _candidates([same, a, b]) == [same, b]
     many = [_coarse(0.70 * (1.0 + 0.01 * band * k)) for k in range(5)]
-    assert _candidates(many[::-1]) == many[:fast_solver.MAX_REFINE]
+    assert _candidates(many[::-1]) == many[:fast_tuning.MAX_REFINE]
 
 
 def test_prefetch_cancels_the_climbs_and_refinements_of_displaced_candidates():

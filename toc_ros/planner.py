@@ -17,8 +17,9 @@ solver_node's planning without rclpy: goals, solves, replan cycles and stops.
 
 A ``Planner`` takes the goals a node translated (``submit``), solves the newest on its
 ``GoalWorker`` thread, publishes each plan only while its planning data are current
-(``ExecutionState``), runs the replan cycles of the executing plan (``maybe_replan``), and
-replans around or stops a plan that new data make unsafe (``data_changed``).  It builds the
+(``ExecutionState``), runs the replan cycles of the executing plan (``maybe_replan``,
+replan_cycles.py), and replans around or stops a plan that new data make unsafe
+(``data_changed``).  It builds the
 messages (toc_ros.conversions) and ~/progress reports (toc_ros.progress) but sends nothing
 itself: the node gives it a *port*, an object with
 
@@ -48,20 +49,12 @@ from toc_ros.core import replan_policy as policy
 from toc_ros.core.executing_plan import braking_plan, plan_from_result, true_conflict_time
 from toc_ros.execution_state import ExecutionState
 from toc_ros.goal_worker import GoalWorker, Request
+from toc_ros.replan_cycles import overdue, ReplanCycles
 from toc_ros.solve_progress import SolveProgress
 from trajectory_msgs.msg import JointTrajectory
 
-CYCLE_SOURCE = 'replan_cycle'     # goal_source of the replan cycles' ~/progress reports
 
-
-def _overdue(request):
-    """Return whether request is a replan cycle past its deadline; mark it late if so."""
-    if request.cycle is not None and time.monotonic() > request.cycle.deadline:
-        request.late = True
-    return request.late
-
-
-class Planner:
+class Planner(ReplanCycles):
     """Solves goals and replan cycles for a node's port; see the module docstring."""
 
     def __init__(self, port, planning, ready):
@@ -373,7 +366,7 @@ class Planner:
             trajectory = conversions.trajectory_msg(result, names, model,
                                                     conversions.time_msg(0.0))
         now = port.now()
-        if _overdue(request):           # over the cycle's budget (the lead): keep the old plan
+        if overdue(request):           # over the cycle's budget (the lead): keep the old plan
             return False
         start = now + lead if stamp_s is None else float(stamp_s)
         if not_before is not None:
@@ -391,7 +384,7 @@ class Planner:
                            if current.is_arm else problem_from_parameters(
                                current.flat, x0=problem.x0, x_goal=problem.x_goal))
                 revision = plans.revision
-            if _overdue(request):
+            if overdue(request):
                 # Checked again at the last moment: building the messages and taking the lock
                 # take milliseconds on a loaded machine, and a cycle's plan starts at its
                 # stamp, right after the deadline.
@@ -416,134 +409,3 @@ class Planner:
         else:
             port.arm_moved()
         return True
-
-    # -- replanning (receding horizon) ----------------------------------------------------------
-
-    def maybe_replan(self, config, state, state_time, received, reason=None):
-        """
-        Start a replan cycle from a measured state when one is due; True when it was queued.
-
-        Due (policy.cycle_reason): at replan.rate, at once when the state deviates from the
-        executing plan by more than replan.deviation, or for a reason (new data).  The cycle's
-        plan starts on the executing plan's node at or after now + lead (policy.cycle_start)
-        from the state predicted along the executing plan; the worker takes it only when no
-        goal is queued or solving.
-        """
-        if reason is None:
-            self.brake_if_overdue(config)     # new data decide afresh (_replan_before_braking)
-        plans = self.plans
-        plan, revision = plans.current()
-        if not policy.cycle_allowed(plan, config.replanning, self.ready.is_set()) \
-                or state.shape[0] != plan.model.nx:
-            return False
-        cycle = policy.next_cycle(plan, state, state_time, self._port.now(), received,
-                                  plans.cycle_lead(config.node.replan_lead), config.node,
-                                  plans.next_cycle, revision, reason)
-        if cycle is None:
-            return False
-        request = Request(plan.goal, CYCLE_SOURCE, cycle)
-        if not self.worker.offer(request, behind_cycle=cycle.reason == policy.DATA_CHANGE):
-            return False
-        plans.cycle_taken(received, config.node.replan_rate)
-        return True
-
-    def _run_cycle(self, request, cancel):
-        """Solve one replan cycle (worker thread); publish it or keep the executing plan."""
-        cycle, plan = request.cycle, request.cycle.plan
-        config = self._port.snapshot()[0]
-        taken = self.plans.cycle_source(plan)
-        if taken is None:
-            return          # a newer plan was published meanwhile: nothing to replace
-        revision, source = taken
-        result, problem, why, recovery = None, None, '', None
-        estimated, estimate = self._port.estimated_model(config)
-        try:
-            # A start the plant carried inside the margin (it did not follow the plan) plans
-            # out of there with part of its true clearance as the margin (as the replan after a
-            # stop): keeping the plan it is not following would carry it on into the circle.
-            problem, recovery = goals.cycle_base_problem(config, cycle.start, plan.goal)
-            if estimated is not None:
-                problem = problem.with_model(estimated)
-            # Published only by its deadline (its lead after its joint_states arrived): the
-            # lead bounds the latency; a late solve seeds the next cycle's warm start.
-            planned, options, guess = policy.cycle_problem(
-                source, cycle, problem, config.node.replan_max_nodes, config.options,
-                time.monotonic())
-            if planned is None:
-                why = guess
-            else:
-                problem = planned
-                result = solve(problem, options, cancel=cancel, initial_guess=guess)
-        except (ProblemError, TypeError, ValueError) as exc:
-            why = f'no plan from the predicted state: {exc}'
-        except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
-            self._log.error(f'replan cycle failed: {exc!r}')
-            why = f'internal solver error: {exc!r}'
-        published = False
-        if result is not None:
-            late_by = None
-            if result.status is Status.SOLVED and result.has_trajectory:
-                # Published only when its message is ready by the deadline (else late).
-                published = not _overdue(request) and self._publish_plan(
-                    request, result, problem, config, revision, stamp_s=cycle.stamp_s)
-                if request.late:
-                    late_by = time.monotonic() - cycle.deadline
-                    self.plans.seed_next(plan, result, problem)
-            why = goals.cycle_failure(result, request.stop_reason, late_by,
-                                      cycle.deadline - cycle.received, published,
-                                      published or self.worker.current(request)) or why
-        # joint_states received -> trajectory published (the path and markers come after).
-        latency = (request.published_at if published else time.monotonic()) - cycle.received
-        if result is not None and result.status is Status.SOLVED:
-            # Solved cycles, published or late: the median follows cycles that are slow most
-            # of the time, not the rare one that seeds the next.  Not timed-out ones: those
-            # are the final braking's overshoot problems, hundreds of iterations whatever the
-            # lead (they would stretch every later cycle's lead to the cap).
-            self.plans.record_latency(latency)
-        values = dict(goal_source=CYCLE_SOURCE, start_source='predicted joint_states',
-                      goal=tuple(float(v) for v in np.round(plan.goal, 9)),
-                      data_revision=revision, latency_s=latency, deviation=cycle.deviation,
-                      plan_stamp=cycle.stamp_s, state_stamp=cycle.state_stamp,
-                      estimate=estimate if estimated is not None else
-                      (f'none: {estimate}' if estimate else ''), **config.model_keys())
-        if problem is not None:
-            values['obstacles_hash'] = schema.obstacles_hash(problem.obstacles, problem.margin)
-            values['margin'] = problem.margin
-        if published:       # the data it was checked against
-            values['published_stamp'] = request.published_stamp
-            with self.plans.lock:
-                values['obstacles_hash'], values['data_revision'] = self.plans.plan_info
-            inside = '' if recovery is None else (
-                f' from inside the obstacle margin (margin {problem.margin:.4g} m)')
-            self._port.report(schema.result_report(
-                result, f'replanned ({cycle.reason}){inside}: {result.message}',
-                event=schema.EVENT_REPLANNED, **values))
-            return
-        message = f'replan cycle ({cycle.reason}) kept the executing plan: {why}'
-        self._log.warning(message, throttle_duration_sec=1.0)
-        report = (schema.result_report(result, message, **values) if result is not None
-                  else schema.ProgressReport(status=Status.INVALID_INPUT, message=message,
-                                             **values))
-        self._port.report(dataclasses.replace(
-            report, level=schema.DiagnosticStatus.WARN, event=schema.EVENT_REPLAN_KEPT))
-        self._stop_if_violating(plan, self._port.snapshot()[0], cycle, request.late)
-
-    def _stop_if_violating(self, plan, config, cycle, late=False):
-        """
-        After a failed cycle: act on the plan it kept if that violates the current data.
-
-        Another data-change cycle is tried when policy.retry_after_failed_cycle says so and
-        braking can wait for it (_brake_can_wait); else the plan is stopped.
-        """
-        port = self._port
-        plan_now, revision = self.plans.current()
-        if plan_now is not plan:
-            return
-        elapsed = plan.elapsed(port.now())
-        problem = goals.plan_violation(plan, config, elapsed)
-        if problem is None:
-            return
-        again = policy.retry_after_failed_cycle(cycle.reason, cycle.revision, revision, late)
-        if again and self._replan_before_braking(plan, config):
-            return
-        self._stop(plan, config, revision, problem)

@@ -32,44 +32,32 @@ threads (workers.py); a candidate's climb up the ladder starts as soon as its at
 (prefetch.py), with the same result as after all attempts.  With several circles they are
 added lazily: first none, then the classes of the circles that solution hits (class_starts.py).
 The run on one grid is ip_run.py's, its starting points and resampling start_points.py's,
-how runs execute on the threads and are recorded run_execution.py's.
+how runs execute on the threads and are recorded run_execution.py's, the coarse optima's
+climb to the N grid refinement.py's.
 A warm start (initial_guess: a previous SolveResult, or controls and t_f, e.g. the remainder of
 the plan being executed) skips the coarse grid.
 """
 
 import dataclasses
-import math
 
 import numpy as np
 
 from . import homotopy, ipm
-from .class_starts import ClassStarts, relaxation
+from .class_starts import ClassStarts
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
     EXPLORE_TIME, FIT_BAND, FIT_FACTORS, FIT_FACTORS_FOLDING, FOLD_ATTEMPT, FOLD_SOURCES, \
-    FOLD_STARTS, MAX_REFINE, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, \
-    REFINE_BAND, WARM_BUDGET, WARM_EXACT, WARM_PUSH
+    FOLD_STARTS, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, WARM_BUDGET, WARM_EXACT, \
+    WARM_PUSH
 from .ip_run import BOUND_PUSH, Stop
 from .ipm_workspace import H_DELTA
+from .refinement import Refinement, same_optimum
 from .result import SolveResult, Status
 from .run_execution import RunExecution
 from .start_points import actuator_states, fitted_final_time, fold_starts, has_actuators, \
-    interpolation_start, interpolation_states, ladder, resample, resample_duals, start_along, \
-    warm_start_point
+    interpolation_start, interpolation_states, start_along, warm_start_point
 
 CODE_STATUS = {ipm.CONVERGED: Status.SOLVED, ipm.ITERATION_LIMIT: Status.MAX_ITERATIONS,
                ipm.LINE_SEARCH_FAILED: Status.STALLED, ipm.NUMERICAL_FAILURE: Status.STALLED}
-
-
-def _in_band(run, shortest):
-    """Return whether a converged coarse run is within REFINE_BAND of the shortest t_f."""
-    # The band scales with the discretisation error, ~ 1 / intervals.
-    band = REFINE_BAND * COARSE_INTERVALS / min(run.n, COARSE_INTERVALS)
-    return run.t_f <= (1.0 + band) * shortest
-
-
-def _same_optimum(run, other):
-    """Return whether two converged runs end at the same t_f (within 1e-6, relative)."""
-    return abs(run.t_f - other.t_f) <= 1e-6 * other.t_f
 
 
 def _guess_intervals(guess):
@@ -79,7 +67,7 @@ def _guess_intervals(guess):
     return int(np.shape(controls)[0])
 
 
-class FastSolve(ClassStarts, RunExecution):
+class FastSolve(Refinement, ClassStarts, RunExecution):
     """Fast mode on one problem: coarse-to-fine cold start or warm start, then the result."""
 
     def __init__(self, problem, options, clock, initial_guess=None, start_point=None):
@@ -247,7 +235,7 @@ class FastSolve(ClassStarts, RunExecution):
             [((j,), -1.0) for j in range(wrist - 1, 0, -1)]
         sources = []
         for run in sorted(found, key=lambda run: run.t_f):
-            if not any(_same_optimum(run, other) for other in sources):
+            if not any(same_optimum(run, other) for other in sources):
                 sources.append(run)
         for source in sources[:FOLD_SOURCES]:
             for start in fold_starts(problem, source.ws.x, source.t_f,
@@ -322,171 +310,6 @@ class FastSolve(ClassStarts, RunExecution):
             if grid == n and (self.best is None or run.t_f < self.best.t_f):
                 self.best = run     # what a timeout during the further attempts returns
         return run, code
-
-    def _finish(self, found, n, allowance=None, prefetched=None):
-        """
-        Refine the distinct coarse optima close to the best one; set self.best.
-
-        The coarse grid's ranking of nearby optima is not the N grid's, so the distinct
-        converged ones within REFINE_BAND of the shortest (at most MAX_REFINE) are carried up.
-        Through the intermediate grids of ladder() when there are any (each step a few cheap
-        iterations, fewer in all than one jump to N): every candidate to the last intermediate
-        grid, then the shortest converged there to N (the next one if it fails).  Without
-        intermediate grids each candidate goes to N and the shortest converged one is kept.
-        The candidates climb the ladder side by side (_parallel), each within allowance
-        iterations (default: an equal share of the iterations left); prefetched: climbs and a
-        refinement to N already run (Prefetch.run), with the same allowance and budget.
-        """
-        candidates = self._candidates(found)
-        if not candidates:
-            return
-        rank = self._rank_grid(min(run.n for run in candidates), n, len(candidates))
-        if rank == n:
-            for coarse in candidates:
-                if self.done >= self.limit:
-                    break
-                run, code = self._complete(self._refine(coarse, n), coarse, n)
-                if code == ipm.CONVERGED and (self.best is None or run.t_f < self.best.t_f):
-                    self.best = run
-            return
-        # The candidates side by side (_parallel), each up its own ladder within its share.
-        left = self.limit - self.done
-        if left < 1:
-            return
-        candidates = candidates[:left]
-        climb = self._climber(rank, allowance or left // len(candidates))
-        climbs = (prefetched or {}).get('climbs', {})
-        finals = (prefetched or {}).get('finals', {})
-        climbed = self._parallel(
-            [lambda solve, run=run: climb(solve, run) for run in candidates],
-            {k: climbs[id(run)] for k, run in enumerate(candidates) if id(run) in climbs})
-        ranked = self._clear_climbs(climbed, candidates, climb)
-        for source in sorted(ranked, key=lambda r: r.t_f) + candidates:
-            if self.done >= self.limit:
-                break
-            if id(source) in finals:           # its refinement to N, run already
-                (run, code), runs = finals.pop(id(source))
-                for done in runs:
-                    self._record(done)
-                    self.run = done
-            else:
-                run, code = self._refine(source, n)
-            run, code = self._complete((run, code), source, n)
-            if code == ipm.CONVERGED:
-                self.best = run
-                return
-
-    def _clear_climbs(self, climbed, candidates, climb):
-        """
-        Return the converged climbs of candidates whose solutions are the problem's.
-
-        climbed: (run, code) per candidate.  A relaxation's climb (_lazy_classes) clear of the
-        dropped circles is a local optimum of the problem; one that hits them bounds its
-        candidate's climb with all circles from below (under the class starts' premise), so
-        that climb is done (from the clear coarse candidate) only when the bound is shorter
-        than the shortest clear climb.
-        """
-        hit = {k for k, (run, code) in enumerate(climbed)
-               if code == ipm.CONVERGED and self._violated(run)}
-        shortest = min([run.t_f for k, (run, code) in enumerate(climbed)
-                        if code == ipm.CONVERGED and k not in hit], default=math.inf)
-        redo = [k for k in sorted(hit) if climbed[k][0].t_f < shortest]
-        again = self._parallel([lambda solve, run=candidates[k]: climb(solve, run, True)
-                                for k in redo])
-        climbed = list(climbed)
-        for k, value in zip(redo, again):
-            climbed[k] = value
-        return [run for k, (run, code) in enumerate(climbed)
-                if code == ipm.CONVERGED and (k not in hit or k in redo)]
-
-    def _candidates(self, found):
-        """
-        Return the distinct runs of found (in attempt order) within the band of the shortest.
-
-        Shortest first, at most MAX_REFINE.  Of runs that end at the same t_f (within 1e-6: the
-        same optimum reached from two starts) the first attempt's stands for them: it usually
-        converges first, so its climb may have started already (_class_attempts).
-        """
-        order = sorted(range(len(found)), key=lambda k: found[k].t_f)   # stable
-        chosen = []
-        for k in order:
-            if self.done >= self.limit or len(chosen) >= MAX_REFINE:
-                break
-            if not _in_band(found[k], found[order[0]].t_f):
-                continue
-            same = [i for i, c in enumerate(chosen) if _same_optimum(found[k], found[c])]
-            if not same:
-                chosen.append(k)
-            elif k < chosen[same[0]]:
-                chosen[same[0]] = k
-        return [found[k] for k in chosen]
-
-    def _rank_grid(self, coarse, n, count):
-        """
-        Return the grid count candidates from coarse intervals are ranked on.
-
-        The last grid of the ladder from coarse to N (N if none): from the class attempts' 50
-        intervals 136, 368 (the last step to N 2.7, 15-20 iterations there on planar_2r; via
-        126 and 316 it was 17-25).  Never coarser than from COARSE_INTERVALS: nearby optima
-        swap places on coarse grids (planar_2r: on 126 intervals, not on 316).  An RK4 coarse
-        solution is already close to the N grid's (error O(tau^4), not O(tau)): there the
-        intermediate grid saves no N-grid iterations (paper scenario: 17 there after 25 on
-        316, 19 straight), so a single candidate goes straight to N.
-        """
-        if self.problem.integrator != 'euler' and count == 1:
-            return n
-        return max((ladder(coarse, n) or [n])[-1], (ladder(COARSE_INTERVALS, n) or [n])[-1])
-
-    def _climber(self, rank, allowance):
-        """
-        Return climb(solve, run, full=False): run's solution up the ladder to rank.
-
-        Within allowance iterations; a relaxation's run (_lazy_classes) climbs on its
-        relaxation, or with full on the problem.
-        """
-        def climb(solve, run, full=False):
-            used, code = 0, ipm.CONVERGED
-            relaxed = None if full else self._narrowed(run)
-            for m in ladder(run.n, rank) + [rank]:
-                if used >= allowance:
-                    return run, ipm.ITERATION_LIMIT
-                states, controls = resample(run.ws.x, run.controls(), m)
-                duals = resample_duals(self._duals(run, relaxed), run.n, m)
-                run, code = solve(m, states, controls, run.t_f, MU_WARM / m, duals,
-                                  min(self.limit // 4, allowance - used), duals['rho'],
-                                  relaxed)
-                used += run.iterations
-                if code != ipm.CONVERGED:
-                    break
-            return run, code
-        return climb
-
-    def _refine(self, run, n, full=False):
-        """
-        Carry a converged run's primal-dual solution to n intervals and solve there.
-
-        A relaxation's run (_lazy_classes) on its relaxation, or with full on the problem.
-        """
-        relaxed = None if full else relaxation(run)
-        states, controls = resample(run.ws.x, run.controls(), n)
-        duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, n)
-        return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
-                              budget=max(1, self.limit // 4), elastic=duals['rho'],
-                              relaxed=relaxed)
-
-    def _complete(self, refined, source, n):
-        """
-        Return refined (run, code) on the N grid, solved on the problem if need be.
-
-        A relaxation's run (_lazy_classes) clear of the circles it does not have at every
-        node is a local optimum of the problem too (those constraints inactive, multipliers
-        0); one that hits them is refined again from source (clear of them, _finish) with
-        all circles.
-        """
-        run, code = refined
-        if code != ipm.CONVERGED or not self._violated(run):
-            return run, code
-        return self._refine(source, n, full=True)
 
     def _may_explore(self):
         """Return whether a further cold attempt may start (obstacles, budget and time)."""

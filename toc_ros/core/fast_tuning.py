@@ -15,8 +15,8 @@
 """
 Tuning of the fast mode's strategy: grids, barrier parameters, attempts and bands.
 
-Read by fast_solver.py and class_starts.py; the interior-point run's own tolerances are
-ip_run.py's.
+Read by fast_solver.py, refinement.py and class_starts.py; the interior-point run's own
+tolerances are ip_run.py's.
 """
 
 from .ip_run import ELASTIC_WEIGHT
