@@ -330,6 +330,7 @@ def test_bad_arm_input_is_invalid_input_with_the_reason(changes, reason):
 def test_paper_mode_and_spheres_missing_are_refused():
     result = solve(_problem('panda'), SolverOptions(mode='paper'))
     assert result.status is Status.INVALID_INPUT and 'fast' in result.message
+    assert 'unstable in open loop' in result.message        # the reason, not only the refusal
     start, goal, obs = SCENARIOS['panda']
     bare = Problem(x0=start, x_goal=goal, model=ArmRobot(load_arm('panda')), obstacles=obs)
     result = solve(bare)

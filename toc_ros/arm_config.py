@@ -239,8 +239,8 @@ def arm_errors(params, model):
     """
     errors = []
     if str(params.get('solver.mode', 'fast')) != 'fast':
-        errors.append(f"solver.mode {params['solver.mode']!r} is not implemented for URDF arms: "
-                      'use fast')
+        from toc_ros.core.arms.arm_solve import MODE_REFUSAL     # (imports Pinocchio)
+        errors.append(f"solver.mode {params['solver.mode']!r} {MODE_REFUSAL}")
     if str(params.get('solver.integrator', 'euler')) != 'euler':
         errors.append(f"solver.integrator {params['solver.integrator']!r} is not implemented "
                       "for URDF arms in solver_node: use 'euler' (solve() and toc-solve have "

@@ -19,7 +19,7 @@ For an arm the Problem's fields mean: x0 / x_goal the states (q_1..q_n, dq_1..dq
 first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base frame; margin
 [m] added to every sphere pair's radii; n_intervals N; integrator 'euler' or 'rk4' (RK4
 without the dynamics' curvature: rk4_steps.py); t_f0 is not used (the cold start times its
-own path).  Paper mode is not implemented for arms (refused).
+own path).  Paper mode is refused for arms (MODE_REFUSAL says why).
 
 Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
 constrained at every node when ArmRobot.self_collision is True (start and goal are then
@@ -52,6 +52,11 @@ from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violation
 # Positions and velocities of the re-integrated states may exceed a bound by rounding only.
 BOUND_TOL = 1e-9
 MAX_INTERVALS = 100000
+# Why a URDF arm has fast mode only (the reason of the refusal, also solver_node's).
+MODE_REFUSAL = ("is not offered for URDF arms: the paper's heuristic descends the gradient of a "
+                'single-shooting rollout, and through an arm that gravity makes unstable in open '
+                'loop that gradient grows like exp(lambda t_f) (1e6 to 1e10 a small step off a '
+                'tracking solution: benchmarks/arm_paper_sensitivity.py); use fast')
 # A start may exceed a velocity limit by this fraction: a measured state that the tracking
 # carried past a limit the plan rides (replanning from it must be possible); the plan keeps
 # every limit from node 1 on when the efforts can slow the joint down that fast (else the
@@ -169,7 +174,7 @@ def check_arm_problem(problem, options):
     robot = _robot(problem)
     arm = robot.arm
     if options.mode != 'fast':
-        raise ArmError(f'mode {options.mode!r} is not implemented for URDF arms: use fast')
+        raise ArmError(f'mode {options.mode!r} {MODE_REFUSAL}')
     if problem.integrator not in ('euler', 'rk4'):
         raise ArmError(f"integrator {problem.integrator!r}: use 'euler' or 'rk4'")
     n_int = problem.n_intervals
@@ -353,4 +358,5 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
 
 
 __all__ = ['ArmRobot', 'ArmViolations', 'check_arm_problem', 'is_arm_model', 'measure_arm',
+           'MODE_REFUSAL',
            'solve_arm', 'CLEARANCE_TOL', 'TERMINAL_TOL']
