@@ -195,10 +195,16 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
                 ipm.CONVERGED
         if found:
             self._finish(found, n, allowance, prefetched)
+            if self.best is None and grid < n:
+                self._refine_others(found, n)
         if self.best is not None and grid < n:
             self._fold_attempts(n, n, [self.best])
         if self.best is not None:
             return self.best, ipm.CONVERGED
+        if self.done >= self.limit and self.run is not None and self.run.n == n:
+            # The budget went to refinements on the N grid: the last one's point (not a cold
+            # run of the N grid with the one iteration left).
+            return self.run, ipm.ITERATION_LIMIT
         for mu in MU_COLD_RETRIES:
             if self.done >= self.limit and first is not None and first[0].n == n:
                 break

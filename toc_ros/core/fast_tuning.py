@@ -63,6 +63,13 @@ EXPLORE_TIME = 0.25
 # ones); the shortest refined one is the result (_finish).
 REFINE_BAND = 0.02
 MAX_REFINE = 3
+# A refinement on the N grid (a warm start from a coarser grid's optimum and multipliers) may
+# take this share of the iteration limit.  One that needs more is leaving its basin: a fast
+# whip's coarse optimum can be an artefact of the coarse grid (a three-link arm under gravity:
+# 0.597 s on 100 intervals, no optimum near it on 300); the budget then goes to the next
+# candidate (refinement._refine_others).  Of 291 refinements on 160 random free three-link
+# moves the 289 that converged took at most 261 iterations; 2R and the paper's robot <= 21.
+REFINE_SHARE = 0.15
 # Grid of the cold attempts from the class starts (when the coarse grid is not the N grid):
 # half the cost per iteration and fewer iterations than on COARSE_INTERVALS, the same optima
 # after refinement on planar_2r (where a finer grid with a large initial mu can miss some).

@@ -26,7 +26,7 @@ import math
 
 from . import ipm
 from .class_starts import relaxation
-from .fast_tuning import COARSE_INTERVALS, MAX_REFINE, MU_WARM, REFINE_BAND
+from .fast_tuning import COARSE_INTERVALS, MAX_REFINE, MU_WARM, REFINE_BAND, REFINE_SHARE
 from .start_points import ladder, resample, resample_duals
 
 
@@ -97,6 +97,27 @@ class Refinement:
             if code == ipm.CONVERGED:
                 self.best = run
                 return
+
+    def _refine_others(self, found, n):
+        """
+        After _finish refined no candidate on the N grid: the other coarse optima, shortest first.
+
+        A coarse optimum of a fast whip can be an artefact of the coarse grid's discretisation
+        error, whose refinement wanders without converging (a three-link arm under gravity: the
+        coarse 0.597 s, 500 iterations on 300 intervals, IPOPT's best there 0.650 s); the next
+        distinct ones (outside the band of the shortest) are then refined one by one, within
+        the budget left, until one converges (sets self.best).
+        """
+        tried = self._candidates(found)
+        for coarse in sorted(found, key=lambda run: run.t_f):      # stable: attempt order
+            if self.best is not None or self.done >= self.limit:
+                return
+            if any(same_optimum(coarse, other) for other in tried):
+                continue
+            tried.append(coarse)
+            run, code = self._complete(self._refine(coarse, n), coarse, n)
+            if code == ipm.CONVERGED:
+                self.best = run
 
     def _clear_climbs(self, climbed, candidates, climb):
         """
@@ -193,8 +214,8 @@ class Refinement:
         states, controls = resample(run.ws.x, run.controls(), n)
         duals = resample_duals(run.duals() if relaxed else self._duals(run), run.n, n)
         return self._solve_on(n, states, controls, run.t_f, MU_WARM / n, duals,
-                              budget=max(1, self.limit // 4), elastic=duals['rho'],
-                              relaxed=relaxed)
+                              budget=max(1, int(REFINE_SHARE * self.limit)),
+                              elastic=duals['rho'], relaxed=relaxed)
 
     def _complete(self, refined, source, n):
         """
