@@ -149,11 +149,12 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
         none (another number of joints, no hole inside the grid) or none of them converges: the
         interpolation start with the first pair of COLD_ATTEMPTS and, when _explore says so,
         with the other pairs.  The distinct converged ones within REFINE_BAND of the shortest
-        are refined (_finish); with three or more joints, the folds of the attempts' best
-        ones and of the refined result are attempted too (_fold_attempts).  When nothing
-        converges, the N grid from the cold start with each
-        barrier parameter of MU_COLD_RETRIES in turn (the central path from another mu can
-        lead into another basin).
+        are refined (_finish), and when none of them refines the others, shortest first
+        (_refine_others); with three or more joints, the folds of the attempts' best ones and
+        of the refined result are attempted too (_fold_attempts).  When nothing converges, the
+        N grid from the cold start with each barrier parameter of MU_COLD_RETRIES in turn (the
+        central path from another mu can lead into another basin), unless the refinements
+        spent the iteration limit (then the last one's point).
         """
         problem = self.problem
         grid = COARSE_INTERVALS if n > 2 * COARSE_INTERVALS else n
