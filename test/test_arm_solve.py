@@ -682,6 +682,9 @@ def test_cli_solves_an_arm_and_writes_the_contract(tmp_path):
     (['--model', 'urdf:/nonexistent/robot.urdf'], 'cannot read URDF'),
     (['--model', 'panda', '--joints', 'panda_joint1,no_such_joint'], 'unknown joint'),
     (['--model', 'panda', '--locked', 'panda_finger_joint1=abc'], 'not a number'),
+    # --mode is an option of its own, not an abbreviation of --model (it was read as
+    # "--model paper": unknown arm 'paper').
+    (['--model', 'panda', '--mode', 'paper'], 'unstable in open loop'),
 ])
 def test_cli_refuses_bad_models_with_the_reason(args, reason, capsys):
     from toc_ros.solve import main

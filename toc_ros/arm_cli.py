@@ -20,7 +20,7 @@ toc-solve for URDF arms: --model panda | ur5 | urdf:PATH (toc_ros.solve hands th
               [--joints j1,...,jn] [--locked NAME=VALUE ...] [--limit JOINT.KEY=VALUE ...]
               [--collision-spheres FILE]
               [--sphere X Y Z R ...] [--margin M] [--self-collision]
-              [--integrator euler|rk4] [--N N]
+              [--mode fast] [--integrator euler|rk4] [--N N]
               [--max-iterations M] [--timeout S] [--json OUT] [--quiet]
 
 States are positions first, then velocities (velocities 0 when omitted).  --goal-pose is
@@ -65,7 +65,8 @@ def build_parser():
         prog='toc-solve', description='Minimum-time trajectory of a URDF arm (Pinocchio '
         'dynamics, torque/velocity/position limits, sphere obstacles). SI units, radians.',
         epilog='Exit codes: 0 solved, 1 solved inaccurately, 2 not converged or bad '
-               'arguments, 3 canceled or timed out, 4 invalid problem, 5 --json not writable.')
+               'arguments, 3 canceled or timed out, 4 invalid problem, 5 --json not writable.',
+        allow_abbrev=False)     # (--mode must not pass for --model)
     p.add_argument('--model', required=True, metavar='panda|ur5|urdf:PATH')
     p.add_argument('--joints', metavar='J1,...,JN',
                    help="planned joints in kinematic order (default: the named arm's arm "
@@ -99,6 +100,8 @@ def build_parser():
                    help='also keep the spheres of non-adjacent links apart (no margin)')
     p.add_argument('--margin', type=float, default=0.0, metavar='M',
                    help='clearance margin added to every sphere pair [m] (default 0)')
+    p.add_argument('--mode', choices=('fast', 'paper'), default='fast',
+                   help='fast (default); paper is refused for arms, with the reason')
     p.add_argument('--integrator', choices=('euler', 'rk4'), default='euler')
     p.add_argument('--N', type=int, default=100, metavar='N', help='intervals (default 100)')
     p.add_argument('--max-iterations', type=int, default=None, metavar='M')
@@ -149,9 +152,9 @@ def goal_state(args, robot):
 
 
 def solver_options(args):
-    """Return the SolverOptions of the arguments (the arm solver is the fast mode only)."""
+    """Return the SolverOptions of the arguments (arms are solved in fast mode only)."""
     from toc_ros.core import SolverOptions
-    return SolverOptions(mode='fast', max_iterations=args.max_iterations,
+    return SolverOptions(mode=args.mode, max_iterations=args.max_iterations,
                          timeout=args.timeout if args.timeout else None)
 
 

@@ -55,8 +55,8 @@ MAX_INTERVALS = 100000
 # Why a URDF arm has fast mode only (the reason of the refusal, also solver_node's).
 MODE_REFUSAL = ("is not offered for URDF arms: the paper's heuristic descends the gradient of a "
                 'single-shooting rollout, and through an arm that gravity makes unstable in open '
-                'loop that gradient grows like exp(lambda t_f) (1e6 to 1e10 a small step off a '
-                'tracking solution: benchmarks/arm_paper_sensitivity.py); use fast')
+                'loop that gradient grows like exp(lambda t_f) (a norm of 6e6 and more a small '
+                'step off a tracking solution: benchmarks/arm_paper_sensitivity.py); use fast')
 # A start may exceed a velocity limit by this fraction: a measured state that the tracking
 # carried past a limit the plan rides (replanning from it must be possible); the plan keeps
 # every limit from node 1 on when the efforts can slow the joint down that fast (else the
