@@ -186,7 +186,7 @@ def _goal_for(run, time, previous_time, a, joint_names, end=None):
                 goals.append(pose_to_joint_goal(pose[1], pose[1].header.frame_id, model,
                                                 branch=branch))
             except ConversionError:
-                pass
+                pass            # not reachable on this branch (or another frame): try the others
         if goals:
             goal = min(goals, key=lambda g: 0.0 if end is None else np.linalg.norm(g - end))
             candidates.append((pose[0], goal, f'{run.topics["goal_pose"]} at {pose[0]:.3f} s'))
@@ -196,7 +196,7 @@ def _goal_for(run, time, previous_time, a, joint_names, end=None):
             candidates.append((joints[0], joint_state_to_state(joints[1], joint_names),
                                f'{run.topics["goal_joints"]} at {joints[0]:.3f} s'))
         except ConversionError:
-            pass
+            pass                # not a goal for this model's joints
     if not candidates:
         return None, ''
     _, goal, source = max(candidates, key=lambda c: c[0])

@@ -97,7 +97,7 @@ def analyse(run: RecordedRun, recording_info: dict, warn) -> Report:
             try:
                 start = joint_state_to_state(before[1], plan.joint_names)
             except ConversionError:
-                pass
+                pass            # not a state of the plan's joints: its numbers without a start
         plan_entries.append(plan_numbers(plan, u_max, model, start))
     duration = max((items[-1][0] for items in run.messages.values() if items), default=0.0)
     summary = {
