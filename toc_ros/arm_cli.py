@@ -61,6 +61,7 @@ def requested_model(argv):
 
 def build_parser():
     """Argument parser of toc-solve for arms."""
+    from toc_ros.core.problem import MODES
     p = argparse.ArgumentParser(
         prog='toc-solve', description='Minimum-time trajectory of a URDF arm (Pinocchio '
         'dynamics, torque/velocity/position limits, sphere obstacles). SI units, radians.',
@@ -100,7 +101,7 @@ def build_parser():
                    help='also keep the spheres of non-adjacent links apart (no margin)')
     p.add_argument('--margin', type=float, default=0.0, metavar='M',
                    help='clearance margin added to every sphere pair [m] (default 0)')
-    p.add_argument('--mode', choices=('fast', 'paper'), default='fast',
+    p.add_argument('--mode', choices=MODES, default='fast',
                    help='fast (default); paper is refused for arms, with the reason')
     p.add_argument('--integrator', choices=('euler', 'rk4'), default='euler')
     p.add_argument('--N', type=int, default=100, metavar='N', help='intervals (default 100)')
