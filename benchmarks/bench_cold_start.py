@@ -30,8 +30,8 @@ Euler, N intervals, t_f0 left at the Problem's default.
 Per scenario:
 
 * fast mode with its cold start (the result) and with the cold start of a single t_f0 (the
-  problem's; fast_solver.fitted_final_time disabled), each re-measured by re-integrating its
-  controls (measure_violations);
+  problem's: one search, without fitted attempts, FOLDING_SEARCHES = (None,)), each
+  re-measured by re-integrating its controls (measure_violations);
 * IPOPT (benchmarks/reference_solvers.py, the same discretisation) from the interpolation start
   over each t_f0 of IPOPT_STARTS (multiples of the fitted bang-bang time, and the problem's
   t_f0) and from fast mode's solutions, with and without the fitted starts (a check of their
@@ -157,16 +157,20 @@ def extra_turns(problem, states):
 
 
 def fast(problem, fitted=True):
-    """Solve in fast mode (fitted: with the fitted cold starts); return a row dict."""
-    saved = fast_solver.fitted_final_time
+    """
+    Solve in fast mode; return a row dict.
+
+    fitted=False: the single search without fitted attempts (the start over t_f0 alone).
+    """
+    saved = fast_solver.FOLDING_SEARCHES
     if not fitted:
-        fast_solver.fitted_final_time = lambda problem: None
+        fast_solver.FOLDING_SEARCHES = (None,)
     try:
         started = time.perf_counter()
         result = solve(problem, SolverOptions(mode='fast'))
         wall = time.perf_counter() - started
     finally:
-        fast_solver.fitted_final_time = saved
+        fast_solver.FOLDING_SEARCHES = saved
     feasible = False
     if result.controls is not None:
         _, v = measure_violations(problem, result.controls, result.final_time)

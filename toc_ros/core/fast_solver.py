@@ -46,8 +46,8 @@ from . import homotopy, ipm
 from .class_starts import ClassStarts
 from .fast_tuning import COARSE_INTERVALS, COLD_ATTEMPTS, EXPLORE_INTERVALS, EXPLORE_NONCONVEX, \
     EXPLORE_TIME, FIT_BAND, FIT_FACTORS, FIT_FACTORS_FOLDING, FOLD_ATTEMPT, FOLD_SOURCES, \
-    FOLD_STARTS, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, WARM_BUDGET, WARM_EXACT, \
-    WARM_PUSH
+    FOLD_STARTS, FOLDING_SEARCHES, MU_COLD_RETRIES, MU_DRIFT, MU_EXACT, MU_WARM, WARM_BUDGET, \
+    WARM_EXACT, WARM_PUSH
 from .ip_run import BOUND_PUSH, Stop
 from .ipm_workspace import H_DELTA
 from .refinement import Refinement, same_optimum
@@ -80,10 +80,13 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
         self.initial_guess_intervals = _guess_intervals(initial_guess)
         self.limit = options.iteration_limit()
         self.done = 0            # iterations on finished grids
+        self.offset = 0          # iterations of earlier cold searches (_cold_searches)
         self.history = []
         self.run = None
         self.best = None         # the shortest converged run on the N grid so far
         self.narrow = False      # climbs without the far circles (_narrowed; lazy solves)
+        self.fit_mu = FOLDING_SEARCHES[0]    # first mu of the fitted attempts (None: none)
+        self.first_attempt = None            # (grid, (run, code)) of _first_attempt
 
     def solve(self):
         problem = self.problem
@@ -112,7 +115,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             elif has_actuators(problem.robot_model):
                 run, code = self._cold_actuated(n)
             else:
-                run, code = self._cold(n)
+                run, code = self._cold_searches(n)
         except Stop as stop:
             reason = stop.args[0]
             if reason is Status.TIMEOUT and self.best is not None:
@@ -179,7 +182,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             allowance, prefetched = None, None      # today's shares for these attempts
             t_f0 = float(problem.t_f0)
             start = start_along(problem, states, t_f0) + (t_f0,)
-            first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
+            first = self._first_attempt(grid, n, start, found)
             if self._explore(first):
                 for pair in COLD_ATTEMPTS[1:]:
                     if self._may_explore():
@@ -187,7 +190,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             for t_f in self._fitted_times():
                 if self.done < self.limit // 2:
                     self._attempt(grid, n, interpolation_start(problem, grid, t_f),
-                                  COLD_ATTEMPTS[0], found)
+                                  (COLD_ATTEMPTS[0][0], self.fit_mu), found)
             self._fold_attempts(grid, n, found)
         if grid == n and found:
             # Ties (the same optimum from several starts, within 1e-6): the first attempt.
@@ -216,6 +219,41 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             if code == ipm.CONVERGED:
                 return run, code
         return first
+
+    def _cold_searches(self, n):
+        """
+        Return (run, code) of the cold start: _cold, or with 3+ joints the best of searches.
+
+        Three or more joints: one whole cold search per FOLDING_SEARCHES entry (the first
+        barrier parameter of its fitted attempts), each with the iteration limit as its own
+        budget, the next one only within EXPLORE_TIME of a timeout; the shortest converged on
+        the N grid is the result (ties: the earlier search).  Their iterations add up (and
+        the history); when a search is stopped, a timeout returns the shortest converged so
+        far.
+        """
+        run, code = self._cold(n)
+        if self.problem.robot_model.n_joints < 3:
+            return run, code
+        for fit_mu in FOLDING_SEARCHES[1:]:
+            if not self._within_explore_time():
+                break
+            other = FastSolve(self.problem, self.options, self.clock)
+            other.fit_mu, other.first_attempt = fit_mu, self.first_attempt
+            other.offset, other.history = self.offset + self.done, self.history
+            converged = code == ipm.CONVERGED and run.n == n
+            try:
+                other_run, other_code = other._cold(n)
+            except Stop:
+                kept = [r for r in (run if converged else None, other.best) if r is not None]
+                self.best = min(kept, key=lambda r: r.t_f) if kept else None
+                self.run = other.run
+                raise
+            finally:
+                self.done += other.done
+            if other_code == ipm.CONVERGED and other_run.n == n and (
+                    not converged or other_run.t_f < run.t_f):
+                run, code = other_run, other_code
+        return run, code
 
     def _fold_attempts(self, grid, n, found):
         """
@@ -260,7 +298,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
         of three or more joints: every one of FIT_FACTORS_FOLDING, whatever t_f0 (its optima
         differ by how the links fold, and starts of other timing reach other folds).
         """
-        fitted = fitted_final_time(self.problem)
+        fitted = None if self.fit_mu is None else fitted_final_time(self.problem)
         if fitted is None:
             return []
         if self.problem.robot_model.n_joints >= 3:
@@ -290,7 +328,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
         inner = FastSolve(joints.with_model(joint), self.options, self.clock)
         inner.limit = self.limit - self.done
         try:
-            inner_run, code = inner._cold(n)
+            inner_run, code = inner._cold_searches(n)
         finally:
             self.history += inner.history
             self.done += inner.done
@@ -305,6 +343,22 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             if code == ipm.CONVERGED:
                 return run, code
         return self._cold(n)
+
+    def _first_attempt(self, grid, n, start, found):
+        """
+        Run the first cold attempt, or take the earlier search's (_cold_searches).
+
+        Every search's first attempt is the same run (start, pair and budget alike): the
+        later searches take its result rather than repeat it.
+        """
+        if self.first_attempt is None or self.first_attempt[0] != grid:
+            self.first_attempt = (grid, self._attempt(grid, n, start, COLD_ATTEMPTS[0], []))
+        run, code = self.first_attempt[1]
+        if code == ipm.CONVERGED:
+            found.append(run)
+            if grid == n and (self.best is None or run.t_f < self.best.t_f):
+                self.best = run
+        return run, code
 
     def _attempt(self, grid, n, start, pair, found):
         """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""

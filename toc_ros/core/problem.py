@@ -221,8 +221,9 @@ class SolverOptions:
                         'heuristic)', choices=MODES)
     # None: the mode's default (DEFAULT_ITERATIONS)
     max_iterations: Optional[int] = setting(
-        None, "iteration limit of one solve; 0 = the mode's default (paper: M = 30000 gradient "
-        'steps, fast: 2000 interior-point iterations)', low=0, high=1_000_000_000, none_value=0)
+        None, 'iteration limit of one solve (fast, 3+ joints: of each of its cold searches); 0 = '
+        "the mode's default (paper: M = 30000 gradient steps, fast: 2000 interior-point "
+        'iterations)', low=0, high=1_000_000_000, none_value=0)
     # [s] wall clock; None = no limit (the scenario file's default is 60 s)
     timeout: Optional[float] = setting(None, 'wall-clock limit of one solve; 0 = none',
                                        unit='s', low=0.0, high=86400.0, none_value=0.0,

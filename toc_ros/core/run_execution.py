@@ -44,7 +44,8 @@ class RunExecution:
         from .result import Progress
         fs = run.ws.fscal
         self.clock.report(lambda: Progress(
-            self.done + run.iterations, run.t_f, run.t_f, math.nan, self.clock.elapsed(),
+            self.offset + self.done + run.iterations, run.t_f, run.t_f, math.nan,
+            self.clock.elapsed(),
             f'fast N={run.n}', None, float(fs[F_THETA])))
 
     def _solve_on(self, n, states, controls, t_f, mu, duals=None, budget=None,
@@ -138,7 +139,7 @@ class RunExecution:
             runs = [run for log in logs for run in log]
             if runs:
                 from .result import Progress
-                its = self.done + sum(run.iterations for run in runs)
+                its = self.offset + self.done + sum(run.iterations for run in runs)
                 self.clock.report(lambda: Progress(
                     its, runs[-1].t_f, runs[-1].t_f, math.nan, self.clock.elapsed(),
                     f'fast N={runs[-1].n}', None, float(runs[-1].ws.fscal[F_THETA])))
