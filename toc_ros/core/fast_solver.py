@@ -86,7 +86,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
         self.best = None         # the shortest converged run on the N grid so far
         self.narrow = False      # climbs without the far circles (_narrowed; lazy solves)
         self.fit_mu = FOLDING_SEARCHES[0]    # first mu of the fitted attempts (None: none)
-        self.first_attempt = None            # (grid, (run, code)) of _first_attempt
+        self.attempts = {}       # _attempt's runs by their start, shared by the cold searches
 
     def solve(self):
         problem = self.problem
@@ -182,7 +182,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             allowance, prefetched = None, None      # today's shares for these attempts
             t_f0 = float(problem.t_f0)
             start = start_along(problem, states, t_f0) + (t_f0,)
-            first = self._first_attempt(grid, n, start, found)
+            first = self._attempt(grid, n, start, COLD_ATTEMPTS[0], found)
             if self._explore(first):
                 for pair in COLD_ATTEMPTS[1:]:
                     if self._may_explore():
@@ -227,9 +227,9 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
         Three or more joints: one whole cold search per FOLDING_SEARCHES entry (the first
         barrier parameter of its fitted attempts), each with the iteration limit as its own
         budget, the next one only within EXPLORE_TIME of a timeout; the shortest converged on
-        the N grid is the result (ties: the earlier search).  Their iterations add up (and
-        the history); when a search is stopped, a timeout returns the shortest converged so
-        far.
+        the N grid is the result (ties: the earlier search).  Attempts an earlier search ran
+        are not run again (self.attempts); the iterations run add up (and the history); when
+        a search is stopped, a timeout returns the shortest converged so far.
         """
         run, code = self._cold(n)
         if self.problem.robot_model.n_joints < 3:
@@ -238,7 +238,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             if not self._within_explore_time():
                 break
             other = FastSolve(self.problem, self.options, self.clock)
-            other.fit_mu, other.first_attempt = fit_mu, self.first_attempt
+            other.fit_mu, other.attempts = fit_mu, self.attempts
             other.offset, other.history = self.offset + self.done, self.history
             converged = code == ipm.CONVERGED and run.n == n
             try:
@@ -344,28 +344,22 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
                 return run, code
         return self._cold(n)
 
-    def _first_attempt(self, grid, n, start, found):
-        """
-        Run the first cold attempt, or take the earlier search's (_cold_searches).
-
-        Every search's first attempt is the same run (start, pair and budget alike): the
-        later searches take its result rather than repeat it.
-        """
-        if self.first_attempt is None or self.first_attempt[0] != grid:
-            self.first_attempt = (grid, self._attempt(grid, n, start, COLD_ATTEMPTS[0], []))
-        run, code = self.first_attempt[1]
-        if code == ipm.CONVERGED:
-            found.append(run)
-            if grid == n and (self.best is None or run.t_f < self.best.t_f):
-                self.best = run
-        return run, code
-
     def _attempt(self, grid, n, start, pair, found):
-        """Run one cold attempt (elastic weight, mu) on grid; append it to found if converged."""
+        """
+        Run one cold attempt (elastic weight, mu) on grid; append it to found if converged.
+
+        An attempt an earlier cold search ran (the same start, pair and budget: the first
+        one, folds of the same optimum) is taken from self.attempts, not run again.
+        """
         states, controls, t_f = start
         rho, mu = pair
-        run, code = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
-                                   budget=max(1, self.limit // (8 if grid < n else 4)))
+        budget = min(max(1, self.limit // (8 if grid < n else 4)), max(1, self.limit - self.done))
+        key = (grid, rho, mu, budget, float(t_f), np.asarray(states, dtype=float).tobytes(),
+               np.asarray(controls, dtype=float).tobytes())
+        if key not in self.attempts:
+            self.attempts[key] = self._solve_on(grid, states, controls, t_f, mu, elastic=rho,
+                                                budget=budget)
+        run, code = self.attempts[key]
         if code == ipm.CONVERGED:
             found.append(run)
             if grid == n and (self.best is None or run.t_f < self.best.t_f):
