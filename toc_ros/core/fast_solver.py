@@ -246,7 +246,7 @@ class FastSolve(Refinement, ClassStarts, RunExecution):
             except Stop:
                 kept = [r for r in (run if converged else None, other.best) if r is not None]
                 self.best = min(kept, key=lambda r: r.t_f) if kept else None
-                self.run = other.run
+                self.run = other.run or self.run     # (None: it ran only shared attempts)
                 raise
             finally:
                 self.done += other.done
