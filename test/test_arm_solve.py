@@ -327,10 +327,9 @@ def test_bad_arm_input_is_invalid_input_with_the_reason(changes, reason):
     assert reason in result.message
 
 
-def test_paper_mode_and_spheres_missing_are_refused():
-    result = solve(_problem('panda'), SolverOptions(mode='paper'))
-    assert result.status is Status.INVALID_INPUT and 'fast' in result.message
-    assert 'unstable in open loop' in result.message        # the reason, not only the refusal
+def test_paper_mode_with_rk4_and_spheres_missing_are_refused():
+    result = solve(_problem('panda', integrator='rk4'), SolverOptions(mode='paper'))
+    assert result.status is Status.INVALID_INPUT and 'explicit Euler' in result.message
     start, goal, obs = SCENARIOS['panda']
     bare = Problem(x0=start, x_goal=goal, model=ArmRobot(load_arm('panda')), obstacles=obs)
     result = solve(bare)
@@ -684,7 +683,7 @@ def test_cli_solves_an_arm_and_writes_the_contract(tmp_path):
     (['--model', 'panda', '--locked', 'panda_finger_joint1=abc'], 'not a number'),
     # --mode is an option of its own, not an abbreviation of --model (it was read as
     # "--model paper": unknown arm 'paper').
-    (['--model', 'panda', '--mode', 'paper'], 'unstable in open loop'),
+    (['--model', 'panda', '--mode', 'paper', '--integrator', 'rk4'], 'explicit Euler'),
 ])
 def test_cli_refuses_bad_models_with_the_reason(args, reason, capsys):
     from toc_ros.solve import main

@@ -20,7 +20,7 @@ toc-solve for URDF arms: --model panda | ur5 | urdf:PATH (toc_ros.solve hands th
               [--joints j1,...,jn] [--locked NAME=VALUE ...] [--limit JOINT.KEY=VALUE ...]
               [--collision-spheres FILE]
               [--sphere X Y Z R ...] [--margin M] [--self-collision]
-              [--mode fast] [--integrator euler|rk4] [--N N]
+              [--mode fast|paper] [--t-f0 S] [--integrator euler|rk4] [--N N]
               [--max-iterations M] [--timeout S] [--json OUT] [--quiet]
 
 States are positions first, then velocities (velocities 0 when omitted).  --goal-pose is
@@ -102,7 +102,11 @@ def build_parser():
     p.add_argument('--margin', type=float, default=0.0, metavar='M',
                    help='clearance margin added to every sphere pair [m] (default 0)')
     p.add_argument('--mode', choices=MODES, default='fast',
-                   help='fast (default); paper is refused for arms, with the reason')
+                   help='fast (default); paper: the section-3 heuristic in joint accelerations '
+                        '(Euler only; penalties, so limits may be exceeded a little)')
+    p.add_argument('--t-f0', type=float, default=2.5, metavar='S',
+                   help='paper mode: the final time it starts from and shortens [s] (default '
+                        "2.5, the paper's; fast mode times its own start)")
     p.add_argument('--integrator', choices=('euler', 'rk4'), default='euler')
     p.add_argument('--N', type=int, default=100, metavar='N', help='intervals (default 100)')
     p.add_argument('--max-iterations', type=int, default=None, metavar='M')
@@ -153,7 +157,7 @@ def goal_state(args, robot):
 
 
 def solver_options(args):
-    """Return the SolverOptions of the arguments (arms are solved in fast mode only)."""
+    """Return the SolverOptions of the arguments."""
     from toc_ros.core import SolverOptions
     return SolverOptions(mode=args.mode, max_iterations=args.max_iterations,
                          timeout=args.timeout if args.timeout else None)
@@ -170,7 +174,7 @@ def build_arm_problem(args, robot=None):
     robot = load_robot(args) if robot is None else robot
     problem = Problem(x0=tuple(args.start), x_goal=goal_state(args, robot), model=robot,
                       obstacles=tuple(tuple(row) for row in args.sphere), margin=args.margin,
-                      n_intervals=args.N, integrator=args.integrator)
+                      n_intervals=args.N, integrator=args.integrator, t_f0=args.t_f0)
     return problem, solver_options(args), robot.arm
 
 

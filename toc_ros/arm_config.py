@@ -239,8 +239,10 @@ def arm_errors(params, model):
     """
     errors = []
     if str(params.get('solver.mode', 'fast')) != 'fast':
-        from toc_ros.core.arms.arm_solve import MODE_REFUSAL     # (imports Pinocchio)
-        errors.append(f"solver.mode {params['solver.mode']!r} {MODE_REFUSAL}")
+        errors.append(f"solver.mode {params['solver.mode']!r} is not offered for URDF arms in "
+                      'solver_node: its goals and replan cycles are planned in fast mode (plans '
+                      'that meet every limit, warm-started from the last plan); paper mode for '
+                      'arms is a reference to compare with, in solve() and toc-solve')
     if str(params.get('solver.integrator', 'euler')) != 'euler':
         errors.append(f"solver.integrator {params['solver.integrator']!r} is not implemented "
                       "for URDF arms in solver_node: use 'euler' (solve() and toc-solve have "

@@ -201,6 +201,10 @@ class PaperOptions:
                          low=0.0, high=1e12, ros_name='K_p')
     eta: float = setting(1000.0, 'learning rate eta of eq. (32), paper mode (> 0)', low=0.0,
                          high=1e12)
+    # Arms descend in joint accelerations, where eta = 1000 diverges: their rate is relative.
+    arm_step: float = setting(1.0, 'URDF arms, paper mode: learning rate as a fraction of 1/L, '
+                              'L the terminal penalty curvature in the joint accelerations at '
+                              'tau0 (stable below 2)', low=0.0, high=2.0)
     d_tau: float = setting(1e-5, 'decrement of tau = t_f / N of eq. (34), paper mode (> 0)',
                            unit='s', low=0.0, high=1.0)
     j_eps: float = setting(0.01, 'J_eps of eq. (34), paper mode (> 0)', low=0.0, high=1e12,
@@ -251,10 +255,13 @@ class SolverOptions:
         if not _finite_number(self.progress_period) or self.progress_period <= 0:
             errors.append(f'progress_period must be > 0, got {self.progress_period!r}')
         po = self.paper
-        for name in ('k_b', 'k_v', 'k_p', 'eta', 'd_tau', 'j_eps'):
+        for name in ('k_b', 'k_v', 'k_p', 'eta', 'arm_step', 'd_tau', 'j_eps'):
             value = getattr(po, name)
             if not _finite_number(value) or value <= 0.0:
                 errors.append(f'paper.{name} must be a finite positive number, got {value!r}')
+        if _finite_number(po.arm_step) and po.arm_step >= 2.0:
+            errors.append(f'paper.arm_step must be below 2 (1/L is half the stable limit), got '
+                          f'{po.arm_step!r}')
         if po.obstacle_gradient not in ('shortcut', 'exact'):
             errors.append("paper.obstacle_gradient must be 'shortcut' or 'exact', "
                           f'got {po.obstacle_gradient!r}')

@@ -19,7 +19,8 @@ For an arm the Problem's fields mean: x0 / x_goal the states (q_1..q_n, dq_1..dq
 first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base frame; margin
 [m] added to every sphere pair's radii; n_intervals N; integrator 'euler' or 'rk4' (RK4
 without the dynamics' curvature: rk4_steps.py); t_f0 is not used (the cold start times its
-own path).  Paper mode is refused for arms (MODE_REFUSAL says why).
+own path; paper mode starts from t_f0, as the paper).  Paper mode runs the section-3 heuristic in
+joint accelerations (arm_paper.py), with explicit Euler only (PAPER_RK4_REFUSAL says why).
 
 Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
 constrained at every node when ArmRobot.self_collision is True (start and goal are then
@@ -40,6 +41,7 @@ import numpy as np
 
 from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED
+from .arm_paper import solve_arm_paper
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
 from .model import ArmError, ArmModel
@@ -52,11 +54,10 @@ from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violation
 # Positions and velocities of the re-integrated states may exceed a bound by rounding only.
 BOUND_TOL = 1e-9
 MAX_INTERVALS = 100000
-# Why a URDF arm has fast mode only (the reason of the refusal, also solver_node's).
-MODE_REFUSAL = ("is not offered for URDF arms: the paper's heuristic descends the gradient of a "
-                'single-shooting rollout, and through an arm that gravity makes unstable in open '
-                'loop that gradient grows like exp(lambda t_f) (a norm of 6e6 and more a small '
-                'step off a tracking solution: benchmarks/arm_paper_sensitivity.py); use fast')
+# Why paper mode for an arm takes explicit Euler only (also solver_node's parameter check).
+PAPER_RK4_REFUSAL = ('is not offered for URDF arms in paper mode: its controls are the joint '
+                     'accelerations, whose torques RNEA(q, v, a) reproduce the plan under '
+                     "explicit Euler steps only; use 'euler' (or fast mode for RK4)")
 # A start may exceed a velocity limit by this fraction: a measured state that the tracking
 # carried past a limit the plan rides (replanning from it must be possible); the plan keeps
 # every limit from node 1 on when the efforts can slow the joint down that fast (else the
@@ -168,15 +169,23 @@ def _state(arm, values, what):
     return x
 
 
+def _finite_positive(value):
+    return (isinstance(value, (int, float, np.integer, np.floating))
+            and not isinstance(value, bool) and math.isfinite(value) and value > 0)
+
+
 def check_arm_problem(problem, options):
     """(robot, x0, x_goal, obstacles) after every check; ArmError with the reason otherwise."""
     options.validate()
     robot = _robot(problem)
     arm = robot.arm
-    if options.mode != 'fast':
-        raise ArmError(f'mode {options.mode!r} {MODE_REFUSAL}')
     if problem.integrator not in ('euler', 'rk4'):
         raise ArmError(f"integrator {problem.integrator!r}: use 'euler' or 'rk4'")
+    if options.mode == 'paper' and problem.integrator != 'euler':
+        raise ArmError(f'integrator {problem.integrator!r} {PAPER_RK4_REFUSAL}')
+    if options.mode == 'paper' and not _finite_positive(problem.t_f0):
+        raise ArmError(f't_f0 (paper mode starts from it) must be a positive number of '
+                       f'seconds, got {problem.t_f0!r}')
     n_int = problem.n_intervals
     if (not isinstance(n_int, (int, np.integer)) or isinstance(n_int, bool)
             or not 2 <= n_int <= MAX_INTERVALS):
@@ -229,7 +238,7 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator=
 
 def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
               hessian='auto'):
-    """Solve an arm Problem in fast mode; never raises for bad input (INVALID_INPUT)."""
+    """Solve an arm Problem (fast or paper mode); never raises for bad input (INVALID_INPUT)."""
     started = time.monotonic()
     unusable = ''
     try:
@@ -237,6 +246,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         n_int = problem.n_intervals
         evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, problem.margin, n_int,
                                  robot.self_collision, problem.integrator)
+        if options.mode == 'paper' and initial_guess is not None:
+            raise ArmError('an initial guess is used by fast mode only')
         warm = None if initial_guess is None else warm_point(
             robot.arm, x0, initial_guess, n_int, evaluator.n_pairs, problem.integrator)
     except UnusableGuess as exc:
@@ -255,6 +266,9 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
             stop['why'] = Status.TIMEOUT
         return stop['why'] is not None
 
+    if options.mode == 'paper':
+        return _solve_paper(problem, options, robot, evaluator, x0, xg, obstacles, should_stop,
+                            lambda: stop['why'], progress, started)
     budget = options.iteration_limit()
     iterations, linalg_time = 0, 0.0
     runs = [unusable] if unusable else []
@@ -357,6 +371,22 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
     return result
 
 
+def _solve_paper(problem, options, robot, evaluator, x0, xg, obstacles, should_stop,
+                 stop_reason, progress, started):
+    def measure(torques, t_f):
+        return measure_arm(robot, x0, xg, torques, t_f, obstacles, problem.margin)
+
+    result = solve_arm_paper(problem, options, robot, evaluator, x0, xg, should_stop,
+                             stop_reason, progress, measure)
+    result.wall_time_s = time.monotonic() - started
+    if progress is not None:
+        from ..result import Progress
+        progress(Progress(result.iterations, result.final_time, result.cost,
+                          result.final_time if result.success else math.nan,
+                          result.wall_time_s, 'done', result.violations))
+    return result
+
+
 __all__ = ['ArmRobot', 'ArmViolations', 'check_arm_problem', 'is_arm_model', 'measure_arm',
-           'MODE_REFUSAL',
+           'PAPER_RK4_REFUSAL',
            'solve_arm', 'CLEARANCE_TOL', 'TERMINAL_TOL']
