@@ -50,7 +50,7 @@ def _run(robot, n_int, t_f0, obstacles=UR5_SPHERE, start=UR5_START, goal=UR5_GOA
     x0 = np.concatenate([start, np.zeros(n)])
     xg = np.concatenate([goal, np.zeros(n)])
     evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, MARGIN, n_int)
-    return ArmPaperRun(robot, evaluator, x0, xg, n_int, t_f0, PaperOptions(), 10)
+    return ArmPaperRun(robot, evaluator, x0, xg, n_int, t_f0, PaperOptions())
 
 
 def test_the_gradient_matches_central_differences_with_every_penalty_active():
@@ -163,9 +163,10 @@ def test_paper_mode_is_deterministic_and_stops_on_a_timeout():
     first, second = solve(problem, options), solve(problem, options)
     assert first.final_time == second.final_time
     assert np.array_equal(first.controls, second.controls)
-    stopped = solve(problem, SolverOptions(mode='paper', max_iterations=10 ** 8, timeout=0.3))
+    stopped = solve(problem, SolverOptions(mode='paper', max_iterations=10 ** 9, timeout=0.3))
     assert stopped.status is Status.TIMEOUT
-    assert 0 < stopped.iterations < 10 ** 8 and stopped.controls.shape == (10, 6)
+    assert 0 < stopped.iterations < 10 ** 9 and stopped.controls.shape == (10, 6)
+    assert stopped.history.shape == (stopped.iterations, 4)
 
 
 @pytest.mark.parametrize('options, guess, text', [

@@ -66,7 +66,7 @@ def terminal_curvature(n_int, tau, k_b):
 class ArmPaperRun:
     """State of a paper-mode arm solve: the accelerations, tau, the last accepted iterate."""
 
-    def __init__(self, robot, evaluator, x0, x_goal, n_int, t_f0, paper, limit):
+    def __init__(self, robot, evaluator, x0, x_goal, n_int, t_f0, paper):
         arm = robot.arm
         self.arm = arm
         self.evaluator = evaluator
@@ -91,8 +91,8 @@ class ArmPaperRun:
         self.accepted = 0
         self.done = 0
         self.last_j = math.inf
-        self.hist_tf = np.zeros(limit)
-        self.hist_j = np.zeros(limit)
+        self.hist_tf = []     # (grown per iteration: an iteration limit may be huge)
+        self.hist_j = []
 
     # The model ------------------------------------------------------------------------------
     def rollout(self, accelerations, tau):
@@ -168,8 +168,8 @@ class ArmPaperRun:
             self.last_j = j_total
             if not math.isfinite(j_total):
                 return
-            self.hist_tf[self.done] = self.n_int * self.tau
-            self.hist_j[self.done] = j_total
+            self.hist_tf.append(self.n_int * self.tau)
+            self.hist_j.append(j_total)
             self.done += 1
             if j_total < p.j_eps:
                 self.best = (self.accelerations.copy(), self.tau, j_total)
@@ -198,8 +198,8 @@ class ArmPaperRun:
     def history(self):
         """Rows of result.HISTORY_COLUMNS: iteration, t_f, J_T, nan (no separate measure)."""
         done = self.done
-        return np.column_stack([np.arange(done, dtype=float), self.hist_tf[:done],
-                                self.hist_j[:done], np.full(done, np.nan)])
+        return np.column_stack([np.arange(done, dtype=float), np.array(self.hist_tf),
+                                np.array(self.hist_j), np.full(done, np.nan)])
 
 
 def solve_arm_paper(problem, options, robot, evaluator, x0, x_goal, should_stop, stop_reason,
@@ -212,7 +212,7 @@ def solve_arm_paper(problem, options, robot, evaluator, x0, x_goal, should_stop,
     """
     limit = options.iteration_limit()
     run = ArmPaperRun(robot, evaluator, x0, x_goal, problem.n_intervals, problem.t_f0,
-                      options.paper, limit)
+                      options.paper)
     started = time.monotonic()
     last_report = -math.inf
     chunk = 1
