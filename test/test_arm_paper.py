@@ -169,12 +169,16 @@ def test_paper_mode_is_deterministic_and_stops_on_a_timeout():
     assert stopped.history.shape == (stopped.iterations, 4)
 
 
-@pytest.mark.parametrize('options, guess, text', [
-    (SolverOptions(mode='paper', paper=PaperOptions(arm_step=2.0)), None, 'below 2'),
-    (SolverOptions(mode='paper'), (np.zeros((10, 6)), 1.0), 'fast mode only'),
+@pytest.mark.parametrize('options, guess, t_f0, text', [
+    (SolverOptions(mode='paper', paper=PaperOptions(arm_step=2.0)), None, 2.5, 'below 2'),
+    (SolverOptions(mode='paper'), (np.zeros((10, 6)), 1.0), 2.5, 'fast mode only'),
+    # Integrated open loop over 1e9 s the plan's torques left the numbers (NaN states).
+    (SolverOptions(mode='paper'), None, 1e9, 'range of final times'),
+    (SolverOptions(mode='paper'), None, 1e-9, 'range of final times'),
 ])
-def test_bad_paper_settings_for_arms_are_refused_with_the_reason(options, guess, text):
-    problem = Problem(x0=UR5_START, x_goal=UR5_GOAL, model=_robot(), n_intervals=10)
+def test_bad_paper_settings_for_arms_are_refused_with_the_reason(options, guess, t_f0, text):
+    problem = Problem(x0=UR5_START, x_goal=UR5_GOAL, model=_robot(), n_intervals=10,
+                      t_f0=t_f0)
     result = solve(problem, options, initial_guess=guess)
     assert result.status is Status.INVALID_INPUT and text in result.message
 

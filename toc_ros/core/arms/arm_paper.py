@@ -163,7 +163,8 @@ class ArmPaperRun:
         """Run n_iter more iterations of eqs. (15) and (34); stop early when J_T is not finite."""
         p = self.paper
         for _ in range(n_iter):
-            j1, j2, j3, grad = self.cost_gradient(self.accelerations, self.tau)
+            with np.errstate(over='ignore', invalid='ignore'):     # (divergence: reported)
+                j1, j2, j3, grad = self.cost_gradient(self.accelerations, self.tau)
             j_total = j1 + j2 + j3
             self.last_j = j_total
             if not math.isfinite(j_total):
@@ -239,10 +240,18 @@ def solve_arm_paper(problem, options, robot, evaluator, x0, x_goal, should_stop,
               'solver_state': {'learning_rate': run.eta, 'accepted': run.accepted}}
     if run.best is None and not math.isfinite(run.last_j):
         return SolveResult(status=Status.STALLED, message=(
-            f'diverged (J_T not finite) after {run.done} iterations: paper.arm_step = '
-            f'{options.paper.arm_step} is too large for this problem'), **common)
+            f'diverged (J_T not finite) after {run.done} iterations from t_f0 = '
+            f'{problem.t_f0} s: the penalties outgrew the terminal curvature that sets the '
+            f'learning rate; a smaller paper.arm_step (now {options.paper.arm_step}) or a t_f0 '
+            "nearer the motion's time may help"), **common)
     torques, t_f = run.plan()
-    states, violations = measure(torques, t_f)
+    with np.errstate(all='ignore'):
+        states, violations = measure(torques, t_f)
+    if not (np.all(np.isfinite(torques)) and np.all(np.isfinite(states))):
+        return SolveResult(status=Status.STALLED, message=(
+            f'the plan of {run.done} iterations (t_f = {t_f:.6g} s) does not integrate: its '
+            "torques, integrated again with the arm's dynamics, leave the numbers (an "
+            'open-loop unstable arm over a long horizon)'), **common)
     if stopped is not None:
         status, message = stopped, f'{stopped.value.lower()} after {run.done} iterations'
     elif run.best is None:

@@ -40,7 +40,7 @@ from typing import Optional
 import numpy as np
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED
+from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED, T_HIGH, T_LOW
 from .arm_paper import solve_arm_paper
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
@@ -183,9 +183,11 @@ def check_arm_problem(problem, options):
         raise ArmError(f"integrator {problem.integrator!r}: use 'euler' or 'rk4'")
     if options.mode == 'paper' and problem.integrator != 'euler':
         raise ArmError(f'integrator {problem.integrator!r} {PAPER_RK4_REFUSAL}')
-    if options.mode == 'paper' and not _finite_positive(problem.t_f0):
-        raise ArmError(f't_f0 (paper mode starts from it) must be a positive number of '
-                       f'seconds, got {problem.t_f0!r}')
+    if options.mode == 'paper' and not (_finite_positive(problem.t_f0)
+                                        and T_LOW <= problem.t_f0 <= T_HIGH):
+        raise ArmError(f't_f0 (paper mode starts from it) must be a number of seconds in '
+                       f"[{T_LOW:g}, {T_HIGH:g}] (the arm solver's range of final times), got "
+                       f'{problem.t_f0!r}')
     n_int = problem.n_intervals
     if (not isinstance(n_int, (int, np.integer)) or isinstance(n_int, bool)
             or not 2 <= n_int <= MAX_INTERVALS):
