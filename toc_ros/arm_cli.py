@@ -202,13 +202,22 @@ def main(argv):
         result = SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode='fast',
                              integrator=args.integrator)
     else:
-        result = solve_interruptible(problem, options, None, guess)
+        from toc_ros.solve import ProgressLine      # (toc_ros.solve imports this module)
+        line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
+        show_progress = not args.quiet and sys.stderr.isatty()
+        try:
+            result = solve_interruptible(problem, options, line if show_progress else None,
+                                         guess)
+        finally:
+            line.clear()
     if result.status is Status.INVALID_INPUT:
         print(f'toc-solve: invalid problem: {result.message}', file=sys.stderr)
     elif not args.quiet:
         v = result.violations
         print(f'status      {result.status.value}\nmessage     {result.message}\n'
               f'model       {args.model} ({", ".join(arm.joint_names)})\n'
+              f'mode        {result.mode}, {args.integrator}, N = {args.N}, '
+              f'{len(args.sphere)} obstacle sphere(s), margin {args.margin} m\n'
               f't_min       {result.final_time:.6f} s\niterations  {result.iterations}\n'
               f'wall time   {result.wall_time_s:.3f} s\nviolations  '
               + json.dumps(v.as_dict()))
