@@ -559,25 +559,20 @@ def test_a_sphere_passed_the_better_way_found_by_the_free_optimums_other_bends(m
 
 @pytest.mark.slow
 def test_the_colliding_line_start_can_find_the_faster_way_around(monkeypatch):
-    # An xArm7 motion past one sphere (rough robot spheres along each link): the bends of the
-    # free optimum and the bent lines end 0.33 % above IPOPT's best (0.347280 s, from the
-    # straight line, which passes through the sphere); the same line as the last start finds
-    # that way around.
+    # An xArm7 motion past one sphere (bench_arm_robots.py's "xarm7 past a sphere #1", rough
+    # robot spheres along each link): the bends of the free optimum and the bent lines end at
+    # 0.359641 s; the straight line, which passes through the sphere, as the last start finds
+    # a way around 0.03 % faster (IPOPT's best from two starts: 0.358978 s).
     from toc_ros.bench.arm_check import check_trajectory
     from toc_ros.bench.arm_problem import ArmSpec
     from toc_ros.core.arms import cold_runs
     from toc_ros.core.arms.model import example_robot_data_dir
     urdf = str(Path(example_robot_data_dir()) / 'xarm_description/urdf/xarm7.urdf')
     joints = tuple(f'joint{i}' for i in range(1, 8))
-    start = (-2.5039, -0.6265, -1.307, 2.5123, -1.804, 1.1571, 1.7696)
-    goal = (-2.301, -1.5177, -1.1694, 1.8576, -0.8597, 0.6284, 1.0485)
-    sphere = (0.1108, 0.6113, 0.6516, 0.08)
-    spheres = {f'link{i}': [[0.0, 0.0, 0.0, 0.06]] for i in range(1, 8)}
-    spheres['link2'] += [[0.0, -0.0733, 0.0, 0.06], [0.0, -0.1465, 0.0, 0.06],
-                         [0.0, -0.2198, 0.0, 0.06]]
-    spheres['link4'] += [[0.0194, -0.0856, 0.0, 0.06], [0.0388, -0.1713, 0.0, 0.06],
-                         [0.0581, -0.2569, 0.0, 0.06]]
-    spheres['link6'] += [[0.038, 0.0485, 0.0, 0.06]]
+    start = (0.3282, -0.1827, -1.082, 2.7306, 1.4942, 0.4955, -2.751)
+    goal = (-0.3653, -1.0583, -0.4102, 2.5706, 2.0183, 0.4499, -2.9517)
+    sphere = (-0.3203, -0.1512, 0.945, 0.08)
+    spheres = str(DATA / 'arm_spheres_xarm7_rough.yaml')
     arm = load_arm(f'urdf:{urdf}', joints=list(joints))
     problem = Problem(x0=start, x_goal=goal, model=ArmRobot(arm, load_spheres(
         spheres, arm, self_collision=False)), obstacles=(sphere,), margin=MARGIN,
@@ -585,7 +580,7 @@ def test_the_colliding_line_start_can_find_the_faster_way_around(monkeypatch):
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
     assert result.solver_state['start'] == 'line', result.message
-    assert result.final_time <= 0.347281, result.final_time
+    assert result.final_time <= 0.359538, result.final_time
     check = check_trajectory(ArmSpec(urdf=urdf, joints=joints, start=start, goal=goal,
                                      obstacles=(sphere,), robot_spheres=spheres,
                                      margin=MARGIN),
@@ -598,7 +593,8 @@ def test_the_colliding_line_start_can_find_the_faster_way_around(monkeypatch):
     monkeypatch.setattr(cold_runs, 'start_points', lambda *args: [
         (name, make) for name, make in points(*args) if name != 'line'])
     without = solve(problem)
-    assert without.status is Status.SOLVED and without.final_time > 1.002 * result.final_time
+    assert without.status is Status.SOLVED
+    assert without.final_time > result.final_time + 5e-5
 
 
 @pytest.mark.parametrize('name', ['panda', 'ur5'])

@@ -92,6 +92,18 @@ ACCEPT_TOL = 1e-6
 PROX_INIT = 1e-4
 PROX_GUARDED = 1.0
 PROX_MAX = 1e8
+# The curvature rho |dx_N|^2 / 2 the Riccati step puts on the fixed goal state (riccati.py).
+# dx_N = 0 is imposed, so it never changes a step, but the inertia test is stage by stage
+# (every R_k + B_k^T P_k+1 B_k positive definite), and a large rho makes that test the one
+# on the constraints' null space (an augmented Lagrangian): with rho = 1 steps near the goal
+# failed it where the KKT inertia was right, and the corrections' damped steps stalled a
+# Kinova motion past a sphere at IPOPT's optimum for 150 iterations (dual infeasibility
+# 4.2e-6 at the last free node).  1e4 against 1: arm suites -3 to -16 % iterations, three
+# better and two worse local optima (benchmarks/RESULTS.md, "The goal's curvature").  RK4
+# steps (no curvature of the dynamics, linear convergence) keep 1: the UR5 at N = 10 stalled
+# with 10-1e4 (its line start fails with 1 too; the slowed line then converges).
+TERMINAL_CURVATURE = 1e4
+TERMINAL_CURVATURE_RK4 = 1.0
 ACCEPT_ITERATIONS = 10
 ROUNDING = 10.0 * np.finfo(float).eps
 # How far (relative to the bound, at least absolute) a start point is pushed inside its bounds:
@@ -135,6 +147,8 @@ class ArmInteriorPoint:
         self.accept_at_start = False
         n_int, nx = self.n_int, self.nx
         self.work = riccati.work_arrays(n_int, nx, n)
+        self.terminal_curvature = (TERMINAL_CURVATURE_RK4 if evaluator.integrator == 'rk4'
+                                   else TERMINAL_CURVATURE)
         self.linalg_time = 0.0
         self.factorizations = 0
         self.primal = math.inf
@@ -254,7 +268,7 @@ class ArmInteriorPoint:
             ipm_kernels.regularised(hxx, huu_diag, self.prox, delta, hxx_reg, huu)
             code, d_t = riccati.riccati_solve(
                 terms['a'], terms['b'], terms['c'], terms['defect'], hxx_reg, hux, huu,
-                gx, gu, 1.0, *self.work, dx, dv, lam, nu)
+                gx, gu, self.terminal_curvature, *self.work, dx, dv, lam, nu)
             self.factorizations += 1
             if code == riccati.OK and np.isfinite(d_t) and np.all(np.isfinite(dx)):
                 break
