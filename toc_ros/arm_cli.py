@@ -36,7 +36,7 @@ import argparse
 import json
 import sys
 
-from toc_ros.cli_run import EXIT_WRITE_ERROR, solve_interruptible, write_json
+from toc_ros.cli_run import EXIT_WRITE_ERROR, ProgressLine, solve_interruptible, write_json
 
 ARM_PREFIXES = ('urdf:',)
 # The keys of toc_ros.core.arms.model.NAMED_ARMS (a test keeps them equal), spelled out so that
@@ -202,7 +202,6 @@ def main(argv):
         result = SolveResult(status=Status.INVALID_INPUT, message=str(exc), mode='fast',
                              integrator=args.integrator)
     else:
-        from toc_ros.solve import ProgressLine      # (toc_ros.solve imports this module)
         line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
         show_progress = not args.quiet and sys.stderr.isatty()
         try:

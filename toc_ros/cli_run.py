@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Running one solve from a command line: Ctrl-C cancels it, JSON out, exit codes."""
+"""One solve from a command line: Ctrl-C cancels it, a progress line, JSON out, exit codes."""
 
 import json
 import math
@@ -64,3 +64,39 @@ def solve_interruptible(problem, options, progress, guess=None):
         return solve(problem, options, progress=progress, cancel=cancel, initial_guess=guess)
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+BAR_WIDTH = 24          # characters of paper mode's progress bar
+
+
+class ProgressLine:
+    """A carriage-return-updated status line on stderr (used only on a terminal)."""
+
+    def __init__(self, stream, max_iterations, mode):
+        self.stream = stream
+        self.max_iterations = max_iterations
+        self.mode = mode
+        self.width = 0
+
+    def __call__(self, progress):
+        """Progress callback of toc_ros.core.solve."""
+        if progress.phase == 'done':
+            return
+        if self.mode == 'paper':
+            frac = min(1.0, progress.iteration / max(1, self.max_iterations))
+            filled = int(round(frac * BAR_WIDTH))
+            head = f'[{"#" * filled}{"-" * (BAR_WIDTH - filled)}] {100 * frac:3.0f}%'
+        else:
+            head = f'{progress.phase or "fast"}'
+        line = (f'{head}  it {progress.iteration}  t_f {progress.t_f:.6f} s  '
+                f'cost {progress.cost:.3g}  {progress.elapsed_s:.1f} s')
+        self.stream.write('\r' + line.ljust(self.width))
+        self.stream.flush()
+        self.width = len(line)
+
+    def clear(self):
+        """Erase the line again."""
+        if self.width:
+            self.stream.write('\r' + ' ' * self.width + '\r')
+            self.stream.flush()
+            self.width = 0

@@ -27,13 +27,11 @@ import math
 import os
 import sys
 
-from toc_ros.cli_run import EXIT_INTERRUPTED, EXIT_WRITE_ERROR, solve_interruptible, \
-    write_json
+from toc_ros.cli_run import EXIT_INTERRUPTED, EXIT_WRITE_ERROR, ProgressLine, \
+    solve_interruptible, write_json
 
 # The solver (numba kernels) is imported after the arguments are parsed, so that --help and
 # argument errors answer at once; toc_ros.config only reads the settings table.
-
-BAR_WIDTH = 24
 
 
 def build_parser():
@@ -262,39 +260,6 @@ def build_problem(args, parameters=None):
         raise ProblemError(str(exc) if isinstance(exc, ProblemError)
                            else f'bad value in the parameter file: {exc}')
     return problem, options
-
-
-class ProgressLine:
-    """A carriage-return-updated status line on stderr (used only on a terminal)."""
-
-    def __init__(self, stream, max_iterations, mode):
-        self.stream = stream
-        self.max_iterations = max_iterations
-        self.mode = mode
-        self.width = 0
-
-    def __call__(self, progress):
-        """Progress callback of toc_ros.core.solve."""
-        if progress.phase == 'done':
-            return
-        if self.mode == 'paper':
-            frac = min(1.0, progress.iteration / max(1, self.max_iterations))
-            filled = int(round(frac * BAR_WIDTH))
-            head = f'[{"#" * filled}{"-" * (BAR_WIDTH - filled)}] {100 * frac:3.0f}%'
-        else:
-            head = f'{progress.phase or "fast"}'
-        line = (f'{head}  it {progress.iteration}  t_f {progress.t_f:.6f} s  '
-                f'cost {progress.cost:.3g}  {progress.elapsed_s:.1f} s')
-        self.stream.write('\r' + line.ljust(self.width))
-        self.stream.flush()
-        self.width = len(line)
-
-    def clear(self):
-        """Erase the line again."""
-        if self.width:
-            self.stream.write('\r' + ' ' * self.width + '\r')
-            self.stream.flush()
-            self.width = 0
 
 
 def summary(result, problem):
