@@ -153,9 +153,9 @@ class Problem:
             integrator_id(self.integrator)
         except ValueError as exc:
             errors.append(str(exc))
-        if not _finite_number(self.t_f0) or self.t_f0 <= 0.0:
+        if not finite_number(self.t_f0) or self.t_f0 <= 0.0:
             errors.append(f't_f0 must be a finite positive time [s], got {self.t_f0!r}')
-        if not _finite_number(self.margin) or self.margin < 0.0:
+        if not finite_number(self.margin) or self.margin < 0.0:
             errors.append(f'margin must be finite and >= 0 [m], got {self.margin!r}')
         circles = _obstacle_rows(self.obstacles, self.margin, errors)
         if not errors and states:
@@ -250,16 +250,16 @@ class SolverOptions:
                 self.max_iterations, (int, np.integer)) or isinstance(
                 self.max_iterations, bool) or self.max_iterations < 1):
             errors.append(f'max_iterations must be an integer >= 1, got {self.max_iterations!r}')
-        if self.timeout is not None and (not _finite_number(self.timeout) or self.timeout <= 0):
+        if self.timeout is not None and (not finite_number(self.timeout) or self.timeout <= 0):
             errors.append(f'timeout must be a positive number of seconds, got {self.timeout!r}')
-        if not _finite_number(self.progress_period) or self.progress_period <= 0:
+        if not finite_number(self.progress_period) or self.progress_period <= 0:
             errors.append(f'progress_period must be > 0, got {self.progress_period!r}')
         po = self.paper
         for name in ('k_b', 'k_v', 'k_p', 'eta', 'arm_step', 'd_tau', 'j_eps'):
             value = getattr(po, name)
-            if not _finite_number(value) or value <= 0.0:
+            if not finite_number(value) or value <= 0.0:
                 errors.append(f'paper.{name} must be a finite positive number, got {value!r}')
-        if _finite_number(po.arm_step) and po.arm_step >= 2.0:
+        if finite_number(po.arm_step) and po.arm_step >= 2.0:
             errors.append(f'paper.arm_step must be below 2 (1/L is half the stable limit), got '
                           f'{po.arm_step!r}')
         if po.obstacle_gradient not in ('shortcut', 'exact'):
@@ -307,7 +307,7 @@ def _obstacle_rows(obstacles, margin, errors):
             errors.append(f'obstacle {k} has a non-finite value ({cx}, {cy}, {radius})')
         elif radius <= 0.0:
             errors.append(f'obstacle {k} radius must be > 0, got {radius}')
-        elif _finite_number(margin) and math.hypot(cx, cy) <= radius + margin:
+        elif finite_number(margin) and math.hypot(cx, cy) <= radius + margin:
             errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
                           f'{radius + margin} contains the robot base')
     return circles
@@ -328,7 +328,8 @@ def _model_state(model, x):
         raise ProblemError(f'no actuator state for the joint state {arr.tolist()}: {exc}')
 
 
-def _finite_number(value):
+def finite_number(value):
+    """Return True for a real number (not bool) that is finite."""
     return (isinstance(value, (int, float, np.floating, np.integer))
             and not isinstance(value, bool) and math.isfinite(value))
 

@@ -18,9 +18,9 @@ solve(Problem(model=ArmRobot(arm, spheres), ...)) for URDF arms: checks, fast mo
 For an arm the Problem's fields mean: x0 / x_goal the states (q_1..q_n, dq_1..dq_n), positions
 first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base frame; margin
 [m] added to every sphere pair's radii; n_intervals N; integrator 'euler' or 'rk4' (RK4
-without the dynamics' curvature: rk4_steps.py); t_f0 is not used (the cold start times its
-own path; paper mode starts from t_f0, as the paper).  Paper mode runs the section-3 heuristic in
-joint accelerations (arm_paper.py), with explicit Euler only (PAPER_RK4_REFUSAL says why).
+without the dynamics' curvature: rk4_steps.py); t_f0 only for paper mode, which starts from it
+as the paper does (fast mode's cold start times its own path).  Paper mode runs the section-3
+heuristic in joint accelerations (arm_paper.py), explicit Euler only (PAPER_RK4_REFUSAL).
 
 Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
 constrained at every node when ArmRobot.self_collision is True (start and goal are then
@@ -49,7 +49,8 @@ from .polish import polish
 from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
                       sphere_kinematics_batch, Spheres)
 from .validate import check_holdable, check_state
-from ..result import CLEARANCE_TOL, SolveResult, Status, TERMINAL_TOL, Violations
+from ..problem import finite_number
+from ..result import CLEARANCE_TOL, Progress, SolveResult, Status, TERMINAL_TOL, Violations
 
 # Positions and velocities of the re-integrated states may exceed a bound by rounding only.
 BOUND_TOL = 1e-9
@@ -169,11 +170,6 @@ def _state(arm, values, what):
     return x
 
 
-def _finite_positive(value):
-    return (isinstance(value, (int, float, np.integer, np.floating))
-            and not isinstance(value, bool) and math.isfinite(value) and value > 0)
-
-
 def check_arm_problem(problem, options):
     """(robot, x0, x_goal, obstacles) after every check; ArmError with the reason otherwise."""
     options.validate()
@@ -183,7 +179,7 @@ def check_arm_problem(problem, options):
         raise ArmError(f"integrator {problem.integrator!r}: use 'euler' or 'rk4'")
     if options.mode == 'paper' and problem.integrator != 'euler':
         raise ArmError(f'integrator {problem.integrator!r} {PAPER_RK4_REFUSAL}')
-    if options.mode == 'paper' and not (_finite_positive(problem.t_f0)
+    if options.mode == 'paper' and not (finite_number(problem.t_f0)
                                         and T_LOW <= problem.t_f0 <= T_HIGH):
         raise ArmError(f't_f0 (paper mode starts from it) must be a number of seconds in '
                        f"[{T_LOW:g}, {T_HIGH:g}] (the arm solver's range of final times), got "
@@ -365,11 +361,7 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
                                        'linalg_time_s': linalg_time})
     result.time_grid = np.linspace(0.0, run.t, n_int + 1)
     result.wall_time_s = time.monotonic() - started
-    if progress is not None:
-        from ..result import Progress
-        progress(Progress(iterations, run.t, run.t,
-                          run.t if result.success else math.nan, result.wall_time_s, 'done',
-                          violations))
+    _report_done(progress, result)
     return result
 
 
@@ -381,12 +373,16 @@ def _solve_paper(problem, options, robot, evaluator, x0, xg, obstacles, should_s
     result = solve_arm_paper(problem, options, robot, evaluator, x0, xg, should_stop,
                              stop_reason, progress, measure)
     result.wall_time_s = time.monotonic() - started
+    _report_done(progress, result)
+    return result
+
+
+def _report_done(progress, result):
+    """Send the last progress report of a solve ('done': its result's numbers)."""
     if progress is not None:
-        from ..result import Progress
         progress(Progress(result.iterations, result.final_time, result.cost,
                           result.final_time if result.success else math.nan,
                           result.wall_time_s, 'done', result.violations))
-    return result
 
 
 __all__ = ['ArmRobot', 'ArmViolations', 'check_arm_problem', 'is_arm_model', 'measure_arm',
