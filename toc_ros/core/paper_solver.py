@@ -29,6 +29,15 @@ import numpy as np
 
 from .bptt import paper_cost_gradient, Workspace
 
+# Iterations run between the driver's checks for cancel, timeout and progress: ~25 ms of them.
+CHUNK_SECONDS = 0.025
+MAX_CHUNK = 5000
+
+
+def next_chunk(per_iteration):
+    """Return how many iterations take about CHUNK_SECONDS at per_iteration seconds each."""
+    return max(1, min(MAX_CHUNK, int(CHUNK_SECONDS / max(per_iteration, 1e-7))))
+
 
 @njit(cache=True)
 def paper_iterations(n_iter, x0, x_goal, controls, tau, p, method, u_max, circles, k_b,

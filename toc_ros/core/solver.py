@@ -30,7 +30,7 @@ import numpy as np
 from . import homotopy
 from .fast_solver import FastSolve
 from .models.cylindrical import CylindricalRobot
-from .paper_solver import PaperRun
+from .paper_solver import next_chunk, PaperRun
 from .problem import measure_violations, Problem, ProblemError, SolverOptions
 from .result import Progress, SolveResult, Status
 from .start_points import warm_start_point
@@ -161,9 +161,7 @@ def _solve_paper(problem, options, method, clock):
         if not math.isfinite(run.last_j):
             diverged = True
             break
-        per_iter = (time.monotonic() - t0) / n_iter
-        # Chunks of ~25 ms keep progress, cancel and timeout responsive.
-        chunk = max(1, min(5000, int(0.025 / max(per_iter, 1e-7))))
+        chunk = next_chunk((time.monotonic() - t0) / n_iter)
         clock.report(lambda: Progress(run.done, run.t_f, run.last_j, run.best_t_f,
                                       clock.elapsed(), 'paper'))
     accepted = run.accepted[0] > 0

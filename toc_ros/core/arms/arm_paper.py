@@ -48,10 +48,8 @@ import time
 import numpy as np
 import pinocchio as pin
 
+from ..paper_solver import next_chunk
 from ..result import Progress, SolveResult, Status
-
-# A chunk of iterations between checks for cancel, timeout and progress: ~25 ms.
-CHUNK_SECONDS = 0.025
 
 
 def terminal_curvature(n_int, tau, k_b):
@@ -227,8 +225,7 @@ def solve_arm_paper(problem, options, robot, evaluator, x0, x_goal, should_stop,
         run.advance(min(chunk, limit - run.done))
         if not math.isfinite(run.last_j):
             break
-        per_iteration = (time.monotonic() - t0) / max(run.done - before, 1)
-        chunk = max(1, min(5000, int(CHUNK_SECONDS / max(per_iteration, 1e-7))))
+        chunk = next_chunk((time.monotonic() - t0) / max(run.done - before, 1))
         now = time.monotonic()
         if progress is not None and now - last_report >= 0.5 * options.progress_period:
             last_report = now
