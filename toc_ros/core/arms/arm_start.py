@@ -24,7 +24,7 @@ builds its line start by the same recipe, so both start from the same point.
 
 The straight path may pass through an obstacle, and the interior point (no restoration phase)
 often does not find its way out of a start inside one: such a path is bent,
-path + offsets * sin(pi s), with offsets found by corrections of the worst clearance
+path + offsets * sin(pi s)^2, with offsets found by corrections of the worst clearance
 (detour_offsets), for the line and for any other path (arm_solve.py bends the free optimum).
 """
 
@@ -83,15 +83,25 @@ def cold_start(arm, x0, x_goal, n_intervals):
     return states, torques, t_f
 
 
+def bend_profile(count):
+    """(b, db/ds) of the bend b(s) = sin(pi s)^2 at count nodes s = 0..1."""
+    # Flat at both ends, so a bent path keeps the ends' velocities: with sin(pi s) the bend
+    # added pi * offset / t_f to the velocities at the (fixed) start and goal, and the first
+    # iterations of a bent start went to closing those defects (0.88 rad/s on the Panda past a
+    # sphere; benchmarks/RESULTS.md, "Arms: bends flat at the ends").
+    s = np.linspace(0.0, 1.0, count)
+    return np.sin(np.pi * s) ** 2, np.pi * np.sin(2.0 * np.pi * s)
+
+
 def bent_states(path, rate, offsets, t_f):
     """
-    States (N + 1, 2n) of path + offsets * sin(pi s) over t_f.
+    States (N + 1, 2n) of path + offsets * b(s) over t_f (b: bend_profile).
 
     path (N + 1, n): positions at s = k / N; rate: their derivative d path / ds.
     """
-    s = np.linspace(0.0, 1.0, path.shape[0])[:, None]
-    q = path + np.sin(np.pi * s) * offsets[None, :]
-    dq = (rate + np.pi * np.cos(np.pi * s) * offsets[None, :]) / t_f
+    bend, slope = bend_profile(path.shape[0])
+    q = path + bend[:, None] * offsets[None, :]
+    dq = (rate + slope[:, None] * offsets[None, :]) / t_f
     return np.hstack([q, dq])
 
 
@@ -137,7 +147,7 @@ def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100
 
     Each row must clear by clearance, or by half of what it clears at the path's ends when
     that is less (the ends are fixed).  Repeated minimum-norm corrections at the worst node
-    along its worst row's gradient, scaled by the node's sin(pi s) and at most max_step [rad]
+    along its worst row's gradient, scaled by the node's bend and at most max_step [rad]
     long; a joint whose offset reached the bound that keeps the path within its limits is held
     there.  From zero offsets, then from the mirror image (-o) of each offset o found, then
     from seeded random ones (0.5 rad), restarts in all; offsets within distinct [rad] of one
@@ -146,7 +156,7 @@ def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100
     seed rarely reach (UR10 past a sphere: the other side is 3 % faster).
     """
     n = arm.n
-    bend = np.sin(np.pi * np.linspace(0.0, 1.0, path.shape[0]))
+    bend = bend_profile(path.shape[0])[0]
     low, high = _offset_bounds(arm, path, bend)
     ends = evaluator.clearance_terms(path[[0, -1]])[0].min(axis=0)
     target = np.clip(0.5 * ends, 1e-4, clearance)
