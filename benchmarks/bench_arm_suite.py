@@ -143,9 +143,9 @@ def table(rows):
             + ' | '.join(f'{m}: status | t_f [s] | gap | it | ms | re-check' for m in MODELS)
             + ' |')
     lines = [head, '|' + '---|' * (3 + 6 * len(MODELS))]
-    for i, row in enumerate(rows):
+    for row in rows:
         ref = '-' if row['ipopt'] is None else f'{row["ipopt"][1]:.6f} ({row["ipopt"][0]})'
-        lines.append(f'| {row["arm"]} #{i} | {row["goal"]} | {ref} | '
+        lines.append(f'| {row["arm"]} #{row["index"]} | {row["goal"]} | {ref} | '
                      + ' | '.join(_cell(row, m) for m in MODELS) + ' |')
     lines.append('')
     for model in MODELS:
@@ -176,8 +176,9 @@ def main(argv=None):
         cases = draw_cases(name, args.count, args.spread, args.sphere, rng)
         for model in MODELS:        # loads the compiled kernels outside the timed solves
             run_case_fast_only(name, *cases[0], 5, model)
-        for start, goal, obstacles in cases:
+        for index, (start, goal, obstacles) in enumerate(cases):
             rows.append(run_case(name, start, goal, obstacles, args.N))
+            rows[-1]['index'] = index           # (the case's number for its arm)
             print(table(rows[-1:]).splitlines()[2], flush=True)
     print()
     print(table(rows))

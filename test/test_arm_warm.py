@@ -79,7 +79,9 @@ def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(p
         assert warm.final_time == rest.final_time
         assert warm.final_time == pytest.approx(cold.final_time, rel=1e-8)
     else:
-        assert warm.final_time == pytest.approx(cold.final_time, rel=1e-12)
+        # Two converged runs from different starts: the same t_f to within what the
+        # convergence tolerance (1e-8) leaves of it.
+        assert warm.final_time == pytest.approx(cold.final_time, rel=1e-9)
     _check(replan, warm)
 
 

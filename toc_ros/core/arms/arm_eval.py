@@ -23,7 +23,9 @@ line search's accelerations are one batched pinocchio.abaInParallel call on one 
 sphere kinematics, rows, gradients and curvature of all nodes are one compiled call
 (kernels.sphere_rows, with the centres' exact second derivatives).
 
-With hessian='exact' the dynamics' curvature is exact up to a forward difference of
+With hessian='cross' the curvature between the final time and (x, tau) is exact: the step is
+x + (T / N) f(x, tau), so d2 (lam . step) / dT dz = lam . df/dz / N, from the same call.
+With hessian='exact' also the dynamics' curvature is exact up to a forward difference of
 Pinocchio's analytical derivatives: the Hessian of lam_v . ABA(q, v, tau) is the forward
 difference, along each coordinate of q and v, of its gradient (lam_v . da/dq, lam_v . da/dv,
 M^-1 lam_v); ABA is affine in tau, so no tau direction is needed (2 n extra derivative calls
@@ -49,8 +51,11 @@ from .rk4_steps import rk4_defects, rk4_terms
 FD_STEP = 1e-6
 # The second derivatives of ABA (2 n derivative calls per interval) are recomputed every
 # TENSOR_REUSE evaluations and contracted with the current multipliers in between: the
-# curvature lags the iterate by at most TENSOR_REUSE - 1 steps, at a third of the cost.
-TENSOR_REUSE = 3
+# curvature lags the iterate by at most TENSOR_REUSE - 1 steps.  The exact phase starts near
+# the optimum (cold_runs.run_ipm), where the iterate moves little: 12 against 3 cut the
+# time of random arm suites by 4 % alone, by 13-16 % with the earlier switch to it, the same
+# final times (benchmarks/RESULTS.md, "Arms: the final time's curvature").
+TENSOR_REUSE = 12
 
 
 class ArmEvaluator:
@@ -141,9 +146,10 @@ class ArmEvaluator:
         Step derivatives and Lagrangian curvature at every interval (rk4_steps.py for RK4).
 
         Returns a dict: defect (N, 2n), a (N, 2n, 2n), b (N, 2n, n) (scaled controls),
-        c (N, 2n) (d step / d T), and with hessian the blocks hxx (N, 2n + 1, 2n + 1),
-        hux (N, n, 2n + 1) of lam_{k+1} . step_k over (x_k, T, v_k) (huu = 0: ABA is affine in
-        the torques).
+        c (N, 2n) (d step / d T), and the blocks hxx (N, 2n + 1, 2n + 1), hux (N, n, 2n + 1)
+        of lam_{k+1} . step_k's curvature over (x_k, T, v_k) (huu = 0: ABA is affine in the
+        torques): zero with hessian 'none', the final time's rows and columns with 'cross',
+        all of it with 'exact' (module docstring).
         """
         n, nx, n_int = self.n, 2 * self.n, self.n_int
         if self.integrator == 'rk4':

@@ -44,12 +44,14 @@ MU_INIT_RETRY = 0.1.
 
 Second-order information (hessian=): 'none' (default) keeps the sphere rows' exact curvature
 and the bound/slack barrier terms but no curvature of the dynamics (a Gauss-Newton-like model:
-one Pinocchio derivative call per interval); 'exact' adds the dynamics' curvature by forward
-differences of Pinocchio's analytical derivatives (2 n + 1 calls per interval, see
-arm_eval.py).  The cheap model converges on most problems in 15-30 iterations at a
-fraction of the cost; where the dynamics' curvature matters it wanders without converging,
-and solve_arm then switches the same run to 'exact' (cold_runs.run_ipm; the attribute
-hessian is read every iteration).  A proximal term rho I (a
+one Pinocchio derivative call per interval); 'cross' adds the exact curvature between the
+final time and the states and controls (the steps are h f, h = T / N: lam . df / N, from the
+same call); 'exact' adds the dynamics' curvature by forward differences of Pinocchio's
+analytical derivatives (2 n + 1 calls per interval, see arm_eval.py).  The cheap models
+converge on most problems in 10-30 iterations at a fraction of the cost; where the
+dynamics' curvature matters they wander without converging, and solve_arm then switches the
+same run to 'exact' (cold_runs.run_ipm, which starts with 'cross'; the attribute hessian is
+read every iteration).  A proximal term rho I (a
 trust region in Levenberg-Marquardt form: raised when the line search backtracks, lowered
 after full steps) bounds the steps where the model has little curvature; it changes the
 steps, never the convergence test.
@@ -307,6 +309,10 @@ class ArmInteriorPoint:
             setattr(self, name, getattr(self, name) * scale)
         return True
 
+    def at_last_barrier(self):
+        """Return True once the barrier parameter is at its last value (mu_min)."""
+        return self.mu <= 1.5 * self.mu_min     # (mu^1.5 rounds a little above mu_min)
+
     def _merit(self, x, v, t, s, defect, values):
         return ipm_kernels.merit(x[1:-1], v, t, s, defect, values, *self._bounds(), self.mu)
 
@@ -327,6 +333,7 @@ class ArmInteriorPoint:
         status = 'max_iterations'
         dual = primal = compl = math.inf
         iteration = 0
+        self.last_alpha = None
         acceptable = 0
         while True:
             terms = self.ev.stage_terms(self.x, self.v, self.t, self.lam, self.hessian)
@@ -370,6 +377,7 @@ class ArmInteriorPoint:
                 break
             dx, dv, d_t, lam_qp, delta = step
             alpha = self._line_search(terms, values, grads, dx, dv, d_t, lam_qp)
+            self.last_alpha = alpha
             iteration += 1
             history.append((self.t, primal, e0, self.mu, alpha, delta + self.prox))
             if alpha is not None:

@@ -32,13 +32,24 @@ from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets,
 
 # When no start converges after a failure: one more run from the line slowed down this much.
 RETRY_SLOWDOWN = 1.5
-# Curvature of the dynamics (arm_ipm.py's hessian) with hessian='auto': none first (one
-# Pinocchio derivative call per interval, enough for most problems), then exact (2n + 1
+# Curvature of the dynamics (arm_ipm.py's hessian) with hessian='auto': CHEAP_MODEL first
+# (one Pinocchio derivative call per interval, enough for most problems), then exact (2n + 1
 # calls) from the same iterate, multipliers and barrier parameter once the run has not
 # converged after CHEAP_ITERATIONS or its line search failed: where the dynamics' curvature
 # matters the cheap model wanders without converging (benchmarks/RESULTS.md, "Arms: exact
-# curvature when the cheap model stalls").
+# curvature when the cheap model stalls").  The cheap model keeps the final time's exact
+# curvature with the states and controls ('cross', free from the same call): against none,
+# the same final times on 126 random arm motions, iterations -1 to -5 %, the Panda past a
+# sphere at N = 100 23 -> 19 (benchmarks/RESULTS.md, "Arms: the final time's curvature").
+CHEAP_MODEL = 'cross'
 CHEAP_ITERATIONS = 60
+# ... or sooner, once the cheap model has taken STALL_STEPS steps in a row shorter than
+# STALL_ALPHA at the last barrier parameter: there the steps it lacks the curvature for run
+# into the bounds (UR5 past a sphere: 30 such steps at the final t_f to 7 digits before the
+# 60th iteration).  With the exact phase's tensor reused (arm_eval.TENSOR_REUSE): random arm
+# suites -13 to -16 % time, the same final times.
+STALL_STEPS = 6
+STALL_ALPHA = 0.5
 # Around obstacles (arm_start.py, cold_runs): the free optimum (solved within FREE_BUDGET
 # iterations) bent clear of them in up to FREE_BENDS distinct ways, then up to LINE_DETOURS
 # bent lines.  Each start finds the optimum of its own way around the obstacles; with one
@@ -117,9 +128,10 @@ def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
     if hessian != 'auto':
         ipm.hessian = hessian
         return ipm.run(budget, should_stop)
-    ipm.hessian = 'none'
-    run = ipm.run(min(budget, cheap), should_stop)
-    if (run.status not in ('max_iterations', 'line_search_failed')
+    ipm.hessian = CHEAP_MODEL
+    watch = _stall_watch(ipm, should_stop)
+    run = ipm.run(min(budget, cheap), watch)
+    if (not (watch.stalled or run.status in ('max_iterations', 'line_search_failed'))
             or run.iterations >= budget):
         return run
     ipm.hessian = 'exact'
@@ -128,6 +140,20 @@ def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
     rest.history = np.vstack([run.history, rest.history])
     rest.exact_from = run.iterations
     return rest
+
+
+def _stall_watch(ipm, should_stop):
+    """should_stop for the cheap phase that also fires (.stalled) once it stalls (above)."""
+    def stop():
+        if should_stop is not None and should_stop():
+            return True
+        short = (ipm.at_last_barrier() and ipm.last_alpha is not None
+                 and ipm.last_alpha < STALL_ALPHA)
+        stop.count = stop.count + 1 if short else 0
+        stop.stalled = stop.count >= STALL_STEPS
+        return stop.stalled
+    stop.count, stop.stalled = 0, False
+    return stop
 
 
 def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
