@@ -40,7 +40,7 @@ from typing import Optional
 import numpy as np
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED, PROX_INIT, T_HIGH, T_LOW
+from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED, T_HIGH, T_LOW
 from .arm_paper import solve_arm_paper
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
@@ -85,13 +85,6 @@ WARM_PUSH_EXACT = 1e-12
 # problems), the cold count cost Panda replans at N = 60 eight more iterations at the same
 # t_f (benchmarks/RESULTS.md, "Arms: a payload ...").
 WARM_ACCEPT_ITERATIONS = 3
-# ... and, off the plan (drift > WARM_EXACT), with a proximal weight of at least
-# WARM_DRIFT_PROX: the plan's own weight (~1e-10 after its last full steps) trusts the model
-# of a point the robot has left, and the first full step from the drifted start opened
-# defects of 3e-2 (Panda, N = 60, 1e-3 rad off the plan: 6 iterations; with 1e-4, 3).  On 32
-# replans of the Panda and the UR5 off their plans: 346 -> 295 iterations, the same final
-# times (benchmarks/RESULTS.md, "Arms: the final time's curvature").
-WARM_DRIFT_PROX = PROX_INIT
 # ... and it switches to the exact curvature (hessian='auto', cold_runs.py) after WARM_CHEAP cheap
 # iterations, within its WARM_BUDGET (with the cold CHEAP_ITERATIONS it never did: a UR5 replan
 # 1e-3 off its plan at N = 60 spent the 60 warm iterations, then 63 cold ones).
@@ -292,8 +285,6 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
             ipm.accept_at_start = exact
         ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH_EXACT if exact else WARM_PUSH,
                   prox=PROX_GUARDED if duals is None else None)
-        if duals is not None and not exact:
-            ipm.prox = max(ipm.prox, WARM_DRIFT_PROX)
         run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian,
                       CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
         iterations += run.iterations
