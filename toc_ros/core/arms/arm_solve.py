@@ -26,10 +26,11 @@ Self-collision between the spheres' self_pairs (non-adjacent links, no margin) i
 constrained at every node when ArmRobot.self_collision is True (start and goal are then
 checked for it too); otherwise it is only reported (self_clearance), outside the SOLVED test.
 
-The returned states are the controls re-integrated with pinocchio.aba (the problem's
-integrator, the same h = t_f / N) from x0; every limit and clearance is measured on them at
-every node k = 0..N (ArmViolations), the velocities from node 1 on (the start's are given,
-and may exceed their limits by START_VELOCITY_SLACK).
+The returned states are the controls re-integrated with pinocchio.aba (in the solver's
+arithmetic, arm_warm.rollout; the problem's integrator, the same h = t_f / N) from x0; every
+limit and clearance is measured on them at every node k = 0..N (ArmViolations), the
+velocities from node 1 on (the start's are given, and may exceed their limits by
+START_VELOCITY_SLACK).
 """
 
 import dataclasses

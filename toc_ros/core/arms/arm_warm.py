@@ -51,7 +51,11 @@ def rollout(arm, x0, controls, t_f, integrator='euler'):
     states[0] = x0
 
     def f(x, tau):
-        return np.concatenate([x[n:], pin.aba(arm.model, data, x[:n], x[n:], tau)])
+        # ABA in the WORLD convention: bit for bit the accelerations the solver's steps use
+        # (arm_eval.py); the default LOCAL one differs by ~3e-11, which an open-loop unstable
+        # motion amplifies past the terminal tolerance however small the plan's defects.
+        return np.concatenate([x[n:], pin.aba(arm.model, data, x[:n], x[n:], tau,
+                                              pin.Convention.WORLD)])
     for k in range(n_int):
         x, tau = states[k], controls[k]
         k1 = f(x, tau)
