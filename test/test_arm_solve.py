@@ -550,7 +550,7 @@ def test_a_sphere_passed_the_better_way_found_by_the_free_optimums_other_bends(m
     monkeypatch.setattr(cold_runs, 'LINE_DETOURS', 1)
     points = cold_runs.start_points
     monkeypatch.setattr(cold_runs, 'start_points', lambda *args: [
-        (name, make) for name, make in points(*args) if name != 'line'])
+        (name, make, last) for name, make, last in points(*args) if name != 'line'])
     one_bend = solve(problem)
     assert one_bend.status is Status.SOLVED, one_bend.message
     assert one_bend.final_time > 1.05 * result.final_time
@@ -588,7 +588,7 @@ def test_the_colliding_line_start_finds_its_way_out_of_the_sphere(monkeypatch):
     assert best.status is Status.SOLVED, best.message
     points = cold_runs.start_points
     monkeypatch.setattr(cold_runs, 'start_points', lambda *args: [
-        (name, make) for name, make in points(*args) if name == 'line'])
+        (name, make, last) for name, make, last in points(*args) if name == 'line'])
     line = solve(problem)
     assert line.status is Status.SOLVED, line.message
     assert line.solver_state['start'] == 'line', line.message

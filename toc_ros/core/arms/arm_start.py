@@ -143,7 +143,7 @@ def _corrected(evaluator, path, bend, low, high, target, offsets, iterations, ma
 def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100, restarts=8,
                    max_step=0.3, distinct=0.3):
     """
-    Up to count offsets (n,) whose bent path (bent_states) clears the obstacles at every node.
+    Yield up to count offsets (n,) whose bent path (bent_states) clears every obstacle row.
 
     Each row must clear by clearance, or by half of what it clears at the path's ends when
     that is less (the ends are fixed).  Repeated minimum-norm corrections at the worst node
@@ -170,14 +170,14 @@ def detour_offsets(arm, evaluator, path, count=1, clearance=0.02, iterations=100
         if offsets is not None and all(np.linalg.norm(offsets - other) > distinct
                                        for other in found):
             found.append(offsets)
+            yield offsets       # (one at a time: a search often needs only the first)
             if len(found) == count:
-                break
+                return
         if mirrored < len(found):
             first = np.clip(-found[mirrored], low, high)
             mirrored += 1
         else:
             first = np.clip(rng.normal(0.0, 0.5, n), low, high)
-    return found
 
 
 def timed_start(arm, states_at, t_first):
@@ -208,10 +208,10 @@ def line_detours(arm, evaluator, x0, x_goal, n_intervals, count=1):
 
 def line_detour_makers(arm, evaluator, x0, x_goal, n_intervals, count=1):
     """
-    [make]: up to count bent lines clear of the obstacles, each timed when make() is called.
+    Yield up to count makes: bent lines clear of the obstacles, each timed when make() is called.
 
-    The offsets are found now (cheap); timing a start (timed_start: inverse dynamics at every
-    node, on a 5 % grid) costs more and is left to the starts that are run.
+    Each one's offsets are found when it is asked for; timing a start (timed_start: inverse
+    dynamics at every node, on a 5 % grid) is left to the starts that are run.
     """
     n = arm.n
     unit = cubic_path(x0, x_goal, 1.0, n_intervals)
@@ -225,4 +225,5 @@ def line_detour_makers(arm, evaluator, x0, x_goal, n_intervals, count=1):
             line = cubic_path(x0, x_goal, t_f, n_intervals)
             return bent_states(line[:, :n], line[:, n:] * t_f, offsets, t_f)
         return lambda: timed_start(arm, states_at, t_first)
-    return [maker(offsets) for offsets in detour_offsets(arm, evaluator, unit[:, :n], count)]
+    for offsets in detour_offsets(arm, evaluator, unit[:, :n], count):
+        yield maker(offsets)

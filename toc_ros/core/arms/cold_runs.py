@@ -90,35 +90,36 @@ def start_point(robot, evaluator, x0, x_goal, n_int):
 
 def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
     """
-    [(name, make)]: the starts a cold solve tries, in order; make() -> (states, torques, t_f).
+    Yield (name, make, last): the starts a cold solve tries, in order.
+
+    make() -> (states, torques, t_f); last is True for the last start (the line).
 
     line: cold_start's (states, torques, t_f).  The line start when it clears every sphere
     row; otherwise the free optimum (free: its (states, torques, t_f), solved without the
     obstacles) as it is when it clears them, else bent clear of them in up to FREE_BENDS
-    distinct ways, then LINE_DETOURS distinct bent lines, then the colliding line.  The bends
-    are found now, each start timed by its make() (only the starts that are run: the search
-    often ends at the first).
+    distinct ways, then LINE_DETOURS distinct bent lines, then the colliding line (last: True).
+    Each bend is found when it is asked for and each start timed by its make(): the search
+    often ends at the first (the Panda past a sphere: finding all five bends took 2-4 ms).
     """
     arm, n = robot.arm, robot.arm.n
     if not evaluator.n_pairs or evaluator.clearances(line[0][:, :n]).min() >= 0.0:
-        return [('line', lambda: line)]
-    starts = []
+        yield 'line', lambda: line, True
+        return
     if free is not None:
         states, torques, t_f = free
         if evaluator.clearances(states[:, :n]).min() >= 0.0:
-            starts.append(('free optimum', lambda: free))
+            yield 'free optimum', lambda: free, False
         else:
             rate = states[:, n:] * t_f
             for offsets in detour_offsets(arm, evaluator, states[:, :n], FREE_BENDS):
-                starts.append(('free optimum bent', lambda o=offsets: timed_start(
-                    arm, lambda t: bent_states(states[:, :n], rate, o, t), t_f)))
-    starts += [('detour', make) for make in line_detour_makers(
-        arm, evaluator, x0, x_goal, n_int, LINE_DETOURS)]
+                yield 'free optimum bent', lambda o=offsets: timed_start(
+                    arm, lambda t: bent_states(states[:, :n], rate, o, t), t_f), False
+    for make in line_detour_makers(arm, evaluator, x0, x_goal, n_int, LINE_DETOURS):
+        yield 'detour', make, False
     # Last the colliding line itself: the sphere rows' slacks let the interior point start
     # inside an obstacle, and from there it sometimes reaches a way around that no bend
     # takes (xArm7: 0.3 % faster on two of four motions), or fails within a few iterations.
-    starts.append(('line', lambda: line))
-    return starts
+    yield 'line', lambda: line, True
 
 
 def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
@@ -195,14 +196,13 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
         runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
                     f'{used} iterations')
     best = run = None
-    starts = start_points(robot, evaluator, x0, xg, n_int, line, free)
-    for index, (start_name, make) in enumerate(starts):
+    for start_name, make, last in start_points(robot, evaluator, x0, xg, n_int, line, free):
         if run is not None and iterations >= budget:
             break
         ipm = ArmInteriorPoint(evaluator, x0, xg)
         ipm.start(*make())
         allowed = budget - iterations
-        if index < len(starts) - 1 or best is not None:
+        if not last or best is not None:
             allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
         abandon = _abandon_above(ipm, best, should_stop)
         run = run_ipm(ipm, allowed, abandon, hessian)
