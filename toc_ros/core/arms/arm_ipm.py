@@ -25,10 +25,9 @@ Each iteration follows IPOPT's primal-dual scheme (Waechter & Biegler 2006) in a
 bound and slack duals are condensed into the stage blocks, the Newton step comes from the
 compiled Riccati recursion (riccati.py) with an inertia correction (a multiple of the identity
 added to the Hessian until every reduced Hessian is positive definite), the step length from
-the fraction-to-the-boundary rule and IPOPT's filter line search (with its switching rule and
-one filter reset; a step that lowers the violation without raising the barrier objective is
-taken where Armijo's test fails, _acceptable), and the barrier parameter falls monotonically
-(mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier problem is solved to 10 mu).  The
+the fraction-to-the-boundary rule and IPOPT's filter line search (arm_line_search.py), and the
+barrier parameter falls monotonically (mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier
+problem is solved to 10 mu).  The
 per-stage arithmetic of an iteration (errors, barrier blocks, steps to the boundary, merit,
 dual safeguard) is compiled (ipm_kernels.py); this class keeps the logic.
 
@@ -71,6 +70,7 @@ import time
 import numpy as np
 
 from . import ipm_kernels, riccati
+from .arm_line_search import FilterLineSearch
 
 T_LOW = 1e-3
 T_HIGH = 100.0
@@ -79,8 +79,6 @@ MU_INIT_RETRY = 0.1
 KAPPA_EPS = 10.0
 KAPPA_SIGMA = 1e10
 S_MAX = 100.0
-ARMIJO = 1e-4
-MIN_ALPHA = 1e-12
 DELTA_FIRST = 1e-4
 DELTA_MAX = 1e40
 ACCEPT_TOL = 1e-6
@@ -107,7 +105,6 @@ PROX_MAX = 1e8
 TERMINAL_CURVATURE = 1e4
 TERMINAL_CURVATURE_RK4 = 1.0
 ACCEPT_ITERATIONS = 10
-ROUNDING = 10.0 * np.finfo(float).eps
 # How far (relative to the bound, at least absolute) a start point is pushed inside its bounds:
 # a cold start needs room to move; a warm start keeps its active bounds nearly active.
 COLD_PUSH = 1e-2
@@ -123,7 +120,7 @@ class ArmIpmResult:
         self.__dict__.update(fields)
 
 
-class ArmInteriorPoint:
+class ArmInteriorPoint(FilterLineSearch):
     """One minimum-time problem for an ArmEvaluator; run() iterates from a start point."""
 
     def __init__(self, evaluator, x0, x_goal, tol=1e-8, constr_tol=1e-9, hessian='none',
@@ -204,9 +201,7 @@ class ArmInteriorPoint:
         self.rescale_duals = duals is not None
         self.penalty = 1.0
         self.delta_last = 0.0
-        self.filter = []
-        self.theta_max = None
-        self.theta_min = None
+        self.new_filter()
 
     def duals(self):
         """Return the multipliers and the proximal weight (start(duals=...) of another run)."""
@@ -313,12 +308,6 @@ class ArmInteriorPoint:
         """Return True once the barrier parameter is at its last value (mu_min)."""
         return self.mu <= 1.5 * self.mu_min     # (mu^1.5 rounds a little above mu_min)
 
-    def _merit(self, x, v, t, s, defect, values):
-        return ipm_kernels.merit(x[1:-1], v, t, s, defect, values, *self._bounds(), self.mu)
-
-    def _in_filter(self, theta, phi):
-        return any(theta >= f_theta and phi >= f_phi for f_theta, f_phi in self.filter)
-
     def run(self, max_iterations=200, should_stop=None):
         """
         Iterate until convergence; return an ArmIpmResult.
@@ -395,100 +384,6 @@ class ArmInteriorPoint:
                             iterations=iteration, history=np.array(history).reshape(-1, 6),
                             dual=dual, primal=primal, compl=compl, duals=self.duals(),
                             mu=self.mu)
-
-    def _line_search(self, terms, values, grads, dx, dv, d_t, lam_qp):
-        """Backtracking on the l1 merit; updates the iterate and duals; returns alpha."""
-        mu = self.mu
-        frac = max(0.99, 1.0 - mu)
-        # Fraction to the boundary (primal and dual), the bound-dual steps of the condensed
-        # system and the barrier objective's slope along the step.
-        direction = self._direction(values, grads, dx, dv, d_t, lam_qp, frac)
-        alpha_max, slope = direction['alpha_max'], direction['slope']
-        # IPOPT's filter line search on (theta = l1 constraint violation, phi = barrier
-        # objective), with its switching rule and constants.
-        phi0, theta0 = self._merit(self.x, self.v, self.t, self.s, terms['defect'], values)
-        if self.theta_max is None:
-            self.theta_max = 1e4 * max(1.0, theta0)
-            self.theta_min = 1e-4 * max(1.0, theta0)
-        alpha = alpha_max
-        self.alpha_max = alpha_max
-        while alpha >= MIN_ALPHA:
-            trial = self._trial(direction, alpha)
-            if self._acceptable(trial, alpha, phi0, theta0, slope):
-                return self._take(direction, trial, alpha)
-            alpha *= 0.5
-        if self.filter:
-            # IPOPT's filter reset heuristic, once: forget the filter and search again.
-            self.filter = []
-            return self._line_search(terms, values, grads, dx, dv, d_t, lam_qp)
-        return None
-
-    def _direction(self, values, grads, dx, dv, d_t, lam_qp, frac):
-        """Return a primal step with its slack and dual steps and step lengths (a dict)."""
-        out = {'dx': dx, 'dv': dv, 'd_t': d_t, 'lam': lam_qp, 'ds': np.empty_like(self.s),
-               'dz': np.empty_like(self.z), 'dzlx': np.empty_like(self.zlx),
-               'dzux': np.empty_like(self.zux), 'dzlv': np.empty_like(self.zlv),
-               'dzuv': np.empty_like(self.zuv)}
-        (out['alpha_max'], out['alpha_dual'], out['dzlt'], out['dzut'],
-         out['slope']) = ipm_kernels.step_to_boundary(
-            dx[1:-1], dv, d_t, grads, values, self.s, self.z, self.x[1:-1], self.v, self.t,
-            self.zlx, self.zux, self.zlv, self.zuv, self.zlt, self.zut, *self._bounds(),
-            self.mu, frac, out['ds'], out['dzlx'], out['dzux'], out['dzlv'], out['dzuv'],
-            out['dz'])
-        return out
-
-    def _trial(self, direction, alpha):
-        """Return the point alpha along direction, its defects and its (phi, theta)."""
-        trial = {'x': self.x + alpha * direction['dx'], 'v': self.v + alpha * direction['dv'],
-                 't': self.t + alpha * direction['d_t'], 's': self.s + alpha * direction['ds']}
-        trial['defect'] = self.ev.defects(trial['x'], trial['v'], trial['t'])
-        values = self.ev.clearances(trial['x'][1:-1, :self.n])
-        trial['phi'], trial['theta'] = self._merit(trial['x'], trial['v'], trial['t'],
-                                                   trial['s'], trial['defect'], values)
-        return trial
-
-    def _acceptable(self, trial, alpha, phi0, theta0, slope):
-        """Return IPOPT's filter acceptance of a trial point (the filter grows on h-type steps)."""
-        phi, theta = trial['phi'], trial['theta']
-        if not (np.isfinite(phi) and theta <= self.theta_max
-                and not self._in_filter(theta, phi)):
-            return False
-        rounding = ROUNDING * abs(phi0)
-        switching = slope < 0.0 and alpha * (-slope) ** 2.3 > theta0 ** 1.1
-        if theta0 <= self.theta_min and switching:
-            # f-type: the filter is not augmented.
-            if phi <= phi0 + ARMIJO * alpha * slope + rounding:
-                return True
-            # ... or, unlike IPOPT, a step that lowers the violation without raising phi, taken
-            # as an h-type step below.  Near the solution (mu <= 1e-9) a step that moves
-            # controls off their bounds (a switching time moving) has a slope dominated by
-            # mu / slack terms whose slacks are ~ mu: the linear model promises a decrease the
-            # barrier cannot give, Armijo rejects the full step, and the backtracking to an
-            # h-type step raised the proximal weight, whose decay cost ~10 iterations (UR5
-            # free at N = 200: 39 -> 28 iterations; benchmarks/RESULTS.md, "Arms: more ways
-            # around a sphere").
-            if not (phi <= phi0 + rounding and theta <= (1.0 - 1e-5) * theta0):
-                return False
-        if theta <= (1.0 - 1e-5) * theta0 or phi <= phi0 - 1e-8 * theta0 + rounding:
-            self.filter.append(((1.0 - 1e-5) * theta0, phi0 - 1e-8 * theta0))
-            return True
-        return False
-
-    def _take(self, direction, trial, alpha):
-        """Move to trial; the duals by direction's dual step length; return alpha."""
-        self.x, self.v, self.t, self.s = trial['x'], trial['v'], trial['t'], trial['s']
-        ad = direction['alpha_dual']
-        self.zlx = self.zlx + ad * direction['dzlx']
-        self.zux = self.zux + ad * direction['dzux']
-        self.zlv = self.zlv + ad * direction['dzlv']
-        self.zuv = self.zuv + ad * direction['dzuv']
-        self.zlt = self.zlt + ad * direction['dzlt']
-        self.zut = self.zut + ad * direction['dzut']
-        if self.z.size:
-            self.z = self.z + ad * direction['dz']
-        self.lam = self.lam + alpha * (direction['lam'] - self.lam)
-        self._safeguard_duals()
-        return alpha
 
     def _safeguard_duals(self):
         """Keep every bound dual within [mu / (k slack), k mu / slack] (IPOPT's kappa_sigma)."""
