@@ -314,6 +314,35 @@ def test_step_derivatives_and_curvature_match_finite_differences(name):
     np.testing.assert_allclose(curvature, fd2, atol=1e-4 * max(1.0, np.abs(fd2).max()))
 
 
+def test_derivatives_kept_from_a_trial_are_reused_only_at_the_same_point():
+    robot = _robot('panda')
+    arm = robot.arm
+    rng = np.random.default_rng(3)
+    ev = ArmEvaluator(arm, robot.spheres, SCENARIOS['panda'][2], MARGIN, 4)
+    q = np.clip(rng.uniform(-1.0, 1.0, (5, arm.n)), arm.lower, arm.upper)
+    x = np.hstack([q, rng.uniform(-1, 1, (5, arm.n))])
+    v = rng.uniform(-0.8, 0.8, (4, arm.n))
+    lam = rng.normal(size=(5, 2 * arm.n))
+    fresh = ArmEvaluator(arm, robot.spheres, SCENARIOS['panda'][2], MARGIN, 4)
+    expected = fresh.stage_terms(x, v, 0.7, lam, hessian='cross')
+    # A line-search trial that keeps its derivatives: the same defects as the ABA pass ...
+    kept = ev.defects(x, v, 0.7, keep_derivatives=True)
+    assert np.array_equal(kept, fresh.defects(x, v, 0.7))
+    calls = ev.pin_calls
+    # ... and the next iteration at that point makes no Pinocchio call and gets the same bits.
+    terms = ev.stage_terms(x.copy(), v.copy(), 0.7, lam, hessian='cross')
+    assert ev.pin_calls == calls
+    for key, value in expected.items():
+        assert np.array_equal(terms[key], value), key
+    # Another point (one control changed) is evaluated afresh.
+    v2 = v.copy()
+    v2[2, 1] += 1e-3
+    moved = ev.stage_terms(x, v2, 0.7, lam, hessian='cross')
+    assert ev.pin_calls == calls + 4
+    assert np.array_equal(moved['a'], fresh.stage_terms(x, v2, 0.7, lam, 'cross')['a'])
+    assert not np.array_equal(moved['a'][2], terms['a'][2])
+
+
 # Bad input --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize('changes, reason', [

@@ -18,8 +18,10 @@ Model evaluations of the arm interior point: Euler steps, their derivatives, sph
 Pinocchio cannot be called from compiled code, and its Python bindings have no batched
 derivative call, so every interval's dynamics derivatives are one
 pinocchio.computeABADerivatives call from Python (its outputs copied from views of the
-data's buffers, the Euler blocks then assembled in one compiled call, ipm_kernels.py); the
-line search's accelerations are one batched pinocchio.abaInParallel call on one thread; the
+data's buffers, the Euler blocks then assembled in one compiled call, ipm_kernels.py); a
+line search's first trial point takes its accelerations from these calls and keeps the
+derivatives for the next iteration (the trial is usually taken: the Panda past a sphere -8 %
+time, the same bits), later trials one batched pinocchio.abaInParallel call on one thread; the
 sphere kinematics, rows, gradients and curvature of all nodes are one compiled call
 (kernels.sphere_rows, with the centres' exact second derivatives).
 
@@ -91,6 +93,7 @@ class ArmEvaluator:
         self.pin_calls = 0
         self._tensor = None
         self._tensor_age = 0
+        self._kept = None
 
     # Dynamics ------------------------------------------------------------------------------
     def accelerations(self, states, controls):
@@ -110,14 +113,32 @@ class ArmEvaluator:
         self.pin_calls += states.shape[0]
         return out.T
 
-    def defects(self, x, v, t_f):
-        """Defects step_k - x_{k+1}, (N, 2n): Euler x_k + h f(x_k, u_k), or RK4."""
+    def defects(self, x, v, t_f, keep_derivatives=False):
+        """
+        Defects step_k - x_{k+1}, (N, 2n): Euler x_k + h f(x_k, u_k), or RK4.
+
+        keep_derivatives (Euler): the accelerations come from the derivative call and its
+        results are kept for stage_terms at the same (x, v): a line search's first trial is
+        usually the next iterate, whose derivatives would otherwise cost a second pass.
+        """
         if self.integrator == 'rk4':
             return rk4_defects(self, x, v, t_f)
         n, h = self.n, t_f / self.n_int
-        acc = self.accelerations(x[:-1], v)
+        if keep_derivatives:
+            acc = self._kept_derivatives(x, v)[0]
+        else:
+            acc = self.accelerations(x[:-1], v)
         step = np.hstack([x[:-1, n:], acc])
         return x[:-1] + h * step - x[1:]
+
+    def _kept_derivatives(self, x, v):
+        """derivatives_at the intervals of (x, v), reused while (x, v) stay the same."""
+        kept = self._kept
+        if kept is not None and np.array_equal(kept[0], x) and np.array_equal(kept[1], v):
+            return kept[2]
+        found = self.derivatives_at(x[:-1], v * self.effort[None, :])
+        self._kept = (x.copy(), v.copy(), found)
+        return found
 
     def derivatives_at(self, states, tau):
         """(acc, d acc/dq, d acc/dv, M^-1) at states (K, 2n) under torques (K, n)."""
@@ -156,7 +177,7 @@ class ArmEvaluator:
             return rk4_terms(self, x, v, t_f)
         h = t_f / n_int
         tau = v * self.effort[None, :]
-        acc, d_q, d_v, minv = self.derivatives_at(x[:-1], tau)
+        acc, d_q, d_v, minv = self._kept_derivatives(x, v)
         out = {'defect': np.empty((n_int, nx)), 'c': np.empty((n_int, nx)),
                'a': np.empty((n_int, nx, nx)), 'b': np.empty((n_int, nx, n)),
                'hxx': np.zeros((n_int, nx + 1, nx + 1)), 'hux': np.zeros((n_int, n, nx + 1))}
