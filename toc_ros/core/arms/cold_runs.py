@@ -70,6 +70,12 @@ ABANDON_GAP = 2e-3
 START_BUDGET = 150
 # A run within this (relative) of the free optimum's time ends the search of the starts.
 FREE_REACHED = 1e-7
+# The free optimum is a start and a bound, not a result: its run ends at IPOPT's acceptable
+# tolerances, its barrier parameter still falling to a converged run's last (the Panda past a
+# sphere: its final time 4.7e-9 from the converged one, well inside FREE_REACHED, one
+# iteration fewer; with the barrier parameter's floor raised as well, 8.8e-6 and none).
+FREE_TOL = 1e-6
+FREE_CONSTR_TOL = 1e-7
 
 
 def slowed(arm, x0, x_goal, n_int, t_f):
@@ -168,6 +174,7 @@ def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
     free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, len(torques),
                         len(evaluator.pairs) > 0, evaluator.integrator)
     ipm = ArmInteriorPoint(free, x0, xg)
+    ipm.tol, ipm.constr_tol = FREE_TOL, FREE_CONSTR_TOL     # (ipm.mu_min kept)
     ipm.start(states, torques, t_f)
     run = run_ipm(ipm, budget, should_stop, hessian)
     evaluator.pin_calls += free.pin_calls
