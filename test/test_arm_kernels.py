@@ -28,7 +28,7 @@ import pytest
 
 from test_arm_solve import _dense_step  # noqa: I100
 
-from toc_ros.core.arms import ipm_kernels, riccati  # noqa: I100
+from toc_ros.core.arms import ipm_kernels, riccati, riccati_euler  # noqa: I100
 
 T_LOW, T_HIGH = 1e-3, 100.0
 
@@ -346,3 +346,74 @@ def test_euler_terms_match_the_numpy_assembly():
     ipm_kernels.euler_terms(x, v, t_f, acc, d_q, d_v, minv, effort, *out)
     for got, want in zip(out, (x[:-1] + h * f - x[1:], a, b, f / n_int)):
         np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-15)
+
+
+# The Euler step with the goal eliminated (riccati_euler.py) ----------------------------------
+
+def _solve_euler(a, b, c, d, hxx, hux, huu, gx, gu):
+    n_int, nx, nu = b.shape
+    dx, du, lam = np.zeros((n_int + 1, nx)), np.zeros((n_int, nu)), np.zeros((n_int + 1, nx))
+    code, d_t = riccati_euler.riccati_solve_euler(
+        a, b, c, d, hxx, hux, huu, gx, gu, *riccati_euler.work_arrays_euler(n_int, nx, nu),
+        dx, du, lam)
+    return code, d_t, dx, du, lam
+
+
+@pytest.mark.parametrize('n_int, n', [(2, 2), (3, 7), (6, 7), (5, 2)])
+def test_euler_riccati_step_matches_a_dense_kkt_solve(n_int, n):
+    rng = np.random.default_rng(40 + n_int)
+    a, b = _euler_structured(rng, n_int, n)
+    c, d, hxx, hux, huu, gx, gu = _qp(rng, n_int, 2 * n, n)
+    code, d_t, dx, du, lam = _solve_euler(a, b, c, d, hxx, hux, huu, gx, gu)
+    assert code == riccati.OK
+    d_t_ref, dx_ref, du_ref, y = _dense_step(a, b, c, d, hxx, hux, huu, gx, gu)
+    # (Random steps of 0.02 s reaching the goal in two or three intervals need controls of
+    # ~1e2: the dense solve is accurate to ~1e-9 of them.)
+    scale = max(1.0, np.abs(du_ref).max())
+    assert d_t == pytest.approx(d_t_ref, abs=1e-8 * scale)
+    np.testing.assert_allclose(dx, np.vstack([np.zeros(2 * n), dx_ref[1:-1],
+                                              np.zeros(2 * n)]), atol=1e-8 * scale)
+    np.testing.assert_allclose(du, du_ref, atol=1e-8 * scale)
+    # Every step's multipliers, the goal's (lam_N) included.
+    np.testing.assert_allclose(lam[1:], y, atol=1e-8 * max(1.0, np.abs(y).max()))
+    # ... and the step of the recursion that carries the goal's multipliers.
+    work = riccati.work_arrays(n_int, 2 * n, n)
+    _, d_t_gen, dx_gen, du_gen, lam_gen, _ = _solve(a, b, c, d, hxx, hux, huu, gx, gu, work)
+    assert d_t == pytest.approx(d_t_gen, abs=1e-8 * scale)
+    np.testing.assert_allclose(du, du_gen, atol=1e-8 * scale)
+
+
+def test_euler_riccati_refuses_exactly_the_steps_whose_qp_is_not_convex():
+    # Less curvature in T at the first interval (the last test, P_0(T, T) > 0, fails), then
+    # an indefinite control block at an early interval: the code says which test failed, and
+    # OK means the dense null-space Hessian is positive definite (and the step is the dense
+    # one).
+    rng = np.random.default_rng(5)
+    n_int, n = 6, 3
+    a, b = _euler_structured(rng, n_int, n)
+    c, d, hxx, hux, huu, gx, gu = _qp(rng, n_int, 2 * n, n)
+    seen = set()
+    # (The reduced curvature in T is ~1e5 here: the last two intervals' controls, ~1/h^2,
+    # depend on dT.)
+    for lowered, control in ((0.0, 2.0), (1e5, 2.0), (1e6, 2.0), (1e8, 2.0), (0.0, -50.0)):
+        h = hxx.copy()
+        h[0, 2 * n, 2 * n] -= lowered
+        r = huu.copy()
+        r[1] = control * np.eye(n)
+        convex = []
+        ref = _dense_step(a, b, c, d, h, hux, r, gx, gu, convex)
+        code, d_t = _solve_euler(a, b, c, d, h, hux, r, gx, gu)[:2]
+        seen.add((code, convex[0]))
+        assert (code == riccati.OK) == convex[0]
+        if convex[0]:
+            assert d_t == pytest.approx(ref[0], rel=1e-8, abs=1e-10)
+    assert (riccati.OK, True) in seen and (riccati.FINAL_TIME_CURVATURE, False) in seen
+    assert (riccati.REDUCED_HESSIAN_INDEFINITE, False) in seen
+
+
+def test_euler_riccati_reports_steps_without_control_authority():
+    rng = np.random.default_rng(6)
+    a, b = _euler_structured(rng, 4, 2)
+    b[2] = 0.0      # the interval before the last cannot move the velocities
+    code, _ = _solve_euler(a, b, *_qp(rng, 4, 4, 2))[:2]
+    assert code == riccati_euler.SINGULAR_STEP

@@ -23,8 +23,9 @@ the sphere constraints g(q_k) - s = 0 with slacks s >= 0, and T in [T_LOW, T_HIG
 
 Each iteration follows IPOPT's primal-dual scheme (Waechter & Biegler 2006) in a reduced form:
 bound and slack duals are condensed into the stage blocks, the Newton step comes from the
-compiled Riccati recursion (riccati.py) with an inertia correction (a multiple of the identity
-added to the Hessian until every reduced Hessian is positive definite), the step length from
+compiled Riccati recursion (riccati_euler.py for Euler steps, the goal state eliminated;
+riccati.py for RK4 steps) with an inertia correction (a multiple of the identity added to
+the Hessian until every reduced Hessian is positive definite), the step length from
 the fraction-to-the-boundary rule and IPOPT's filter line search (arm_line_search.py), and the
 barrier parameter falls monotonically (mu <- max(mu_min, min(0.2 mu, mu^1.5)) once the barrier
 problem is solved to 10 mu).  The
@@ -69,7 +70,7 @@ import time
 
 import numpy as np
 
-from . import ipm_kernels, riccati
+from . import ipm_kernels, riccati, riccati_euler
 from .arm_line_search import FilterLineSearch
 
 T_LOW = 1e-3
@@ -92,17 +93,15 @@ ACCEPT_TOL = 1e-6
 PROX_INIT = 1e-4
 PROX_GUARDED = 1.0
 PROX_MAX = 1e8
-# The curvature rho |dx_N|^2 / 2 the Riccati step puts on the fixed goal state (riccati.py).
-# dx_N = 0 is imposed, so it never changes a step, but the inertia test is stage by stage
-# (every R_k + B_k^T P_k+1 B_k positive definite), and a large rho makes that test the one
-# on the constraints' null space (an augmented Lagrangian): with rho = 1 steps near the goal
-# failed it where the KKT inertia was right, and the corrections' damped steps stalled a
-# Kinova motion past a sphere at IPOPT's optimum for 150 iterations (dual infeasibility
-# 4.2e-6 at the last free node).  1e4 against 1: arm suites -3 to -16 % iterations, three
-# better and two worse local optima (benchmarks/RESULTS.md, "The goal's curvature").  RK4
-# steps (no curvature of the dynamics, linear convergence) keep 1: the UR5 at N = 10 stalled
-# with 10-1e4 (its line start fails with 1 too; the slowed line then converges).
-TERMINAL_CURVATURE = 1e4
+# The Newton step of Euler steps eliminates the goal state through the last two intervals'
+# controls (riccati_euler.py): its inertia test is the one on the constraints' null space.
+# RK4 steps (riccati.py) carry the goal's multipliers and put the curvature
+# TERMINAL_CURVATURE_RK4 |dx_N|^2 / 2 on the goal, which never changes a step (dx_N = 0 is
+# imposed) but enters the stage-by-stage inertia test of the last intervals; a large value
+# makes that the null space's test (Euler steps ran with 1e4 until they eliminated the goal:
+# benchmarks/RESULTS.md, "The goal's curvature"), but RK4 steps (no curvature of the
+# dynamics, linear convergence) keep 1: the UR5 at N = 10 stalled with 10-1e4 (its line start
+# fails with 1 too; the slowed line then converges).
 TERMINAL_CURVATURE_RK4 = 1.0
 ACCEPT_ITERATIONS = 10
 # How far (relative to the bound, at least absolute) a start point is pushed inside its bounds:
@@ -145,9 +144,10 @@ class ArmInteriorPoint(FilterLineSearch):
         # it) is taken as it is when already acceptable: its solve met the acceptable level.
         self.accept_at_start = False
         n_int, nx = self.n_int, self.nx
-        self.work = riccati.work_arrays(n_int, nx, n)
-        self.terminal_curvature = (TERMINAL_CURVATURE_RK4 if evaluator.integrator == 'rk4'
-                                   else TERMINAL_CURVATURE)
+        # Euler steps: the Riccati step with the goal state eliminated (riccati_euler.py).
+        self.euler_step = evaluator.integrator == 'euler' and n_int >= 2
+        self.work = (riccati_euler.work_arrays_euler(n_int, nx, n) if self.euler_step
+                     else riccati.work_arrays(n_int, nx, n))
         self.linalg_time = 0.0
         self.factorizations = 0
         self.primal = math.inf
@@ -263,12 +263,20 @@ class ArmInteriorPoint(FilterLineSearch):
             # The proximal term (a trust region in Levenberg-Marquardt form) bounds the steps
             # where the model has little curvature; it vanishes as full steps are accepted.
             ipm_kernels.regularised(hxx, huu_diag, self.prox, delta, hxx_reg, huu)
-            code, d_t = riccati.riccati_solve(
-                terms['a'], terms['b'], terms['c'], terms['defect'], hxx_reg, hux, huu,
-                gx, gu, self.terminal_curvature, *self.work, dx, dv, lam, nu)
+            if self.euler_step:
+                code, d_t = riccati_euler.riccati_solve_euler(
+                    terms['a'], terms['b'], terms['c'], terms['defect'], hxx_reg, hux, huu,
+                    gx, gu, *self.work, dx, dv, lam)
+            else:
+                code, d_t = riccati.riccati_solve(
+                    terms['a'], terms['b'], terms['c'], terms['defect'], hxx_reg, hux, huu,
+                    gx, gu, TERMINAL_CURVATURE_RK4, *self.work, dx, dv, lam, nu)
             self.factorizations += 1
             if code == riccati.OK and np.isfinite(d_t) and np.all(np.isfinite(dx)):
                 break
+            if code == riccati_euler.SINGULAR_STEP:
+                self.linalg_time += time.perf_counter() - started
+                return None         # (no multiple of the identity on H mends the steps' B)
             if delta == 0.0:
                 delta = DELTA_FIRST if self.delta_last == 0.0 else max(
                     DELTA_FIRST * 1e-4, self.delta_last / 3.0)

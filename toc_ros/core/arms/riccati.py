@@ -15,6 +15,9 @@
 """
 Compiled Riccati recursion for the arm interior point's Newton steps (any stage sizes).
 
+The interior point uses it for RK4 steps and the polish; Euler steps, whose structure lets
+the goal state be eliminated, have riccati_euler.py (same QP, same codes, ~40 % less work).
+
 The step solves the equality-constrained QP over stages k = 0..N-1
 
     min  sum_k 1/2 [xi_k; u_k]^T H_k [xi_k; u_k] + g_k^T [xi_k; u_k]
