@@ -55,8 +55,11 @@ def path_torques(arm, states, t_f):
     n_int = states.shape[0] - 1
     h = t_f / n_int
     acc = (states[1:, n:] - states[:-1, n:]) / h
-    return np.array([pin.rnea(arm.model, arm.data, states[k, :n], states[k, n:], acc[k])
-                     for k in range(n_int)])
+    # One batched call on one thread (pin.rnea's bits, without a Python call per node).
+    out = np.empty((n, n_int), order='F')
+    pin.rneaInParallel(1, pin.ModelPool(arm.model, 1), np.asfortranarray(states[:-1, :n].T),
+                       np.asfortranarray(states[:-1, n:].T), np.asfortranarray(acc.T), out)
+    return out.T
 
 
 def line_time(arm, x0, x_goal, n_intervals=50):
