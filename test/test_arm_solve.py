@@ -371,6 +371,54 @@ def test_paper_mode_with_rk4_and_spheres_missing_are_refused():
     assert result.status is Status.INVALID_INPUT and 'spheres' in result.message
 
 
+_COMPILES_NOTHING = """
+import sys
+from numba.core.registry import CPUDispatcher
+sys.path.insert(0, sys.argv[1])
+from test_arm_solve import _problem, MARGIN
+from toc_ros.core import SolverOptions, solve, Status, warm_up_for
+from toc_ros.core.arms import arm_eval, ipm_kernels, kernels, riccati, riccati_euler, rk4_steps
+from toc_ros.core.arms.arm_eval import ArmEvaluator
+from toc_ros.core.arms.polish import polish
+
+
+def signatures():
+    return {(module.__name__, name): len(value.signatures)
+            for module in (arm_eval, ipm_kernels, kernels, riccati, riccati_euler, rk4_steps)
+            for name, value in vars(module).items() if isinstance(value, CPUDispatcher)}
+
+
+problem = _problem('panda', 30)
+warm_up_for(problem, SolverOptions())
+before = signatures()
+assert before[(riccati_euler.__name__, 'riccati_solve_euler')] >= 1
+assert before[(kernels.__name__, 'sphere_rows')] >= 1
+result = solve(problem)
+assert result.status is Status.SOLVED
+robot = problem.model
+evaluator = ArmEvaluator(robot.arm, robot.spheres, problem.obstacles, MARGIN, 30)
+polish(evaluator, result.states, result.controls / robot.arm.effort, result.final_time)
+after = signatures()
+print({key: (before[key], after[key]) for key in after if after[key] != before.get(key)})
+assert after == before
+"""
+
+
+@pytest.mark.slow
+def test_a_solve_after_the_warm_up_compiles_nothing():
+    # The node's start-up solve (warm_up_for) compiles every kernel an arm solve uses: a solve
+    # past a sphere afterwards (free optimum, bends) and the polish of its result add no
+    # compiled signature, so no user request waits for numba.  In a process of its own (in
+    # this one other tests have compiled kernels already).
+    import subprocess
+    import sys
+    here = str(Path(__file__).resolve().parent)
+    done = subprocess.run([sys.executable, '-c', _COMPILES_NOTHING, here],
+                          capture_output=True, text=True, timeout=600,
+                          cwd=str(Path(here).parent))
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
 def test_timeout_and_cancel_stop_an_arm_solve():
     import threading
     result = solve(_problem('ur5', 20), SolverOptions(timeout=1e-6))

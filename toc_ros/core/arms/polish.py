@@ -27,7 +27,7 @@ defects, so the objective (T) and the optimality conditions move by as little.
 
 import numpy as np
 
-from . import riccati
+from . import riccati, riccati_euler
 
 STEPS = 3
 HELD = 1e12              # weight of a control held at its bound
@@ -51,16 +51,24 @@ def polish(evaluator, states, controls, t_f):
     huu = np.zeros((n_int, n, n))
     huu[:, np.arange(n), np.arange(n)] = np.where(held, HELD, 1.0)
     zeros = (np.zeros((n_int, n, nx + 1)), np.zeros((n_int, nx + 1)), np.zeros((n_int, n)))
-    work = riccati.work_arrays(n_int, nx, n)
+    # The interior point's Riccati kernel for these steps (compiled by its warm-up solve).
+    euler = evaluator.integrator == 'euler'
+    work = (riccati_euler.work_arrays_euler(n_int, nx, n) if euler
+            else riccati.work_arrays(n_int, nx, n))
     for _ in range(STEPS):
         if worst <= DONE:
             break
         terms = evaluator.stage_terms(x, v, t, np.zeros((n_int + 1, nx)), hessian='none')
         dx, dv = np.zeros((n_int + 1, nx)), np.zeros((n_int, n))
         lam, nu = np.zeros((n_int + 1, nx)), np.zeros(nx)
-        code, d_t = riccati.riccati_solve(terms['a'], terms['b'], terms['c'], terms['defect'],
-                                          hxx, zeros[0], huu, zeros[1], zeros[2], 1.0, *work,
-                                          dx, dv, lam, nu)
+        if euler:
+            code, d_t = riccati_euler.riccati_solve_euler(
+                terms['a'], terms['b'], terms['c'], terms['defect'], hxx, zeros[0], huu,
+                zeros[1], zeros[2], *work, dx, dv, lam)
+        else:
+            code, d_t = riccati.riccati_solve(
+                terms['a'], terms['b'], terms['c'], terms['defect'], hxx, zeros[0], huu,
+                zeros[1], zeros[2], 1.0, *work, dx, dv, lam, nu)
         if code != riccati.OK or not np.all(np.isfinite(dx)) or not np.isfinite(d_t):
             break
         trial_x, trial_v, trial_t = x + dx, np.clip(v + dv, -1.0, 1.0), t + d_t
