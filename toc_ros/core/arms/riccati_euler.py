@@ -54,7 +54,7 @@ def work_arrays_euler(n_int, nx, nu):
 
 @njit(cache=True)
 def _lu(a, m):
-    """LU factors of a (m x m, overwritten) with row pivots; None-free: (ok, pivots)."""
+    """LU factors of a (m x m, overwritten in place) with row pivots: (ok, pivots)."""
     piv = np.arange(m)
     for j in range(m):
         best = j
@@ -117,9 +117,11 @@ def _lu_solve_transposed(lu, piv, b, m):
 @njit(cache=True)
 def _fold(cost, cross, curv, grad, grad_u, gain, shift, nxi, nu_):
     """
-    (P, p) of the cost [xi; u]^T [[cost, cross^T], [cross, curv]] [xi; u] / 2 + grad . xi
-    + grad_u . u with u = gain xi + shift: P = cost + gain^T cross + cross^T gain
-    + gain^T curv gain, p = grad + gain^T grad_u + (cross^T + gain^T curv) shift.
+    Return (P, p): a stage cost with its control u = gain xi + shift substituted.
+
+    The cost [xi; u]^T [[cost, cross^T], [cross, curv]] [xi; u] / 2 + grad . xi + grad_u . u
+    becomes xi^T P xi / 2 + p . xi (+ a constant): P = cost + gain^T cross + cross^T gain +
+    gain^T curv gain, p = grad + gain^T grad_u + (cross^T + gain^T curv) shift.
     """
     p_mat = np.empty((nxi, nxi))
     p_vec = np.empty(nxi)
