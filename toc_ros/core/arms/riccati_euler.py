@@ -127,6 +127,21 @@ def _negated_split(solved, nu_, nxi):
 
 
 @njit(cache=True)
+def _control_gradient(k, hux, huu, gu, xi_k, du):
+    """Interval k's cost gradient in its control at (xi_k, du[k]): Hux xi + Huu u + gu."""
+    nu_ = gu.shape[1]
+    out = np.empty(nu_)
+    for i in range(nu_):
+        acc = gu[k, i]
+        for j in range(hux.shape[2]):          # (xi_k's rows may be padded)
+            acc += hux[k, i, j] * xi_k[j]
+        for j in range(nu_):
+            acc += huu[k, i, j] * du[k, j]
+        out[i] = acc
+    return out
+
+
+@njit(cache=True)
 def _fold(cost, cross, curv, grad, grad_u, gain, shift, nxi, nu_):
     """
     Return (P, p): a stage cost with its control u = gain xi + shift substituted.
@@ -408,14 +423,7 @@ def riccati_solve_euler(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, pp, p
                 acc += pp[k, i, j] * xi[k, j]
             lam[k, i] = acc
     x1 = xi[last]
-    lam_v = np.empty(nq)                       # B_v^T lam_v = -(Hux xi + Huu u + gu)
-    for i in range(nu_):
-        acc = gu[last, i]
-        for j in range(nxi):
-            acc += hux[last, i, j] * x1[j]
-        for j in range(nu_):
-            acc += huu[last, i, j] * du[last, j]
-        lam_v[i] = -acc
+    lam_v = -_control_gradient(last, hux, huu, gu, x1, du)  # B_v^T lam_v = -(that)
     _lu_solve_transposed(lu1, piv1, lam_v, nq)
     wx = np.empty(nx)                          # d(stage N - 1 cost)/dx at its point
     for i in range(nx):
@@ -431,13 +439,9 @@ def riccati_solve_euler(a_mat, b_mat, c_vec, d_vec, hxx, hux, huu, gx, gu, pp, p
         for i in range(nx):
             tail[i] += a_mat[last, nq + m, i] * s
     x2 = xi[j2]
-    lam_q = np.empty(nq)                       # (E B)^T lam_q = -(Hux xi + Huu u + gu + B^T tail)
+    lam_q = _control_gradient(j2, hux, huu, gu, x2, du)   # (E B)^T lam_q = -(that + B^T tail)
     for i in range(nu_):
-        acc = gu[j2, i]
-        for j in range(nxi):
-            acc += hux[j2, i, j] * x2[j]
-        for j in range(nu_):
-            acc += huu[j2, i, j] * du[j2, j]
+        acc = lam_q[i]
         for m in range(nx):
             acc += b_mat[j2, m, i] * tail[m]
         lam_q[i] = -acc
