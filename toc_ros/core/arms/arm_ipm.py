@@ -123,7 +123,7 @@ class ArmInteriorPoint(FilterLineSearch):
     """One minimum-time problem for an ArmEvaluator; run() iterates from a start point."""
 
     def __init__(self, evaluator, x0, x_goal, tol=1e-8, constr_tol=1e-9, hessian='none',
-                 mu_init=MU_INIT):
+                 mu_init=MU_INIT, mu_min=None):
         self.ev = evaluator
         n = evaluator.n
         arm = evaluator.arm
@@ -137,7 +137,7 @@ class ArmInteriorPoint(FilterLineSearch):
         self.tol = tol
         self.hessian = hessian
         self.constr_tol = constr_tol
-        self.mu_min = tol / 10.0
+        self.mu_min = tol / 10.0 if mu_min is None else mu_min
         self.mu_init = mu_init
         self.accept_iterations = ACCEPT_ITERATIONS
         # A warm start at the solution of the same problem (a remainder of a plan, the robot on

@@ -76,6 +76,7 @@ FREE_REACHED = 1e-7
 # iteration fewer; with the barrier parameter's floor raised as well, 8.8e-6 and none).
 FREE_TOL = 1e-6
 FREE_CONSTR_TOL = 1e-7
+FREE_MU_MIN = 1e-9          # (the last barrier parameter of a run at the default tolerance)
 
 
 def slowed(arm, x0, x_goal, n_int, t_f):
@@ -173,8 +174,8 @@ def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
     states, torques, t_f = line
     free = ArmEvaluator(robot.arm, robot.spheres, np.zeros((0, 4)), 0.0, len(torques),
                         len(evaluator.pairs) > 0, evaluator.integrator)
-    ipm = ArmInteriorPoint(free, x0, xg)
-    ipm.tol, ipm.constr_tol = FREE_TOL, FREE_CONSTR_TOL     # (ipm.mu_min kept)
+    ipm = ArmInteriorPoint(free, x0, xg, tol=FREE_TOL, constr_tol=FREE_CONSTR_TOL,
+                           mu_min=FREE_MU_MIN)
     ipm.start(states, torques, t_f)
     run = run_ipm(ipm, budget, should_stop, hessian)
     evaluator.pin_calls += free.pin_calls
