@@ -45,6 +45,9 @@ ARMS = {
                                 'panda_joint7'),
                      'locked': {'panda_joint3': 0.4, 'panda_joint5': -1.1,
                                 'panda_finger_joint1': 0.03, 'panda_finger_joint2': 0.01}},
+    # One planned joint: Pinocchio returns its 6 x 1 Jacobians as vectors.
+    'panda_one_joint': {'source': 'panda', 'joints': ('panda_joint1',),
+                        'locked': {'panda_joint4': -1.5, 'panda_joint6': 1.5}},
 }
 
 

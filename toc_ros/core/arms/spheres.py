@@ -192,7 +192,9 @@ def kinematic_chain(model):
             raise ArmError(f'joint {model.names[j]!r} has {model.nvs[j]} degrees of freedom: '
                            'only 1-DOF joints are supported')
         # The joint's motion in its own frame: (0, axis) if revolute, (axis, 0) if prismatic.
-        column = pin.getJointJacobian(model, data, j, pin.LOCAL)[:, model.idx_vs[j]]
+        # (reshaped: a one-joint model's 6 x 1 Jacobian comes back as a vector)
+        jacobian = np.reshape(pin.getJointJacobian(model, data, j, pin.LOCAL), (6, model.nv))
+        column = jacobian[:, model.idx_vs[j]]
         prismatic[j] = np.linalg.norm(column[3:]) < 0.5
         axis[j] = column[:3] if prismatic[j] else column[3:]
         v_index[j] = model.idx_vs[j]
