@@ -88,16 +88,14 @@ def _chain_pose(q, parent, place_r, place_t, axis, prismatic, v_index, rot, pos,
 
 @njit(cache=True)
 def _sphere_pose(s, parent, prismatic, v_index, sphere_joint, sphere_offset, support, rot, pos,
-                 world_axis, centre, jacobian, with_jacobian=True):
-    """Fill sphere s's centre (3,) and (with_jacobian) d centre / dq (3, n)."""
+                 world_axis, centre, jacobian):
+    """Fill sphere s's centre (3,) and d centre / dq (3, n)."""
     j = sphere_joint[s]
     for a in range(3):
         acc = pos[j, a]
         for c in range(3):
             acc += rot[j, a, c] * sphere_offset[s, c]
         centre[a] = acc
-    if not with_jacobian:
-        return
     for j in range(1, parent.shape[0]):
         k = v_index[j]
         if not support[s, k]:
@@ -175,6 +173,7 @@ def sphere_rows(qs, parent, place_r, place_t, axis, prismatic, v_index, sphere_j
     centres = np.empty((n_spheres, 3))
     jac = np.empty((n_spheres, 3, n))
     direction = np.empty((n_spheres, 3))
+    gram_scale = np.empty(n_spheres)
     gap = np.empty(3)
     jac_gap = np.empty((3, n))
     for i in range(3):
@@ -182,12 +181,15 @@ def sphere_rows(qs, parent, place_r, place_t, axis, prismatic, v_index, sphere_j
     for node in range(qs.shape[0]):
         _chain_pose(qs[node], parent, place_r, place_t, axis, prismatic, v_index, rot, pos,
                     world_axis, motion, tmp, offset)
+        # The Jacobians even where only values are asked for: skipping them on a flag known
+        # only at run time made the compiled kernel about twice as slow at every level.
         for s in range(n_spheres):
             _sphere_pose(s, parent, prismatic, v_index, sphere_joint, sphere_offset, support,
-                         rot, pos, world_axis, centres[s], jac[s], level > 0)
+                         rot, pos, world_axis, centres[s], jac[s])
         if level >= 2:
             curvature[node] = 0.0
             direction[:] = 0.0
+            gram_scale[:] = 0.0
         for s in range(n_spheres):
             for o in range(n_obs):
                 row = s * n_obs + o
@@ -206,20 +208,26 @@ def sphere_rows(qs, parent, place_r, place_t, axis, prismatic, v_index, sphere_j
                     gradients[node, row, k] = acc
                 if level >= 2:
                     weight = weights[node, row]
-                    scale = weight / big_r
+                    gram_scale[s] += weight / big_r
                     for a in range(3):
                         direction[s, a] += weight * (gap[a] / big_r)
-                    # Columns of the joints that do not move the sphere are zero: skipped.
-                    for i in range(n):
-                        if not support[s, i]:
+            if level >= 2 and gram_scale[s] != 0.0:
+                # Every obstacle row of sphere s has the curvature scale J_s^T J_s: one Gram
+                # matrix per sphere, its upper triangle mirrored; the columns of the joints
+                # that do not move the sphere are zero: skipped.
+                scale = gram_scale[s]
+                for i in range(n):
+                    if not support[s, i]:
+                        continue
+                    for k in range(i, n):
+                        if not support[s, k]:
                             continue
-                        for k in range(n):
-                            if not support[s, k]:
-                                continue
-                            acc = 0.0
-                            for a in range(3):
-                                acc += jac[s, a, i] * jac[s, a, k]
-                            curvature[node, i, k] += scale * acc
+                        acc = 0.0
+                        for a in range(3):
+                            acc += jac[s, a, i] * jac[s, a, k]
+                        curvature[node, i, k] += scale * acc
+                        if k != i:
+                            curvature[node, k, i] += scale * acc
         for p in range(pairs.shape[0]):
             row = n_obs_rows + p
             sa, sb = pairs[p, 0], pairs[p, 1]
@@ -246,11 +254,13 @@ def sphere_rows(qs, parent, place_r, place_t, axis, prismatic, v_index, sphere_j
                     direction[sa, a] += weight * (gap[a] / big_r)
                     direction[sb, a] -= weight * (gap[a] / big_r)
                 for i in range(n):
-                    for k in range(n):
+                    for k in range(i, n):
                         acc = 0.0
                         for a in range(3):
                             acc += jac_gap[a, i] * jac_gap[a, k]
                         curvature[node, i, k] += scale * acc
+                        if k != i:
+                            curvature[node, k, i] += scale * acc
         if level < 2:
             continue
         # sum_s direction_s . d^2 p_s: the second derivatives of the centres.
