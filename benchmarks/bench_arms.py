@@ -20,8 +20,11 @@ random in-limit states: Pinocchio's aba, rnea and computeABADerivatives as raw c
 through ArmModel (which copies the results), the sphere centres and their Jacobians for every
 shipped sphere, the obstacle and self clearances with their Jacobians, and the
 self-collision pair counts.  Then what one interior-point iteration's model evaluations cost
-for N intervals (Euler: N derivative calls; RK4: 4 N) evaluated call by call from Python, and
-Pinocchio's batched abaInParallel (ModelPool) against a Python loop of aba.
+for N intervals (Euler: N derivative calls; RK4: 4 N) evaluated call by call from Python,
+Pinocchio's batched abaInParallel (ModelPool) against a Python loop of aba, and the solver's
+compiled sphere rows (ArmEvaluator.clearance_terms: values; with gradients; with the weighted
+curvature) at the N - 1 inner nodes, shipped spheres, one obstacle, with and without the
+self-collision pairs.
 
     PYTHONPATH=. python benchmarks/bench_arms.py [--json PATH] [--calls 1000] [--N 100]
 """
@@ -35,6 +38,7 @@ import time
 import numpy as np
 import pinocchio as pin
 
+from toc_ros.core.arms.arm_eval import ArmEvaluator
 from toc_ros.core.arms import (default_spheres, load_arm, obstacle_clearance,
                                obstacle_clearance_jacobian, obstacle_clearances_batch,
                                self_clearance, self_clearance_jacobian, self_clearances_batch,
@@ -124,6 +128,17 @@ def measure(name, calls, horizon):
         threads, pool, q_batch, v_batch, t_batch, out)) for threads in (1, 2)}
     check = np.array([pin.aba(model, data, q_batch[:, k], v_batch[:, k], t_batch[:, k])
                       for k in range(horizon)]).T
+    rows = {}
+    inner = q_nodes[1:-1]
+    for self_collision in (False, True):
+        evaluator = ArmEvaluator(arm, spheres, obstacle, 0.0, horizon, self_collision)
+        weights = rng.uniform(0.0, 1.0, (len(inner), evaluator.n_pairs))
+        key = 'with self pairs' if self_collision else 'obstacle rows only'
+        rows[key] = {
+            'values': 1e6 * batch_time(lambda e=evaluator: e.clearances(inner)),
+            '+ gradients': 1e6 * batch_time(lambda e=evaluator: e.clearance_terms(inner)),
+            '+ curvature': 1e6 * batch_time(
+                lambda e=evaluator, w=weights: e.clearance_terms(inner, w))}
     return {
         'arm': name, 'dof': arm.n, 'spheres': len(spheres),
         'self_pairs': len(spheres.self_pairs), 'median_us': us,
@@ -144,6 +159,7 @@ def measure(name, calls, horizon):
                                      'abaInParallel_1_thread': 1e6 * batched[1],
                                      'abaInParallel_2_threads': 1e6 * batched[2],
                                      'max_difference': float(np.abs(out - check).max())},
+        f'solver_sphere_rows_N{horizon}_us': rows,
     }
 
 
