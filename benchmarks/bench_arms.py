@@ -38,11 +38,11 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from toc_ros.core.arms.arm_eval import ArmEvaluator
 from toc_ros.core.arms import (default_spheres, load_arm, obstacle_clearance,
                                obstacle_clearance_jacobian, obstacle_clearances_batch,
                                self_clearance, self_clearance_jacobian, self_clearances_batch,
                                sphere_centres, sphere_jacobians, sphere_kinematics_batch)
+from toc_ros.core.arms.arm_eval import ArmEvaluator
 
 
 def per_call(function, states, calls):

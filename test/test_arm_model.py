@@ -238,11 +238,33 @@ def test_limit_overrides():
     (toy(spin_type='revolute', spin_limit='<limit effort="1" velocity="1"/>'), {},
      "joint 'spin' has no lower/upper"),
     (toy(spin_type='floating', spin_limit=''), {}, "of type 'floating'"),
+    ('panda', {'limits': {'panda_joint1': {'effort': 1e308}}}, 'outside [1e-06, 1e+06]'),
+    ('panda', {'limits': {'panda_joint1': {'velocity': 1e-300}}}, 'outside [1e-06, 10000]'),
+    (toy().replace('<mass value="1"/>', '<mass value="nan"/>'), {}, "link 'b' <mass> is NaN"),
+    (toy().replace('<mass value="1"/>', '<mass value="-1"/>'), {}, 'finite and >= 0'),
+    (toy().replace('ixx="0.01" iyy', 'ixx="inf" iyy', 1), {}, '<inertia ixx> must be finite'),
+    (toy().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>'), {}, 'is zero'),
+    (toy().replace('<origin xyz="0.3 0 0"/>', '<origin xyz="0.3 0 1e300"/>'), {},
+     'beyond 1000 m'),
+    (toy().replace('<origin xyz="0.3 0 0"/>', '<origin xyz="0.3 0"/>'), {}, 'three numbers'),
+    (toy().replace('velocity="0.5"', 'velocity="inf"'), {}, '<limit velocity> must be finite'),
+    (toy().replace('<child link="tool"/>', '<child link="b"/>'), {}, 'child of two joints'),
 ])
 def test_bad_input_is_refused_with_its_reason(source, kwargs, reason):
     with pytest.raises(ArmError) as error:
         load_arm(source, **kwargs)
     assert reason in str(error.value)
+
+
+def test_a_singular_mass_matrix_is_refused_with_the_joints_that_move_no_mass():
+    from toc_ros.core.arms.validate import check_mass_matrix, check_state
+    massless = load_arm(toy().replace('<mass value="0.5"/>', '<mass value="0"/>').replace(
+        'ixx="0.001" iyy="0.001" izz="0.001"', 'ixx="0" iyy="0" izz="0"'))
+    q = np.zeros(massless.n)
+    with pytest.raises(ArmError, match=r'singular there \(slide moves no mass'):
+        check_state(massless, q)
+    check_mass_matrix(load_arm(toy()), q)           # the toy itself is fine
+    check_mass_matrix(load_arm('panda'), [0, -0.785, 0, -2.356, 0, 1.571, 0.785])
 
 
 def test_unknown_link_is_refused():

@@ -929,3 +929,45 @@ def test_ur10_past_a_sphere_does_not_stall_and_passes_on_the_faster_side(monkeyp
     slower = solve(problem)
     assert slower.status is Status.SOLVED, slower.message
     assert slower.final_time > 1.02 * result.final_time, (slower.final_time, result.final_time)
+
+
+def test_many_obstacles_off_the_motion_cost_few_iterations_and_far_ones_none():
+    # A wall of 50 small spheres behind the Panda never touches its free optimum: with the
+    # first barrier parameter scaled to the rows (ArmInteriorPoint.crowding_share) it is
+    # solved at the free optimum's time in 18 iterations (73 unscaled; the free motion 11);
+    # spheres out of the arm's reach get no rows at all.
+    robot = ArmRobot.shipped(load_arm('panda'))
+    start, goal = (0, -0.785, 0, -2.356, 0, 1.571, 0.785), (0.5, -0.5, 0.3, -2.0, 0.2, 1.8, 0.5)
+    free = solve(Problem(model=robot, x0=start, x_goal=goal, n_intervals=40))
+    assert free.status is Status.SOLVED, free.message
+    rng = np.random.default_rng(0)
+    wall = [(-0.5, y, z, 0.02) for y, z in zip(rng.uniform(-0.5, 0.5, 50), rng.uniform(0, 1, 50))]
+    far = [(3.0 + 0.1 * k, 0.0, 0.0, 0.1) for k in range(200)]
+    for obstacles, most in ((wall, 2 * free.iterations), (far, free.iterations)):
+        result = solve(Problem(model=robot, x0=start, x_goal=goal, n_intervals=40,
+                               obstacles=obstacles))
+        assert result.status is Status.SOLVED, result.message
+        assert result.final_time == pytest.approx(free.final_time, rel=1e-9)
+        assert result.iterations <= most
+        assert result.violations.min_clearance > 0.0
+
+
+def test_controls_whose_integration_diverges_are_not_reported_solved():
+    # A continuous joint turned 100 rad at 2 rad/s in the vertical plane: the velocity-bound
+    # optimum is 50 s long, 0.5 s per Euler step, and the pendulum's open loop at that step
+    # amplifies the solver's 1e-11 defects to overflow.
+    urdf = """<robot name="r"><link name="base"/>
+      <link name="l1"><inertial><origin xyz="0 0 0.25"/><mass value="1.0"/>
+        <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+      <link name="l2"><inertial><origin xyz="0 0 0.25"/><mass value="1.0"/>
+        <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+      <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
+        <origin xyz="0 0 0.5"/><axis xyz="0 1 0"/><limit effort="50" velocity="2"/></joint>
+      <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+        <origin xyz="0 0 0.5"/><axis xyz="0 1 0"/>
+        <limit effort="50" velocity="2" lower="-3" upper="3"/></joint></robot>"""
+    result = solve(Problem(model=load_arm(urdf), x0=(0, 0), x_goal=(100, 0.5),
+                           n_intervals=100))
+    assert result.status is Status.STALLED, result.message
+    assert 'diverge' in result.message
+    assert np.all(np.isfinite(result.states))

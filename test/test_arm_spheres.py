@@ -346,3 +346,51 @@ def test_bad_obstacles_are_refused(obstacles, reason):
     with pytest.raises(ArmError) as error:
         check_obstacles(obstacles)
     assert reason in str(error.value)
+
+
+def test_spheres_of_another_arm_or_joint_set_are_refused():
+    from toc_ros.core.arms.arm_solve import ArmRobot
+    panda = load_arm('panda')
+    spheres = load_spheres(shipped_spheres_path('panda'), panda)
+    part = load_arm('panda', joints=('panda_joint1', 'panda_joint2'),
+                    locked={'panda_joint4': -1.5, 'panda_joint6': 1.5})
+    ur5 = load_arm('ur5')
+    for arm in (part, ur5, load_arm('panda', locked={'panda_finger_joint1': 0.03})):
+        with pytest.raises(ArmError, match='loaded for another arm'):
+            ArmRobot(arm, spheres)
+    ArmRobot(load_arm('panda'), spheres)        # the same arm loaded again fits
+    with pytest.raises(ArmError, match='must come from load_spheres'):
+        ArmRobot(panda, 'spheres.yaml')
+    with pytest.raises(ArmError, match='needs an ArmModel'):
+        ArmRobot(None)
+    with pytest.raises(ArmError, match='self-collision needs'):
+        ArmRobot(panda, None, True)
+    with pytest.raises(ArmError, match='move with 7 joints'):
+        sphere_centres(part, spheres, np.zeros(2))
+
+
+def test_sphere_reach_bounds_every_centre_and_far_obstacles_get_no_rows():
+    from toc_ros.core.arms.arm_eval import ArmEvaluator
+    from toc_ros.core.arms.spheres import reachable_obstacles, sphere_reach
+    for key in sorted(ARMS):
+        arm, spheres = arm_and_spheres(key)
+        reach = sphere_reach(spheres, arm)
+        oracle = urdf_oracle.UrdfOracle(arm.urdf)
+        for q in random_q(arm, 50, seed=3):
+            centres = urdf_oracle.sphere_centres(oracle, joint_values(arm, q), spheres.links,
+                                                 spheres.offsets)
+            assert np.all(np.linalg.norm(centres, axis=1) <= reach + 1e-12)
+        far = reach.max() + spheres.radii.max() + 0.5
+        obstacles = np.array([[far, 0.0, 0.0, 0.4], [0.0, far, 0.0, 0.6], [0.0, 0.0, -far, 0.1]])
+        assert reachable_obstacles(spheres, arm, obstacles, 0.0).tolist() == [False, True, False]
+        assert reachable_obstacles(spheres, arm, obstacles, 0.2).tolist() == [True, True, False]
+        evaluator = ArmEvaluator(arm, spheres, obstacles, 0.0, 10)
+        assert evaluator.obstacles.tolist() == [obstacles[1].tolist()]
+        assert evaluator.n_pairs == len(spheres)
+
+
+def test_obstacles_beyond_the_workspace_extent_are_refused():
+    check_obstacles([[9e4, 0, 0, 1e4]])
+    for row in ([1e5 + 1, 0, 0, 0.1], [0, 0, 1e200, 2e200], [0, 0, 0, 2e5]):
+        with pytest.raises(ArmError, match='reaches beyond 100000 m'):
+            check_obstacles([row])

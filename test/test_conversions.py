@@ -212,6 +212,7 @@ def test_obstacle_rows():
     (_array([1, 1, 0.0]), 'radius must be > 0'),
     (_array([1, math.nan, 0.2]), 'non-finite'),
     (_array([0.1, 0.0, 0.5]), 'contains the robot base'),
+    (_array([300.0, 0.0, 0.2]), 'beyond 100 m from the base'),
     (_array([1, 1, 0.2], [('rows', 1, 3), ('xy', 2, 2)]), 'layout'),
     (_array([1, 1, 0.2], [('rows', 2, 6), ('xyr', 3, 3)]), 'does not match'),
     (_array([1, 1, 0.2], [('a', 1, 3), ('b', 3, 3), ('c', 1, 1)]), 'layout'),

@@ -580,6 +580,14 @@ BAD_FILES = [
      r'definitions.hx: cannot parse'),
     ('operator', lambda: _planar_text().replace('ey: l1*sin(q1)', 'ey: l1*sin(q1) +'),
      r'definitions.ey: cannot parse'),
+    # SymPy's parser evaluates Python: a power tower would compute an integer for ever, an
+    # attribute chain reaches os.system; both are refused before it runs.
+    ('power-tower', lambda: _planar_text().replace('ey: l1*sin(q1)',
+                                                   'ey: l1*sin(q1) + 0*9^9^9^9'),
+     r'definitions.ey: cannot parse.*numeric exponent beyond 64'),
+    ('python-escape', lambda: _planar_text().replace(
+        'ey: l1*sin(q1)', 'ey: l1*sin(q1) + 0*().__class__.__base__.__subclasses__()[0]'),
+     r'definitions.ey: cannot parse.*is not allowed'),
     ('unknown-symbol', lambda: _planar_text().replace('hy: ey + l2*sin(q1 + q2)',
                                                       'hy: ey + l3*sin(q1 + q2)'),
      'unknown symbol.*l3'),

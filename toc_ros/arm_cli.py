@@ -110,7 +110,9 @@ def build_parser():
     p.add_argument('--integrator', choices=('euler', 'rk4'), default='euler')
     p.add_argument('--N', type=int, default=100, metavar='N', help='intervals (default 100)')
     p.add_argument('--max-iterations', type=int, default=None, metavar='M')
-    p.add_argument('--timeout', type=float, default=None, metavar='S')
+    p.add_argument('--timeout', type=float, default=None, metavar='S',
+                   help="wall-clock limit [s]; 0 = none (default: the node's solver.timeout, "
+                        '60)')
     p.add_argument('--initial-guess', metavar='RESULT.json',
                    help='warm start from a result written by --json: its controls and final '
                         'time, rolled out from --start (resampled to N)')
@@ -159,8 +161,13 @@ def goal_state(args, robot):
 def solver_options(args):
     """Return the SolverOptions of the arguments."""
     from toc_ros.core import SolverOptions
+    from toc_ros.core.settings import parameter_table
+    timeout = args.timeout
+    if timeout is None:     # the node's default, so that no solve runs unbounded by default
+        timeout = next(p.default for p in parameter_table(SolverOptions, 'solver.')
+                       if p.name == 'solver.timeout')
     return SolverOptions(mode=args.mode, max_iterations=args.max_iterations,
-                         timeout=args.timeout if args.timeout else None)
+                         timeout=timeout if timeout else None)
 
 
 def build_arm_problem(args, robot=None):
@@ -192,7 +199,7 @@ def initial_guess(path):
 
 def main(argv):
     """Run toc-solve for an arm; return the exit code."""
-    from toc_ros.core import SolveResult, Status
+    from toc_ros.core import SolveResult, Status, warm_up_for
     args = build_parser().parse_args(argv)
     arm = None
     try:
@@ -205,6 +212,8 @@ def main(argv):
         line = ProgressLine(sys.stderr, options.iteration_limit(), options.mode)
         show_progress = not args.quiet and sys.stderr.isatty()
         try:
+            # --timeout limits the solve, not the one-time compile of the solver's kernels.
+            warm_up_for(problem, options)
             result = solve_interruptible(problem, options, line if show_progress else None,
                                          guess)
         finally:

@@ -38,10 +38,15 @@ def _strict(value):
 def write_json(path, result):
     """Write result.to_dict() to path as strict JSON (non-finite numbers become null)."""
     tmp = f'{path}.tmp'
-    with open(tmp, 'w') as stream:
-        json.dump(_strict(result.to_dict()), stream, allow_nan=False)
-        stream.write('\n')
-    os.replace(tmp, path)
+    try:
+        with open(tmp, 'w') as stream:
+            json.dump(_strict(result.to_dict()), stream, allow_nan=False)
+            stream.write('\n')
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.isfile(tmp):
+            os.remove(tmp)      # (no half-written file left beside a path that failed)
+        raise
 
 
 def solve_interruptible(problem, options, progress, guess=None):

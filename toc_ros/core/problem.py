@@ -295,6 +295,12 @@ def check_obstacles(obstacles, margin=0.0):
         raise ProblemError('; '.join(errors))
 
 
+# Obstacle circles are refused beyond this [m] (centre coordinates and radius): the planar
+# models span a few metres, and constraint values (d^2 - R^2) / (2 R) of circles some hundred
+# metres away lose the digits the convergence test needs (at 300 m the paper robot stalled).
+CIRCLE_EXTENT = 100.0
+
+
 def _obstacle_rows(obstacles, margin, errors):
     """Return obstacles as a (K, 3) array (None if not rows of numbers); problems to errors."""
     try:
@@ -307,6 +313,10 @@ def _obstacle_rows(obstacles, margin, errors):
             errors.append(f'obstacle {k} has a non-finite value ({cx}, {cy}, {radius})')
         elif radius <= 0.0:
             errors.append(f'obstacle {k} radius must be > 0, got {radius}')
+        elif max(abs(cx), abs(cy), radius) > CIRCLE_EXTENT:
+            errors.append(f'obstacle {k} ({cx}, {cy}, {radius}) reaches beyond '
+                          f'{CIRCLE_EXTENT:g} m from the base: not a workspace obstacle of '
+                          "these robots, and its constraint's values would lose their digits")
         elif finite_number(margin) and math.hypot(cx, cy) <= radius + margin:
             errors.append(f'obstacle {k} at ({cx}, {cy}) with inflated radius '
                           f'{radius + margin} contains the robot base')

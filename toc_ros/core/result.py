@@ -129,6 +129,9 @@ class SolveResult:
         if n == 0:
             raise ValueError('the result has no trajectory')
         tau = self.final_time / n
+        if not (math.isfinite(float(elapsed)) and math.isfinite(tau) and tau > 0.0):
+            raise ValueError(f'remainder needs a finite elapsed time [s] of a trajectory with '
+                             f'a positive final time, got {elapsed!r} of {self.final_time!r}')
         k = int(min(max(round(float(elapsed) / tau), 0), n - 1))
         state = None
         if self.solver_state and 'duals' in self.solver_state:

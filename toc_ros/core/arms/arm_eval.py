@@ -49,6 +49,7 @@ import pinocchio as pin
 from . import kernels
 from .ipm_kernels import euler_terms
 from .rk4_steps import rk4_defects, rk4_terms
+from .spheres import reachable_obstacles
 
 FD_STEP = 1e-6
 # The second derivatives of ABA (2 n derivative calls per interval) are recomputed every
@@ -74,7 +75,10 @@ class ArmEvaluator:
         self.n_int = n_intervals
         self.effort = arm.effort.copy()
         self.spheres = spheres
-        obstacles = np.ascontiguousarray(np.asarray(obstacles, dtype=float).reshape(-1, 4))
+        obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
+        # Obstacles out of every sphere's reach get no rows (spheres.reachable_obstacles).
+        obstacles = np.ascontiguousarray(
+            obstacles[reachable_obstacles(spheres, arm, obstacles, margin)])
         self.obstacles = obstacles
         if spheres is not None:
             self.radius = spheres.radii[:, None] + obstacles[None, :, 3] + margin   # (S, O)

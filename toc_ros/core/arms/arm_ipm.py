@@ -176,7 +176,8 @@ class ArmInteriorPoint(FilterLineSearch):
         self.v = np.clip(np.asarray(controls, dtype=float) / self.ev.effort,
                          -1.0 + push, 1.0 - push)
         self.t = float(min(max(t_f, 10 * T_LOW), 0.5 * T_HIGH))
-        self.mu = self.mu_init
+        self.mu = self.mu_init if duals is not None else max(
+            self.mu_min, self.mu_init * self.crowding_share())
         g = self.ev.clearances(self.x[1:-1, :self.n])
         self.s = np.maximum(g, push)
         self.z = self.mu / self.s
@@ -202,6 +203,23 @@ class ArmInteriorPoint(FilterLineSearch):
         self.penalty = 1.0
         self.delta_last = 0.0
         self.new_filter()
+
+    def crowding_share(self):
+        """
+        Return the factor on a start's barrier parameter without multipliers: 1, 2 B / (B + R).
+
+        B barrier terms of the bounds (controls, states), R of the sphere rows.  Each row adds
+        mu (-log s) to the barrier problem, whose objective is T alone: with a few hundred
+        obstacle spheres the rows far from the motion outweigh T by orders of magnitude at the
+        first mu, the barrier problem's optimum is a much slower motion, and the run spends
+        hundreds of iterations coming back from it (a wall of 25 spheres that never touches
+        the Panda's free optimum: 125 iterations against its 20).  Up to B rows, 1.
+        """
+        n_int = self.n_int
+        bounds = 2 * self.n * n_int + (np.count_nonzero(self.has_l)
+                                       + np.count_nonzero(self.has_u)) * (n_int - 1)
+        rows = self.ev.n_pairs * (n_int - 1)
+        return min(1.0, 2.0 * bounds / (bounds + rows))
 
     def duals(self):
         """Return the multipliers and the proximal weight (start(duals=...) of another run)."""

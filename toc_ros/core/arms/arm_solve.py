@@ -35,6 +35,7 @@ START_VELOCITY_SLACK).
 
 import dataclasses
 import math
+import numbers
 import time
 from typing import Optional
 
@@ -47,8 +48,8 @@ from .arm_warm import rollout, UnusableGuess, warm_point
 from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
 from .model import ArmError, ArmModel
 from .polish import polish
-from .spheres import (check_obstacles, default_spheres, obstacle_clearance, self_clearance,
-                      sphere_kinematics_batch, Spheres)
+from .spheres import (check_obstacles, check_spheres_fit, default_spheres, obstacle_clearance,
+                      self_clearance, sphere_kinematics_batch, Spheres)
 from .validate import check_holdable, check_state
 from ..problem import finite_number
 from ..result import CLEARANCE_TOL, Progress, SolveResult, Status, TERMINAL_TOL, Violations
@@ -99,6 +100,17 @@ class ArmRobot:
     arm: ArmModel
     spheres: Optional[Spheres] = None
     self_collision: bool = False    # constrain the spheres' self_pairs (no margin) too
+
+    def __post_init__(self):
+        if not isinstance(self.arm, ArmModel):
+            raise ArmError(f'ArmRobot needs an ArmModel (load_arm), got {type(self.arm).__name__}')
+        if self.spheres is not None:
+            check_spheres_fit(self.spheres, self.arm)
+        if not isinstance(self.self_collision, (bool, np.bool_)):
+            raise ArmError(f'self_collision must be True or False, got {self.self_collision!r}')
+        if self.self_collision and self.spheres is None:
+            raise ArmError("self-collision needs the arm's collision spheres (give a sphere "
+                           'file)')
 
     @classmethod
     def shipped(cls, arm, self_collision=False):
@@ -190,7 +202,8 @@ def check_arm_problem(problem, options):
             or not 2 <= n_int <= MAX_INTERVALS):
         raise ArmError(f'N must be an integer in [2, {MAX_INTERVALS}], got {n_int!r}')
     margin = problem.margin
-    if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+    if (not isinstance(margin, numbers.Real) or isinstance(margin, bool)
+            or not math.isfinite(margin) or margin < 0):
         raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
     obstacles = check_obstacles(problem.obstacles)
     if (len(obstacles) or robot.self_collision) and robot.spheres is None:
@@ -315,10 +328,17 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
             controls = torques
             states, violations = again
             polished = f'; defects polished from {before:.1e} to {after:.1e}'
+    diverged = not np.all(np.isfinite(states))
+    if diverged:
+        # Not "solved inaccurately": no finite motion comes out of these controls.  The
+        # solver's own states (its dynamics' defects within tolerance) are returned instead.
+        states = run.x.copy()
     if converged and violations.feasible():
         status = Status.SOLVED
-    elif converged:
+    elif converged and not diverged:
         status = Status.SOLVED_INACCURATE
+    elif diverged:
+        status = Status.STALLED
     elif run.status == 'stopped':
         status = stop['why']
     elif run.status == 'max_iterations':
@@ -328,12 +348,17 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
     message = (f'{"; ".join(runs)} (interior-point iterations, by start): t_f = {run.t:.6f} '
                f's, dual infeasibility {run.dual:.2e}, constraint violation {run.primal:.2e}'
                + polished)
+    if diverged:
+        message += (f'; the controls re-integrated from the start diverge (the '
+                    f'{problem.integrator} steps of {run.t / n_int:.3g} s amplify the '
+                    "solver's residual defects to overflow): more intervals shorten the steps; "
+                    "the states are the solver's own")
     if status is Status.SOLVED_INACCURATE:
         # Converged, but the measures re-taken on the controls integrated again from the start
         # (open loop) miss a tolerance: say which, and why that can happen after convergence.
         why = (f" (open loop: the discretised motion amplifies the solver's residual defects, "
                f'{run.primal:.1e}, over the horizon; it is unstable)'
-               if violations.terminal_error > TERMINAL_TOL else '')
+               if not violations.terminal_error <= TERMINAL_TOL else '')
         message += ('; SOLVED_INACCURATE: re-integrated from the start, '
                     + ', '.join(violations.exceeded()) + why)
     if status in (Status.STALLED, Status.MAX_ITERATIONS) and not np.any(xg[robot.arm.n:]):

@@ -25,11 +25,15 @@ deterministic; the first converged seed whose configuration is clear of the obst
 (with margin) and of self-collision is returned.
 """
 
+import math
+import numbers
+
 import numpy as np
 import pinocchio as pin
 
 from .model import ArmError
 from .spheres import check_obstacles, worst_collision
+from .urdf import MAX_OFFSET
 from .validate import joint_vector
 
 
@@ -40,6 +44,9 @@ def _target(position, orientation):
         raise ArmError(f'goal position must be 3 numbers, got {position!r}') from None
     if position.size != 3 or not np.all(np.isfinite(position)):
         raise ArmError(f'goal position must be 3 finite numbers, got {position.tolist()}')
+    if np.max(np.abs(position)) > MAX_OFFSET:
+        raise ArmError(f'goal position {position.tolist()} is more than {MAX_OFFSET:g} m from '
+                       "the base: beyond any arm's reach")
     if orientation is None:
         return pin.SE3(np.eye(3), position), False
     try:
@@ -143,6 +150,9 @@ def solve_ik(arm, link, position, orientation=None, q_start=None, spheres=None,
     """
     frame = arm.frame_id(link)
     target, with_orientation = _target(position, orientation)
+    if (not isinstance(margin, numbers.Real) or isinstance(margin, bool)
+            or not math.isfinite(margin) or margin < 0):
+        raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
     obstacles = check_obstacles(obstacles)
     if len(obstacles) and spheres is None:
         raise ArmError("inverse kinematics with obstacles needs the arm's collision spheres")

@@ -54,8 +54,8 @@ import pinocchio as pin
 
 # The names other modules import from here (ArmError, NAMED_ARMS, ...) stay importable.
 from .urdf import (ArmError, check_overrides, example_robot_data_dir, joint_limits,  # noqa: F401
-                   LIMIT_KEYS, LIMITS_HOW, named_arm_path, NAMED_ARMS, number, ONE_DOF_TYPES,
-                   parse_urdf, pinocchio_xml, read_source, tip_link)
+                   LIMIT_KEYS, LIMIT_RANGES, LIMITS_HOW, named_arm_path, NAMED_ARMS, number,
+                   ONE_DOF_TYPES, parse_urdf, pinocchio_xml, read_source, tip_link)
 
 GRAVITY = (0.0, 0.0, -9.81)
 # Suffix of link frames renamed while joints of the same name are locked (_reduced).
@@ -194,6 +194,9 @@ def _select_joints(joints, requested, defaults, full):
         return planned
     if isinstance(requested, str):
         requested = [part.strip() for part in requested.split(',') if part.strip()]
+    if not isinstance(requested, (list, tuple)):
+        raise ArmError(f'joints must be joint names (a list, or a string "j1,j2,..."), got '
+                       f'{requested!r}')
     requested = list(requested)
     if not requested:
         raise ArmError('joints is empty: name at least one joint to plan')
@@ -272,6 +275,10 @@ def load_arm(source, joints=None, locked=None, limits=None):
             if not value > 0:
                 raise ArmError(f'joint {name!r} has no {key} limit in the URDF (0 or missing): '
                                f'give one ({LIMITS_HOW.format(joint=name, key=key)})')
+            low, high = LIMIT_RANGES[key]
+            if not low <= value <= high:
+                raise ArmError(f'joint {name!r}: {key} limit {value:g} is outside [{low:g}, '
+                               f'{high:g}] (SI units)')
         rows.append((lower, upper, velocity, effort, continuous))
     lower, upper, velocity, effort, continuous = (np.array(col) for col in zip(*rows))
 

@@ -57,6 +57,9 @@ from . import kernels
 from .model import ArmError
 
 SHIPPED_NAMES = ('panda', 'ur5')
+# Obstacle centres and radii are refused beyond this [m]: far larger than any workspace, and
+# squared distances of such values lose every digit of a clearance (or overflow).
+OBSTACLE_EXTENT = 1e5
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -135,6 +138,8 @@ def _sphere_row(entry, where):
         entry = list(entry['center']) + [entry['radius']]
     if not isinstance(entry, (list, tuple)) or len(entry) != 4:
         raise ArmError(f'{where}: expected [x, y, z, r], got {entry!r}')
+    if any(isinstance(value, bool) for value in entry):
+        raise ArmError(f'{where}: entries must be numbers, got {entry!r}')
     try:
         row = [float(value) for value in entry]
     except (TypeError, ValueError):
@@ -302,9 +307,44 @@ def _self_pairs(arm, spheres):
     return (np.array(pairs, dtype=int).reshape(-1, 2), np.array(rigid, dtype=int).reshape(-1, 2))
 
 
+def check_spheres_fit(spheres, arm):
+    """
+    Raise ArmError unless spheres were loaded (load_spheres) for this arm's reduced model.
+
+    The compiled kernels index the configuration by the spheres' joint data without bounds
+    checks: a set loaded for another arm, or for other planned or locked joints, would read
+    and write outside its arrays.
+    """
+    if not isinstance(spheres, Spheres):
+        raise ArmError(f'collision spheres must come from load_spheres, got '
+                       f'{type(spheres).__name__}')
+    model = arm.model
+    chain = kinematic_chain(model)
+    fits = (spheres.support.shape[1] == arm.n and len(chain) == len(spheres.chain)
+            and all(a.shape == b.shape and np.array_equal(a, b)
+                    for a, b in zip(chain, spheres.chain)))
+    for s, link in enumerate(spheres.links if fits else ()):
+        # Each sphere's placement on its joint (a locked joint between moves it).
+        if not model.existFrame(link, pin.FrameType.BODY):
+            fits = False
+            break
+        frame = model.frames[model.getFrameId(link, pin.FrameType.BODY)]
+        if (frame.parentJoint != spheres.joint_ids[s] or not np.array_equal(
+                frame.placement.act(spheres.offsets[s]), spheres.joint_offsets[s])):
+            fits = False
+            break
+    if not fits:
+        raise ArmError('the collision spheres were loaded for another arm or other planned '
+                       f'and locked joints: load them for this one ({arm.n} joints: '
+                       f'{", ".join(arm.joint_names)}) with load_spheres(..., arm)')
+
+
 def sphere_kinematics_batch(spheres, qs):
     """Centres (N, S, 3) and d centre / dq (N, S, 3, n) for configurations qs (N, n)."""
     qs = np.ascontiguousarray(qs, dtype=float)
+    if qs.ndim != 2 or qs.shape[1] != spheres.support.shape[1]:
+        raise ArmError(f'configurations of shape {qs.shape}: the spheres move with '
+                       f'{spheres.support.shape[1]} joints')
     count, n = qs.shape
     centres = np.empty((count, len(spheres), 3))
     jacobians = np.empty((count, len(spheres), 3, n))
@@ -363,7 +403,44 @@ def check_obstacles(obstacles):
             raise ArmError(f'obstacle {o}: NaN or infinite value in {row.tolist()}')
         if row[3] < 0:
             raise ArmError(f'obstacle {o}: negative radius {row[3]}')
+        if np.max(np.abs(row)) > OBSTACLE_EXTENT:
+            raise ArmError(f'obstacle {o}: {row.tolist()} reaches beyond {OBSTACLE_EXTENT:g} m '
+                           'from the base (a workspace obstacle is far smaller and nearer)')
     return rows
+
+
+def sphere_reach(spheres, arm):
+    """
+    Return (S,) bounds on each sphere's distance from the base origin over all configurations.
+
+    Joint placements and rotations keep lengths, so a sphere is never farther than the sum of
+    its chain's placement offsets, its own offset and its prismatic joints' largest travel
+    (inf for a prismatic joint without limits).
+    """
+    parent, _, place_t, _, prismatic, v_index = spheres.chain
+    reach = np.zeros(len(parent))
+    for j in range(1, len(parent)):
+        travel = 0.0
+        if prismatic[j]:
+            k = v_index[j]
+            travel = max(abs(arm.lower[k]), abs(arm.upper[k]))
+        reach[j] = reach[parent[j]] + np.linalg.norm(place_t[j]) + travel
+    return reach[spheres.joint_ids] + np.linalg.norm(spheres.joint_offsets, axis=1)
+
+
+def reachable_obstacles(spheres, arm, obstacles, margin):
+    """
+    Return a bool mask of the obstacles that some sphere can come within margin of.
+
+    The others (farther from the base than every sphere's reach, sphere_reach) keep every
+    clearance positive in every configuration: constraint rows for them only cost time, and
+    far away their values are large enough to spoil the solver's scaling.
+    """
+    if spheres is None or not len(obstacles):
+        return np.zeros(len(obstacles), dtype=bool)
+    reach = sphere_reach(spheres, arm) + spheres.radii                         # (S,)
+    gap = np.linalg.norm(obstacles[:, :3], axis=1) - obstacles[:, 3] - margin   # (O,)
+    return np.any(gap[:, None] <= reach[None, :] * (1.0 + 1e-9) + 1e-9, axis=1)
 
 
 def obstacle_clearance(centres, radii, obstacles, margin=0.0):

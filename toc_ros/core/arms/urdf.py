@@ -52,6 +52,14 @@ NAMED_ARMS = {
 DEFAULT_TIPS = {'panda': 'panda_hand', 'ur5': 'tool0'}
 
 
+# Joint origins farther than this [m] from their parent link are refused (no arm is that
+# large; such values only lose the kinematics' digits).
+MAX_OFFSET = 1e3
+# Effort [N m or N] and velocity [rad/s or m/s] limits are refused outside these ranges: no
+# actuator reaches them, and the solver's scaling (controls over efforts) breaks beyond.
+LIMIT_RANGES = {'effort': (1e-6, 1e6), 'velocity': (1e-6, 1e4)}
+
+
 class ArmError(ValueError):
     """An arm, its limits, spheres or goals that cannot be used; the message is the reason."""
 
@@ -126,7 +134,10 @@ def read_source(source):
     else:
         raise ArmError(f"unknown arm {text!r}: give 'panda', 'ur5', 'urdf:PATH' or a URDF XML "
                        'string')
-    described['sha256'] = hashlib.sha256(urdf.encode()).hexdigest()
+    try:
+        described['sha256'] = hashlib.sha256(urdf.encode()).hexdigest()
+    except UnicodeEncodeError as exc:
+        raise ArmError(f'the URDF is not valid text: {exc}') from None
     return urdf, described, defaults
 
 
@@ -175,10 +186,71 @@ def parse_urdf(urdf):
             for key in LIMIT_KEYS:
                 if limit.get(key) is not None:
                     limits[key] = number(limit.get(key), f'joint {name!r} <limit {key}>')
+                    if not math.isfinite(limits[key]):
+                        raise ArmError(f'joint {name!r} <limit {key}> must be finite, got '
+                                       f'{limits[key]}')
         mimic = element.find('mimic')
         joints[name] = UrdfJoint(name, kind, parent.get('link'), child.get('link'), limits,
                                  None if mimic is None else mimic.get('joint'))
+        _check_joint_geometry(element, name, kind)
+    parents = {}
+    for joint in joints.values():
+        if joint.child in parents:
+            raise ArmError(f'URDF link {joint.child!r} is the child of two joints '
+                           f'({parents[joint.child]!r} and {joint.name!r}): a URDF is a tree')
+        parents[joint.child] = joint.name
+    for link in root.findall('link'):
+        _check_inertial(link)
     return root, joints
+
+
+def _vector(element, attribute, default, what):
+    """Return the finite 3-vector of an attribute ('x y z'), default when absent (ArmError)."""
+    text = None if element is None else element.get(attribute)
+    if text is None:
+        return default
+    parts = text.split()
+    if len(parts) != 3:
+        raise ArmError(f'{what} must be three numbers, got {text!r}')
+    values = [number(part, what) for part in parts]
+    if not all(math.isfinite(value) for value in values):
+        raise ArmError(f'{what} must be finite, got {text!r}')
+    return values
+
+
+def _check_joint_geometry(element, name, kind):
+    """Raise ArmError for a joint origin that is not finite or absurdly far, or a zero axis."""
+    origin = element.find('origin')
+    xyz = _vector(origin, 'xyz', [0.0, 0.0, 0.0], f'joint {name!r} <origin xyz>')
+    _vector(origin, 'rpy', [0.0, 0.0, 0.0], f'joint {name!r} <origin rpy>')
+    if max(abs(value) for value in xyz) > MAX_OFFSET:
+        raise ArmError(f'joint {name!r} <origin xyz> {xyz} lies beyond {MAX_OFFSET:g} m of its '
+                       'parent link')
+    if kind in ONE_DOF_TYPES:
+        axis = _vector(element.find('axis'), 'xyz', [1.0, 0.0, 0.0], f'joint {name!r} <axis>')
+        if math.sqrt(sum(value * value for value in axis)) < 1e-9:
+            raise ArmError(f'joint {name!r} <axis xyz> is zero: a joint needs a direction')
+
+
+def _check_inertial(link):
+    """Raise ArmError for a link's mass or inertia that is not finite, or a negative mass."""
+    inertial = link.find('inertial')
+    if inertial is None:
+        return
+    name = link.get('name')
+    mass = inertial.find('mass')
+    if mass is not None and mass.get('value') is not None:
+        value = number(mass.get('value'), f'link {name!r} <mass>')
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ArmError(f'link {name!r} <mass> must be finite and >= 0 [kg], got {value}')
+    inertia = inertial.find('inertia')
+    if inertia is not None:
+        for key in ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz'):
+            if inertia.get(key) is not None:
+                value = number(inertia.get(key), f'link {name!r} <inertia {key}>')
+                if not math.isfinite(value):
+                    raise ArmError(f'link {name!r} <inertia {key}> must be finite, got {value}')
+    _vector(inertial.find('origin'), 'xyz', None, f'link {name!r} <inertial><origin xyz>')
 
 
 def pinocchio_xml(root, joints):

@@ -15,9 +15,14 @@
 """Checks of an arm's start or goal state: finite, the right size, within limits, no collision."""
 
 import numpy as np
+import pinocchio as pin
 
 from .model import ArmError
 from .spheres import worst_collision
+
+# Mass matrices whose smallest eigenvalue is below this fraction of the largest are refused
+# as singular (a joint moving no mass); real arms sit near 1e-3 (Panda's wrist vs shoulder).
+MASS_CONDITION = 1e-10
 
 
 def joint_vector(arm, values, what):
@@ -34,6 +39,28 @@ def joint_vector(arm, values, what):
         i = int(bad[0])
         raise ArmError(f'{what}: {arm.joint_names[i]} is {vector[i]} (NaN or infinite)')
     return vector
+
+
+def check_mass_matrix(arm, q, what='start'):
+    """
+    Raise ArmError unless the joint-space mass matrix at q is positive definite.
+
+    A singular one (a planned joint that moves no mass or inertia: links without <inertial>,
+    zero masses) has no forward dynamics; the reason names the joints whose diagonal vanishes.
+    """
+    mass = pin.crba(arm.model, arm.model.createData(), np.asarray(q, dtype=float))
+    mass = 0.5 * (mass + mass.T)
+    if np.all(np.isfinite(mass)):
+        values = np.linalg.eigvalsh(mass)
+        if values[0] > MASS_CONDITION * max(values[-1], 0.0):
+            return
+    scale = np.max(np.abs(np.diag(mass))) if np.all(np.isfinite(mass)) else 0.0
+    light = [name for name, d in zip(arm.joint_names, np.diag(mass))
+             if not d > MASS_CONDITION * scale]
+    verb = 'moves' if len(light) == 1 else 'move'
+    which = f' ({", ".join(light)} {verb} no mass or inertia)' if light else ''
+    raise ArmError(f'{what}: the mass matrix of the planned joints is singular there{which}: '
+                   'check the URDF inertials (every moving link needs a mass and inertia)')
 
 
 def check_holdable(arm, q, what='goal'):
@@ -75,6 +102,7 @@ def check_state(arm, q, v=None, what='start', spheres=None, obstacles=None, marg
             allowed = f' (+{100 * velocity_slack:g} % allowed)' if velocity_slack else ''
             raise ArmError(f'{what}: {name} velocity {v[i]:.6g} exceeds its limit '
                            f'{arm.velocity[i]:.6g}{allowed}')
+    check_mass_matrix(arm, q, what)
     if spheres is not None:
         collision = worst_collision(arm, spheres, q, obstacles, margin, self_collision)
         if collision is not None:

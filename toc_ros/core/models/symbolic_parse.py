@@ -21,6 +21,7 @@ residual of the Euler-Lagrange equations (symbolic_derive.py).  Errors name the 
 place in it and the reason (ModelError).
 """
 
+import ast
 from dataclasses import dataclass
 import keyword
 import math
@@ -151,6 +152,9 @@ class _Parser:
         string = str(text).strip()
         if not string:
             _fail(self.source, where, 'empty expression')
+        why = expression_syntax_error(string)
+        if why:
+            _fail(self.source, where, f'cannot parse {string!r}: {why}')
         try:
             expr = parse_expr(string, local_dict=dict(self.env), global_dict=self.globals,
                               transformations=(auto_symbol, auto_number, convert_xor))
@@ -178,6 +182,67 @@ class _Parser:
         if expr.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.I):
             _fail(self.source, where, f'{string!r} is not a finite real expression')
         return expr
+
+
+def expression_syntax_error(string):
+    """
+    Return why string is not an arithmetic expression ('' if it is one).
+
+    SymPy's parser evaluates its input as Python: before it sees a string, the string must be
+    numbers, names, + - * / ** ^ and calls of names, and no power may have a numeric exponent
+    beyond MAX_EXPONENT (9^9^9^9 would keep SymPy computing an integer for ever).
+    """
+    try:
+        tree = ast.parse(string.replace('^', '**'), mode='eval')
+    except SyntaxError as exc:
+        return f'not an expression ({exc.msg})'
+    return _syntax_error(tree.body)
+
+
+MAX_EXPONENT = 64.0
+_OPERATORS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)
+
+
+def _syntax_error(node):
+    if isinstance(node, ast.Constant):
+        ok = isinstance(node.value, (int, float)) and not isinstance(node.value, bool)
+        return '' if ok else f'{node.value!r} is not a number'
+    if isinstance(node, ast.Name):
+        return '' if not node.id.startswith('_') else f'name {node.id!r} is not allowed'
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.UAdd, ast.USub)):
+        return _syntax_error(node.operand)
+    if isinstance(node, ast.BinOp) and isinstance(node.op, _OPERATORS):
+        why = _syntax_error(node.left) or _syntax_error(node.right)
+        if not why and isinstance(node.op, ast.Pow):
+            exponent = _number(node.right)
+            if exponent is not None and not abs(exponent) <= MAX_EXPONENT:
+                why = f'a numeric exponent beyond {MAX_EXPONENT:g}'
+        return why
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
+        return _syntax_error(node.func) or next(
+            (why for why in map(_syntax_error, node.args) if why), '')
+    return f'{type(node).__name__} is not allowed (numbers, names, + - * / ^ and f(...) only)'
+
+
+def _number(node):
+    """Return a numeric constant expression's value (inf: overflow), None if it has names."""
+    if isinstance(node, ast.Constant):
+        return float(node.value)
+    if isinstance(node, ast.UnaryOp):
+        value = _number(node.operand)
+        return None if value is None else (-value if isinstance(node.op, ast.USub) else value)
+    if isinstance(node, ast.BinOp):
+        left, right = _number(node.left), _number(node.right)
+        if left is None or right is None:
+            return None
+        try:
+            if isinstance(node.op, ast.Pow):
+                return math.pow(left, right) if abs(right) <= MAX_EXPONENT else math.inf
+            return {ast.Add: left + right, ast.Sub: left - right, ast.Mult: left * right,
+                    }.get(type(node.op), left / right if right else math.inf)
+        except (OverflowError, ValueError):
+            return math.inf
+    return None
 
 
 def _expression_list(source, data, key, size, size_text):
