@@ -233,6 +233,7 @@ def test_limit_overrides():
     ('panda', {'limits': {'panda_joint1': {'velocity': float('nan')}}}, 'is NaN'),
     ('panda', {'limits': {'panda_joint1': {'effort': float('inf')}}}, 'must be finite'),
     ('panda', {'limits': {'panda_joint1': {'lower': 1.0, 'upper': 0.5}}}, 'not below'),
+    ('panda', {'limits': {'panda_finger_joint1': {'lower': 5.0}}}, 'is above the upper'),
     (toy(elbow_effort='0'), {}, "joint 'elbow' has no effort limit"),
     (toy(spin_limit='<limit effort="10"/>'), {}, "joint 'spin' has no velocity limit"),
     (toy(spin_type='revolute', spin_limit='<limit effort="1" velocity="1"/>'), {},

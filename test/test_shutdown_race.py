@@ -141,3 +141,47 @@ def test_run_node_ends_cleanly_on_a_publish_racing_shutdown_only(tmp_path, monke
                             text=True, timeout=60, cwd=str(REPO))
     assert result.returncode == expected, result.stderr
     assert ('Traceback' in result.stderr) == (expected != 0), result.stderr
+
+
+HANGING_CLEAN_UP_SCRIPT = """
+import sys
+import time
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from toc_ros.nodes.common import run_node
+
+
+class Stuck(Node):
+    def __init__(self):
+        super().__init__('stuck')
+        self.create_timer(0.05, lambda: None)
+        print('ready', flush=True)
+
+    def destroy_node(self):
+        time.sleep(60)                  # a clean-up that never ends
+
+
+sys.exit(run_node('stuck', Stuck, SingleThreadedExecutor))
+"""
+
+
+def test_a_node_whose_clean_up_hangs_after_sigint_prints_its_stacks_and_exits(tmp_path,
+                                                                               monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path))
+    process = subprocess.Popen([sys.executable, '-c', HANGING_CLEAN_UP_SCRIPT], cwd=str(REPO),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == 'ready'
+        started = time.monotonic()
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 0, stderr
+    assert time.monotonic() - started < 15
+    assert 'the clean-up after shutdown still runs after 5 s' in stderr
+    assert 'in destroy_node' in stderr          # the stuck thread's stack

@@ -153,6 +153,10 @@ class NodeProcess:
             return self.exit_code
         self.interrupt()
         for sig in (None, signal.SIGTERM, signal.SIGKILL):
+            if sig is signal.SIGKILL and self.alive():
+                # A node's stacks into its log first (run_node registers SIGUSR1).
+                self.process.send_signal(signal.SIGUSR1)
+                time.sleep(0.5)
             if sig is not None:
                 self._signal(sig)
             try:

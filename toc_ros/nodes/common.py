@@ -14,7 +14,9 @@
 
 """What the nodes share: the main() skeleton, shutdown-safe callbacks, 'topics' parsing."""
 
+import faulthandler
 import functools
+import os
 import re
 import signal
 import sys
@@ -93,6 +95,25 @@ def _note_interrupt(signum, frame):
         signal.default_int_handler(signum, frame)
 
 
+# A node process whose clean-up still runs this long after its context was shut down (a
+# SIGINT) prints every thread's stack and exits: toc-demo's plant_node once hung there under
+# load, ignored SIGTERM (rclpy's handler takes it) and was SIGKILLed.
+SHUTDOWN_GRACE_S = 5.0
+
+
+def _exit_when_clean_up_hangs(name, finished, grace=SHUTDOWN_GRACE_S):
+    """Watch (daemon thread) for a context shut down while run_node's clean-up lasts > grace."""
+    while rclpy.ok() and not finished.is_set():
+        finished.wait(0.2)
+    if finished.wait(grace):
+        return
+    sys.stderr.write(f'{name}: the clean-up after shutdown still runs after {grace:g} s; '
+                     "its threads' stacks follow, then the process exits\n")
+    sys.stderr.flush()
+    faulthandler.dump_traceback(all_threads=True)
+    os._exit(0)         # (the shutdown was asked for: what hangs is the teardown)
+
+
 def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), error_code=2,
              error_prefix=''):
     """
@@ -104,10 +125,17 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
     # Installed before rclpy.init, whose SIGINT handler chains to Python's.  A shutdown can
     # still surface as an error inside C++ code run by the executor (a callback racing the
     # context's end); after a SIGINT any such error is the end that was asked for.
-    if threading.current_thread() is threading.main_thread():   # signal.signal's rule
+    own_process = threading.current_thread() is threading.main_thread()
+    if own_process:   # signal.signal's rule; and a node thread in a test must not exit
         signal.signal(signal.SIGINT, _note_interrupt)
+        # SIGUSR1 prints every thread's stack (the harness asks before it kills a hung node).
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=args)
     _RCLPY_HANDLES.set()
+    finished = threading.Event()
+    if own_process:
+        threading.Thread(target=_exit_when_clean_up_hangs, args=(name, finished),
+                         daemon=True).start()
     node = None
     exit_code = 0
     try:
@@ -134,10 +162,13 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
         # runs pending Python handlers after installing the new one: a Ctrl-C that rclpy's
         # handler already turned into a shutdown can surface here once as KeyboardInterrupt.
         try:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-        except KeyboardInterrupt:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            except KeyboardInterrupt:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            finished.set()      # (an error here keeps its own exit code)
     return exit_code

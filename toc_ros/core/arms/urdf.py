@@ -293,6 +293,9 @@ def joint_limits(joint, override, planned=True):
     if continuous or (not planned and ('lower' not in values or 'upper' not in values)):
         lower, upper = -math.inf, math.inf
     elif not planned:
+        if ('lower' in override or 'upper' in override) and values['lower'] > values['upper']:
+            raise ArmError(f'joint {joint.name!r}: lower limit {values["lower"]} is above the '
+                           f'upper limit {values["upper"]}')
         # A locked joint may have an empty range: its value is clamped into it.
         lower, upper = values['lower'], max(values['upper'], values['lower'])
     else:
