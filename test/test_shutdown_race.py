@@ -165,8 +165,8 @@ sys.exit(run_node('stuck', Stuck, SingleThreadedExecutor))
 """
 
 
-def test_a_node_whose_clean_up_hangs_after_sigint_prints_its_stacks_and_exits(tmp_path,
-                                                                               monkeypatch):
+def test_a_node_whose_clean_up_hangs_after_sigint_prints_its_stacks_and_exits(
+        tmp_path, monkeypatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 100)))
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path))
