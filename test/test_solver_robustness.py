@@ -614,3 +614,20 @@ def test_no_relaxation_is_solved_where_the_circles_make_no_hole(monkeypatch):
     result = solve(problem, SolverOptions(mode='fast'))
     assert result.status is Status.SOLVED, result.message
     assert runs and all(run.kept is None for run in runs)
+
+
+def test_fifty_circles_off_the_motion_keep_the_free_optimum():
+    # Circles 2.6-3 m from the base never touch the paper robot's free motion; their 50,000
+    # rows outweighed the objective at the first barrier parameter (STALLED at t_f 10.5 s after
+    # 2000 iterations) until it was scaled to them (barrier_start.py).
+    rng = np.random.default_rng(0)
+    circles = []
+    while len(circles) < 50:
+        x, y = rng.uniform(-3.0, 3.0, 2)
+        if 2.6 < math.hypot(x, y) < 3.0:
+            circles.append((x, y, 0.05))
+    free = solve(Problem.paper(obstacles=()))
+    result = solve(Problem.paper(obstacles=tuple(circles)))
+    assert result.status is Status.SOLVED, result.message
+    assert result.final_time == pytest.approx(free.final_time, rel=1e-9)
+    assert result.violations.min_clearance > 0.0

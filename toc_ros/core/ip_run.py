@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from . import ipm
+from .barrier_start import crowding_share
 from .ipm_workspace import F_CONSTR_TOL, F_DELTA, F_ELASTIC, F_MU, F_MU_MIN, F_RHO, F_T, \
     F_T_HIGH, F_T_LOW, F_T_REF, F_THETA_MAX, F_TOL, F_ZT_HIGH, F_ZT_LOW, H_T, H_THETA, \
     I_ACCEPTABLE, I_ITER, I_LS_FAILS, I_MAX_ITER, I_METHOD, I_N, I_N_FILTER, I_STOP, \
@@ -106,6 +107,10 @@ class InteriorPointRun:
         ws = self.ws
         fs = ws.fscal
         t_f = float(np.clip(t_f, fs[F_T_LOW] * 10.0, fs[F_T_HIGH] / 10.0))
+        if duals is None:
+            # Barrier terms: the controls' bounds, a slack and an elastic per circle row
+            # (barrier_start.py: 50 circles off the paper robot's motion stalled).
+            mu *= crowding_share(2 * ws.v.size, 2 * ws.s[1:].size)
         ws.x[:] = states
         ws.x[0] = ws.x0
         ws.v[:] = np.clip(np.asarray(controls) / self.u_max, -1.0 + push, 1.0 - push)

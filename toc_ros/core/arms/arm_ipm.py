@@ -72,6 +72,7 @@ import numpy as np
 
 from . import ipm_kernels, riccati, riccati_euler
 from .arm_line_search import FilterLineSearch
+from ..barrier_start import crowding_share
 
 T_LOW = 1e-3
 T_HIGH = 100.0
@@ -205,21 +206,13 @@ class ArmInteriorPoint(FilterLineSearch):
         self.new_filter()
 
     def crowding_share(self):
-        """
-        Return the factor on a start's barrier parameter without multipliers: 1, 2 B / (B + R).
-
-        B barrier terms of the bounds (controls, states), R of the sphere rows.  Each row adds
-        mu (-log s) to the barrier problem, whose objective is T alone: with a few hundred
-        obstacle spheres the rows far from the motion outweigh T by orders of magnitude at the
-        first mu, the barrier problem's optimum is a much slower motion, and the run spends
-        hundreds of iterations coming back from it (a wall of 25 spheres that never touches
-        the Panda's free optimum: 125 iterations against its 20).  Up to B rows, 1.
-        """
+        """Return the factor on a start's barrier parameter without multipliers (below)."""
+        # Barrier terms: the controls' and states' bounds, one slack per sphere row
+        # (barrier_start.py: a wall of 25 spheres off the Panda's motion took 125 iterations).
         n_int = self.n_int
         bounds = 2 * self.n * n_int + (np.count_nonzero(self.has_l)
                                        + np.count_nonzero(self.has_u)) * (n_int - 1)
-        rows = self.ev.n_pairs * (n_int - 1)
-        return min(1.0, 2.0 * bounds / (bounds + rows))
+        return crowding_share(bounds, self.ev.n_pairs * (n_int - 1))
 
     def duals(self):
         """Return the multipliers and the proximal weight (start(duals=...) of another run)."""
