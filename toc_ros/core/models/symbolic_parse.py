@@ -238,8 +238,9 @@ def _number(node):
         try:
             if isinstance(node.op, ast.Pow):
                 return math.pow(left, right) if abs(right) <= MAX_EXPONENT else math.inf
-            return {ast.Add: left + right, ast.Sub: left - right, ast.Mult: left * right,
-                    }.get(type(node.op), left / right if right else math.inf)
+            if isinstance(node.op, ast.Div):
+                return left / right if right else math.inf
+            return {ast.Add: left + right, ast.Sub: left - right}.get(type(node.op), left * right)
         except (OverflowError, ValueError):
             return math.inf
     return None
