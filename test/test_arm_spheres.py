@@ -371,7 +371,7 @@ def test_spheres_of_another_arm_or_joint_set_are_refused():
 
 def test_sphere_reach_bounds_every_centre_and_far_obstacles_get_no_rows():
     from toc_ros.core.arms.arm_eval import ArmEvaluator
-    from toc_ros.core.arms.spheres import reachable_obstacles, sphere_reach
+    from toc_ros.core.arms.clearances import reachable_obstacles, sphere_reach
     for key in sorted(ARMS):
         arm, spheres = arm_and_spheres(key)
         reach = sphere_reach(spheres, arm)

@@ -27,8 +27,8 @@ half of an update.  Marker lifetimes are not honoured: an obstacle stays until i
 import math
 
 from toc_ros.conversions import ConversionError
+from toc_ros.core.arms.clearances import check_obstacles
 from toc_ros.core.arms.model import ArmError
-from toc_ros.core.arms.spheres import check_obstacles
 
 # visualization_msgs/msg/Marker constants (kept here so that the rules read without ROS).
 SPHERE = 2

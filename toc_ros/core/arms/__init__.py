@@ -15,19 +15,20 @@
 """
 URDF arms (ROS-free): Pinocchio model and limits, collision spheres, inverse kinematics.
 
-model.py loads an arm and its planned joints, spheres.py its collision spheres and their
-clearances to obstacle spheres and to each other (kernels.py: the same for many
+model.py loads an arm and its planned joints, spheres.py its collision spheres, clearances.py
+their clearances to obstacle spheres and to each other (kernels.py: the same for many
 configurations in one compiled call), ik.py end-effector pose goals, validate.py the checks of
 start/goal states.
 """
 
+from .clearances import (check_obstacles, Collision, obstacle_clearance,
+                         obstacle_clearance_jacobian, obstacle_clearances_batch,
+                         self_clearance, self_clearance_jacobian, self_clearances_batch,
+                         sphere_centres, sphere_jacobians, sphere_kinematics_batch,
+                         worst_collision)
 from .ik import solve_ik
 from .model import ArmError, ArmModel, load_arm, NAMED_ARMS
-from .spheres import (check_obstacles, Collision, default_spheres, load_spheres,
-                      obstacle_clearance, obstacle_clearance_jacobian,
-                      obstacle_clearances_batch, self_clearance, self_clearance_jacobian,
-                      self_clearances_batch, shipped_spheres_path, sphere_centres,
-                      sphere_jacobians, sphere_kinematics_batch, Spheres, worst_collision)
+from .spheres import default_spheres, load_spheres, shipped_spheres_path, Spheres
 from .validate import check_state
 
 __all__ = ['ArmError', 'ArmModel', 'check_obstacles', 'check_state', 'Collision',

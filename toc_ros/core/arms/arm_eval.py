@@ -47,9 +47,9 @@ import numpy as np
 import pinocchio as pin
 
 from . import kernels
+from .clearances import reachable_obstacles
 from .ipm_kernels import euler_terms
 from .rk4_steps import rk4_defects, rk4_terms
-from .spheres import reachable_obstacles
 
 FD_STEP = 1e-6
 # The second derivatives of ABA (2 n derivative calls per interval) are recomputed every
@@ -76,7 +76,7 @@ class ArmEvaluator:
         self.effort = arm.effort.copy()
         self.spheres = spheres
         obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 4)
-        # Obstacles out of every sphere's reach get no rows (spheres.reachable_obstacles).
+        # Obstacles out of every sphere's reach get no rows (clearances.reachable_obstacles).
         obstacles = np.ascontiguousarray(
             obstacles[reachable_obstacles(spheres, arm, obstacles, margin)])
         self.obstacles = obstacles

@@ -45,11 +45,12 @@ from .arm_eval import ArmEvaluator
 from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED, T_HIGH, T_LOW
 from .arm_paper import solve_arm_paper
 from .arm_warm import rollout, UnusableGuess, warm_point
+from .clearances import (check_obstacles, obstacle_clearance, self_clearance,
+                         sphere_kinematics_batch)
 from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
 from .model import ArmError, ArmModel
 from .polish import polish
-from .spheres import (check_obstacles, check_spheres_fit, default_spheres, obstacle_clearance,
-                      self_clearance, sphere_kinematics_batch, Spheres)
+from .spheres import check_spheres_fit, default_spheres, Spheres
 from .validate import check_holdable, check_state
 from ..problem import finite_number
 from ..result import CLEARANCE_TOL, Progress, SolveResult, Status, TERMINAL_TOL, Violations

@@ -31,8 +31,8 @@ import numbers
 import numpy as np
 import pinocchio as pin
 
+from .clearances import check_obstacles, worst_collision
 from .model import ArmError
-from .spheres import check_obstacles, worst_collision
 from .urdf import MAX_OFFSET
 from .validate import joint_vector
 

@@ -17,8 +17,8 @@
 import numpy as np
 import pinocchio as pin
 
+from .clearances import worst_collision
 from .model import ArmError
-from .spheres import worst_collision
 
 # Mass matrices whose smallest eigenvalue is below this fraction of the largest are refused
 # as singular (a joint moving no mass); real arms sit near 1e-3 (Panda's wrist vs shoulder).
