@@ -206,7 +206,7 @@ class ArmInteriorPoint(FilterLineSearch):
         self.new_filter()
 
     def crowding_share(self):
-        """Return the factor on a start's barrier parameter without multipliers (below)."""
+        """Return the factor on the barrier parameter of a start without multipliers."""
         # Barrier terms: the controls' and states' bounds, one slack per sphere row
         # (barrier_start.py: a wall of 25 spheres off the Panda's motion took 125 iterations).
         n_int = self.n_int
