@@ -110,5 +110,6 @@ FOLD_ATTEMPT = (ELASTIC_WEIGHT, 1e-4)
 # coarse optima compete for the refinements, and another search's start pushes a good one out
 # (each attempt added to one search moved cases both ways); best-of is never worse than its
 # first search.  On 160 random free planar_3r moves (N = 300) against IPOPT's best: 153 within
-# 0.1 % with the first search alone, 156 with the second, 158 with all three.
+# 0.1 % with the first search alone, 156 with the second, 158 with all three (159 with
+# the 3 x fitted start).
 FOLDING_SEARCHES = (MU_COLD, None, 1.0)
