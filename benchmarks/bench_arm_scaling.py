@@ -19,6 +19,8 @@ For each arm and obstacle set and N in --N (default 50 100 200 400): one warm-up
 --repeats cold solves; the median wall time, the iterations, the time per iteration and its
 split (Pinocchio / Riccati / rest), per degree of freedom.  The log-log slopes of the median
 time and of the time per iteration against N are least-squares fits over the N given.
+With obstacles from N = 200 on (coarse_grid.py) the iterations are the coarse search's on N / 4
+plus the refinement's on N, and the time per iteration is their mean.
 
     python benchmarks/bench_arm_scaling.py [--arms panda ur5] [--obstacles free '1 sphere']
 """
@@ -38,6 +40,7 @@ from benchmarks.bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
 from toc_ros.core import Problem, solve  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
+from toc_ros.core.arms.coarse_grid import COARSE_FACTOR, COARSE_FROM  # noqa: E402
 
 
 def measure(name, obstacle_set, n_int, repeats):
@@ -100,6 +103,8 @@ def main(argv=None):
                           f'time per iteration {slope(rows, "per_it_s"):.2f}')
     print()
     print('\n'.join(slopes))
+    print(f'* with obstacles from N = {COARSE_FROM} on: the search on N / {COARSE_FACTOR} '
+          'intervals, then one run on N (the iterations add up: "per it" is their mean)')
 
 
 if __name__ == '__main__':

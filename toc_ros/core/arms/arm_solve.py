@@ -47,7 +47,8 @@ from .arm_paper import solve_arm_paper
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .clearances import (check_obstacles, obstacle_clearance, self_clearance,
                          sphere_kinematics_batch)
-from .cold_runs import CHEAP_ITERATIONS, cold_runs, run_ipm, run_summary
+from .coarse_grid import coarse_intervals, cold_solve
+from .cold_runs import CHEAP_ITERATIONS, run_ipm, run_summary
 from .model import ArmError, ArmModel
 from .polish import polish
 from .spheres import check_spheres_fit, default_spheres, Spheres
@@ -308,8 +309,13 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
     if run is None or (run.status not in ('converged', 'acceptable', 'stopped')
                        and iterations < budget):
         # A poor guess is solved from scratch rather than reported as a failure.
-        run, cold_iterations, cold_linalg = cold_runs(
-            robot, evaluator, x0, xg, n_int, hessian, budget - iterations, should_stop, runs)
+        coarse = coarse_intervals(n_int, problem.integrator, evaluator.n_obstacle_rows)
+        coarse_evaluator = None if coarse is None else ArmEvaluator(
+            robot.arm, robot.spheres, obstacles, problem.margin, coarse, robot.self_collision,
+            problem.integrator)
+        run, cold_iterations, cold_linalg = cold_solve(
+            robot, evaluator, coarse_evaluator, x0, xg, hessian, budget - iterations,
+            should_stop, runs)
         iterations += cold_iterations
         linalg_time += cold_linalg
     controls = run.v * robot.arm.effort[None, :]
