@@ -34,7 +34,7 @@ from typing import Tuple
 
 import numpy as np
 
-from toc_ros.core.problem import Problem, ProblemError
+from toc_ros.core.problem import finite_number, Problem, ProblemError
 from toc_ros.core.settings import from_parameters, setting
 
 ARM_MODELS = ('panda', 'ur5', 'urdf')
@@ -270,7 +270,7 @@ def arm_errors(params, model):
     if count > limit:
         errors.append(f'{count} obstacles exceed obstacles.max_count = {limit}')
     margin = params['obstacles.margin']
-    if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+    if not finite_number(margin) or margin < 0:
         errors.append(f'obstacles.margin must be finite and >= 0 [m], got {margin!r}')
     if not model.pending:
         try:

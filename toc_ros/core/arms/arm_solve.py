@@ -35,7 +35,6 @@ START_VELOCITY_SLACK).
 
 import dataclasses
 import math
-import numbers
 import time
 from typing import Optional
 
@@ -204,8 +203,7 @@ def check_arm_problem(problem, options):
             or not 2 <= n_int <= MAX_INTERVALS):
         raise ArmError(f'N must be an integer in [2, {MAX_INTERVALS}], got {n_int!r}')
     margin = problem.margin
-    if (not isinstance(margin, numbers.Real) or isinstance(margin, bool)
-            or not math.isfinite(margin) or margin < 0):
+    if not finite_number(margin) or margin < 0:
         raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
     obstacles = check_obstacles(problem.obstacles)
     if (len(obstacles) or robot.self_collision) and robot.spheres is None:
@@ -342,10 +340,10 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
         states = run.x.copy()
     if converged and violations.feasible():
         status = Status.SOLVED
-    elif converged and not diverged:
-        status = Status.SOLVED_INACCURATE
     elif diverged:
         status = Status.STALLED
+    elif converged:
+        status = Status.SOLVED_INACCURATE
     elif run.status == 'stopped':
         status = stop['why']
     elif run.status == 'max_iterations':

@@ -25,9 +25,6 @@ deterministic; the first converged seed whose configuration is clear of the obst
 (with margin) and of self-collision is returned.
 """
 
-import math
-import numbers
-
 import numpy as np
 import pinocchio as pin
 
@@ -35,6 +32,7 @@ from .clearances import check_obstacles, worst_collision
 from .model import ArmError
 from .urdf import MAX_OFFSET
 from .validate import joint_vector
+from ..problem import finite_number
 
 
 def _target(position, orientation):
@@ -150,8 +148,7 @@ def solve_ik(arm, link, position, orientation=None, q_start=None, spheres=None,
     """
     frame = arm.frame_id(link)
     target, with_orientation = _target(position, orientation)
-    if (not isinstance(margin, numbers.Real) or isinstance(margin, bool)
-            or not math.isfinite(margin) or margin < 0):
+    if not finite_number(margin) or margin < 0:
         raise ArmError(f'margin must be finite and >= 0 [m], got {margin!r}')
     obstacles = check_obstacles(obstacles)
     if len(obstacles) and spheres is None:

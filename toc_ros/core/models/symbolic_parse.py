@@ -240,7 +240,9 @@ def _number(node):
                 return math.pow(left, right) if abs(right) <= MAX_EXPONENT else math.inf
             if isinstance(node.op, ast.Div):
                 return left / right if right else math.inf
-            return {ast.Add: left + right, ast.Sub: left - right}.get(type(node.op), left * right)
+            if isinstance(node.op, ast.Add):
+                return left + right
+            return left - right if isinstance(node.op, ast.Sub) else left * right
         except (OverflowError, ValueError):
             return math.inf
     return None
