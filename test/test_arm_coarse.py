@@ -45,15 +45,21 @@ def test_coarse_grid_only_for_long_euler_grids_with_obstacles():
 def test_multipliers_carried_to_another_grid():
     m, n_int, nx, n, rows = 4, 8, 2, 1, 3
     nodes = np.linspace(0.0, 1.0, m + 1)
-    duals = {'lam': np.column_stack([nodes, 2.0 * nodes]),
+    # lam[k] belongs to the defect reaching node k: lam[0] is unused and zero.
+    lam = np.column_stack([nodes, 2.0 * nodes])
+    lam[0] = 0.0
+    duals = {'lam': lam,
              'z': np.tile(nodes[1:-1, None], (1, rows)),
              'zlx': np.ones((m - 1, nx)), 'zux': np.full((m - 1, nx), 2.0),
              'zlv': np.full((m, n), 3.0), 'zuv': np.full((m, n), 4.0),
              'zlt': 0.5, 'zut': 0.25, 'prox': 1e-3}
     out = resample_arm_duals(duals, m, n_int)
     fine = np.linspace(0.0, 1.0, n_int + 1)
-    # Costates: interpolated (linear data: exact), not scaled.
-    np.testing.assert_allclose(out['lam'], np.column_stack([fine, 2.0 * fine]), atol=1e-15)
+    # Costates: interpolated (linear data: exact), not scaled; before the first coarse node
+    # they hold its value, not one interpolated towards the unused lam[0].
+    held = np.maximum(fine, 1.0 / m)
+    held[0] = 0.0
+    np.testing.assert_allclose(out['lam'], np.column_stack([held, 2.0 * held]), atol=1e-15)
     # A node's constraint multiplier scales with its share of the time, m / n_int.
     assert out['z'].shape == (n_int - 1, rows) and out['zlx'].shape == (n_int - 1, nx)
     np.testing.assert_allclose(out['z'][:, 0], 0.5 * np.clip(fine[1:-1], 0.25, 0.75))

@@ -67,7 +67,10 @@ def resample_arm_duals(duals, m, n_int):
     nodes_m, nodes_n = np.linspace(0.0, 1.0, m + 1), np.linspace(0.0, 1.0, n_int + 1)
     mids_m, mids_n = (np.arange(m) + 0.5) / m, (np.arange(n_int) + 0.5) / n_int
     share = m / n_int
-    out = {'lam': interpolate(duals['lam'], nodes_m, nodes_n, 1.0)}
+    # lam[k] belongs to the defect reaching node k: lam[0] is unused (zero) and is left out
+    # (interpolated towards it, the first nodes' costates came out up to (1 - m / N) short).
+    out = {'lam': interpolate(np.asarray(duals['lam'])[1:], nodes_m[1:], nodes_n, 1.0)}
+    out['lam'][0] = 0.0
     for name in ('z', 'zlx', 'zux'):
         out[name] = interpolate(duals[name], nodes_m[1:-1], nodes_n[1:-1], share)
     for name in ('zlv', 'zuv'):
