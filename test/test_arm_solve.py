@@ -520,7 +520,8 @@ def test_fast_arm_solve_matches_ipopt_and_is_feasible(name, obstacles):
 def test_a_motion_the_cheap_curvature_model_cannot_finish_is_solved_with_exact_curvature():
     # The Panda lifting joint 2 by 1 rad from its ready pose: without the dynamics' curvature
     # the interior point wanders (line-search failure, then the iteration limit); 'auto'
-    # switches to exact curvature after CHEAP_ITERATIONS and converges to IPOPT's optimum.
+    # switches to exact curvature once the cheap model stalls (cold_runs._stall_watch: here
+    # before CHEAP_ITERATIONS) and converges to IPOPT's optimum.
     pytest.importorskip('casadi')
     from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
@@ -533,7 +534,7 @@ def test_a_motion_the_cheap_curvature_model_cannot_finish_is_solved_with_exact_c
     assert cheap.status is not Status.SOLVED
     result = solve(problem)
     assert result.status is Status.SOLVED, result.message
-    assert result.iterations > CHEAP_ITERATIONS and 'exact curvature' in result.message
+    assert 'exact curvature' in result.message and result.iterations < CHEAP_ITERATIONS
     spec = _independent_check('panda', result, (), start=start, goal=goal)
     nlp = ArmTranscription(ArmProblem(spec), 20, 'euler', 'ipopt')
     best = min(out['t_f'] for out in (

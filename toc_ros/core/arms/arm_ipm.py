@@ -151,7 +151,7 @@ class ArmInteriorPoint(FilterLineSearch):
                      else riccati.work_arrays(n_int, nx, n))
         self.linalg_time = 0.0
         self.factorizations = 0
-        self.primal = math.inf
+        self.primal = self.e0 = math.inf
         self._no_curvature = np.zeros((0, 0, 0))
 
     # Start point ---------------------------------------------------------------------------
@@ -353,8 +353,8 @@ class ArmInteriorPoint(FilterLineSearch):
                     values, grads, curvature = self.ev.clearance_terms(
                         self.x[1:-1, :n], self.z)
             dual, primal, compl, s_d, s_c = self._errors(terms, grads, values)
-            self.primal = primal        # (read by should_stop callbacks: cold_runs.py)
             e0 = max(dual / s_d, compl / s_c)
+            self.primal, self.e0 = primal, e0    # (read by should_stop callbacks: cold_runs.py)
             if not np.isfinite(e0 + primal):
                 status = 'numerical_failure'
                 break

@@ -43,13 +43,20 @@ RETRY_SLOWDOWN = 1.5
 # sphere at N = 100 23 -> 19 (benchmarks/RESULTS.md, "Arms: the final time's curvature").
 CHEAP_MODEL = 'cross'
 CHEAP_ITERATIONS = 60
-# ... or sooner, once the cheap model has taken STALL_STEPS steps in a row shorter than
-# STALL_ALPHA at the last barrier parameter: there the steps it lacks the curvature for run
-# into the bounds (UR5 past a sphere: 30 such steps at the final t_f to 7 digits before the
-# 60th iteration).  With the exact phase's tensor reused (arm_eval.TENSOR_REUSE): random arm
-# suites -13 to -16 % time, the same final times.
+# ... or sooner, once the cheap model stops making progress: STALL_STEPS steps in a row
+# shorter than STALL_ALPHA at the last barrier parameter (the steps it lacks the curvature
+# for run into the bounds: UR5 past a sphere, 30 such steps at the final t_f to 7 digits
+# before the 60th iteration), or, with the barrier parameter at 1e-6 or below (STALL_MU:
+# room for mu^1.5's rounding), STALL_WINDOW iterations at one barrier parameter that did
+# not halve the larger of the KKT error and the constraint violation (runs around a sphere
+# wandering 50 iterations at t_f to 5 digits; a refining run's full steps at a rate of 0.97
+# per iteration).  With the exact phase's tensor reused (arm_eval.TENSOR_REUSE) and the
+# progress rule: random arm suites past a sphere 9-13 % less time, the same final times
+# (benchmarks/RESULTS.md, "Arms: the cheap model's stalls by progress").
 STALL_STEPS = 6
 STALL_ALPHA = 0.5
+STALL_MU = 2e-6
+STALL_WINDOW = 15
 # Around obstacles (arm_start.py, cold_runs): the free optimum (solved within FREE_BUDGET
 # iterations) bent clear of them in up to FREE_BENDS distinct ways, then up to LINE_DETOURS
 # bent lines.  Each start finds the optimum of its own way around the obstacles; with one
@@ -158,9 +165,14 @@ def _stall_watch(ipm, should_stop):
         short = (ipm.at_last_barrier() and ipm.last_alpha is not None
                  and ipm.last_alpha < STALL_ALPHA)
         stop.count = stop.count + 1 if short else 0
-        stop.stalled = stop.count >= STALL_STEPS
+        if ipm.mu > STALL_MU or ipm.mu != stop.mu:
+            stop.errors, stop.mu = [], ipm.mu
+        stop.errors.append(max(ipm.e0, ipm.primal))
+        slow = (len(stop.errors) > STALL_WINDOW
+                and stop.errors[-1] > 0.5 * stop.errors[-1 - STALL_WINDOW])
+        stop.stalled = stop.count >= STALL_STEPS or slow
         return stop.stalled
-    stop.count, stop.stalled = 0, False
+    stop.count, stop.stalled, stop.errors, stop.mu = 0, False, [], None
     return stop
 
 
