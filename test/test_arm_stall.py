@@ -12,15 +12,18 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""When the cheap curvature model counts as stalled (cold_runs._stall_watch)."""
+"""When a cold search run stalls (cold_runs._stall_watch) or is abandoned (_abandon_above)."""
 
 import os
 import sys
 
+import numpy as np
+
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from toc_ros.core.arms import cold_runs  # noqa: E402
-from toc_ros.core.arms.cold_runs import (STALL_ALPHA, STALL_MU, STALL_STEPS,  # noqa: E402
+from toc_ros.core.arms.cold_runs import (ABANDON_GAP, DUPLICATE_PATH,  # noqa: E402
+                                         SETTLED_PRIMAL, STALL_ALPHA, STALL_MU, STALL_STEPS,
                                          STALL_WINDOW)
 
 
@@ -90,3 +93,42 @@ def test_a_stop_request_is_not_a_stall():
     run = FakeRun(1e-7)
     watch = cold_runs._stall_watch(run, lambda: True)
     assert watch() and not watch.stalled
+
+
+class FakeBest:
+    """A converged run: its final time and states (N + 1 nodes, n = 2 joints)."""
+
+    def __init__(self, t, x):
+        self.t, self.x = t, x
+
+
+def _abandon(t, shift, mu=1e-4 ** 1.5, primal=0.1 * SETTLED_PRIMAL, t_best=1.0):
+    """Return (fired, duplicate) for a run at t whose path is the best's shifted by shift."""
+    x = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5, 0.0, 0.0])
+    run = FakeRun(mu)
+    run.n, run.t, run.primal = 2, t, primal
+    run.x = x.copy()
+    run.x[5, 1] += shift                      # one node of one joint, the velocities alike
+    watch = cold_runs._abandon_above(run, FakeBest(t_best, x), lambda: False)
+    return watch(), watch.duplicate
+
+
+def test_a_start_settled_above_the_best_is_abandoned():
+    # mu = 1e-4 ** 1.5 (the first decrease) rounds to 1.0000000000000002e-06: settled.
+    assert _abandon(1.0 + 2.0 * ABANDON_GAP, shift=1.0) == (True, False)
+
+
+def test_a_start_settled_on_the_best_way_around_is_abandoned_as_a_duplicate():
+    assert _abandon(1.0 + 0.5 * ABANDON_GAP, shift=0.5 * DUPLICATE_PATH) == (True, True)
+    assert _abandon(1.0, shift=0.0) == (True, True)
+
+
+def test_a_start_that_may_still_do_better_is_kept():
+    # Another way around (its path far from the best's), just above the best's time.
+    assert _abandon(1.0 + 0.5 * ABANDON_GAP, shift=2.0 * DUPLICATE_PATH) == (False, False)
+    # Below the best's time, even on its path.
+    assert _abandon(1.0 - 1e-6, shift=0.0) == (False, False)
+    # Not settled yet: the barrier parameter or the violation still large.
+    assert _abandon(1.0 + 2.0 * ABANDON_GAP, shift=0.0, mu=1e-4) == (False, False)
+    assert _abandon(1.0 + 2.0 * ABANDON_GAP, shift=0.0, primal=10 * SETTLED_PRIMAL) == \
+        (False, False)
