@@ -139,3 +139,42 @@ def test_initial_time_below_t_min_is_never_accepted():
     assert 'J_eps' in result.message
     assert np.all(result.history[:, 1] == pytest.approx(1.0, abs=1e-12))
     assert result.has_trajectory and math.isfinite(result.violations.terminal_error)
+
+
+def test_a_chunk_of_iterations_lets_other_threads_run():
+    # The node's executor thread (progress heartbeat, parameters, ~/cancel) runs beside a
+    # chunk instead of waiting for its end: the kernel releases the GIL.
+    import threading
+    import time
+    from toc_ros.core.paper_solver import PaperRun
+    problem = Problem.paper(n_intervals=1000)
+    run = PaperRun(problem, SolverOptions(mode='paper', max_iterations=10 ** 6),
+                   problem.integrator_id)
+    run.advance(1)                                  # (compiled or loaded from the cache)
+    started = time.perf_counter()
+    run.advance(1)
+    per_iteration = time.perf_counter() - started
+    stamps, done = [], threading.Event()
+
+    def stamp():
+        while not done.is_set():
+            stamps.append(time.perf_counter())
+            time.sleep(0.001)
+    other = threading.Thread(target=stamp)
+    other.start()
+    count = max(2, int(0.3 / max(per_iteration, 1e-6)))
+    for _ in range(4):          # (a chunk long enough to have a middle, on a loaded machine)
+        time.sleep(0.02)
+        started = time.perf_counter()
+        run.advance(count)
+        ended = time.perf_counter()
+        if ended - started > 0.1:
+            break
+        count *= 3
+    done.set()
+    other.join()
+    # The middle half of the chunk: the other thread ran there (with the GIL held: never).
+    low, high = started + 0.25 * (ended - started), started + 0.75 * (ended - started)
+    inside = sum(low < t < high for t in stamps)
+    assert ended - started > 0.1
+    assert inside >= 10, f'{inside} stamps in the middle of a {ended - started:.2f} s chunk'
