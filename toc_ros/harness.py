@@ -251,16 +251,26 @@ class RosClient:
                 raise HarnessError(f'timed out waiting for {what}')
             time.sleep(0.01)
 
-    def call(self, client, request, timeout=60.0):
-        """Call a service and wait for the response (HarnessError when none comes)."""
+    def call(self, client, request, timeout=60.0, attempts=1):
+        """
+        Call a service and wait for the response (HarnessError when none comes).
+
+        attempts > 1, for requests that may be repeated (queries): the request is sent again
+        when no answer came within timeout / attempts.  rmw_fastrtps drops a response when the
+        server has not matched the client's response reader within 100 ms (ros2/rmw_fastrtps
+        #390, #467): a new client on a loaded machine can lose its first answer.
+        """
         if not client.wait_for_service(timeout_sec=min(30.0, timeout)):
             raise HarnessError(f'no service {client.srv_name}')
-        future = client.call_async(request)
-        done = threading.Event()
-        future.add_done_callback(lambda _f: done.set())
-        if not done.wait(timeout):
-            raise HarnessError(f'{client.srv_name} did not answer in {timeout} s')
-        return future.result()
+        for _ in range(attempts):
+            future = client.call_async(request)
+            done = threading.Event()
+            future.add_done_callback(lambda _f, done=done: done.set())
+            if done.wait(timeout / attempts):
+                return future.result()
+            client.remove_pending_request(future)
+        raise HarnessError(f'{client.srv_name} did not answer in {timeout} s '
+                           f'({attempts} request(s))')
 
     def trigger(self, relative, timeout=10.0):
         """Call a std_srvs/Trigger service of the nodes under test; return its response."""
