@@ -185,3 +185,24 @@ def test_a_node_whose_clean_up_hangs_after_sigint_prints_its_stacks_and_exits(
     assert time.monotonic() - started < 15
     assert 'the clean-up after shutdown still runs after 5 s' in stderr
     assert 'in destroy_node' in stderr          # the stuck thread's stack
+
+
+HANGING_CLEAN_UP_CONTEXT_UP_SCRIPT = HANGING_CLEAN_UP_SCRIPT.replace(
+    "sys.exit(run_node('stuck', Stuck, SingleThreadedExecutor))",
+    "sys.exit(run_node('stuck', Stuck, SingleThreadedExecutor, spin=lambda node, ex: 3))")
+
+
+def test_a_clean_up_that_hangs_with_the_context_still_up_also_ends_the_process(
+        tmp_path, monkeypatch):
+    # The spin returns (its exit code 3) without a shutdown, and destroy_node hangs: toc-demo's
+    # plant_node hung so inside rclpy's destroy_node, and the watch waited for the context.
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path))
+    started = time.monotonic()
+    result = subprocess.run([sys.executable, '-c', HANGING_CLEAN_UP_CONTEXT_UP_SCRIPT],
+                            cwd=str(REPO), capture_output=True, text=True, timeout=45)
+    assert result.returncode == 3, result.stderr          # the code run_node had
+    assert time.monotonic() - started < 30
+    assert 'the clean-up after shutdown still runs after 5 s' in result.stderr
+    assert 'in destroy_node' in result.stderr

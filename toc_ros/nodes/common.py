@@ -96,14 +96,22 @@ def _note_interrupt(signum, frame):
 
 
 # A node process whose clean-up still runs this long after its context was shut down (a
-# SIGINT) prints every thread's stack and exits: toc-demo's plant_node once hung there under
-# load, ignored SIGTERM (rclpy's handler takes it) and was SIGKILLed.
+# SIGINT) or after run_node began it prints every thread's stack and exits: toc-demo's
+# plant_node hung there under load, ignored SIGTERM (rclpy's handler takes it) and was
+# SIGKILLed; once inside rclpy's destroy_node with its context still up (the watch had only
+# waited for the context's end).
 SHUTDOWN_GRACE_S = 5.0
 
 
-def _exit_when_clean_up_hangs(name, finished, grace=SHUTDOWN_GRACE_S):
-    """Watch (daemon thread) for a context shut down while run_node's clean-up lasts > grace."""
-    while rclpy.ok() and not finished.is_set():
+def _exit_when_clean_up_hangs(name, finished, cleaning, grace=SHUTDOWN_GRACE_S):
+    """
+    Watch (daemon thread) for run_node's clean-up lasting > grace; then exit the process.
+
+    The clean-up counts from the context's shutdown or from cleaning being set, whichever
+    comes first; the process exits with cleaning.code (run_node's exit code; 0 when the
+    shutdown was asked for: what hangs is the teardown).
+    """
+    while rclpy.ok() and not cleaning.is_set() and not finished.is_set():
         finished.wait(0.2)
     if finished.wait(grace):
         return
@@ -111,7 +119,7 @@ def _exit_when_clean_up_hangs(name, finished, grace=SHUTDOWN_GRACE_S):
                      "its threads' stacks follow, then the process exits\n")
     sys.stderr.flush()
     faulthandler.dump_traceback(all_threads=True)
-    os._exit(0)         # (the shutdown was asked for: what hangs is the teardown)
+    os._exit(getattr(cleaning, 'code', 0))
 
 
 def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), error_code=2,
@@ -132,9 +140,9 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
         faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=args)
     _RCLPY_HANDLES.set()
-    finished = threading.Event()
+    finished, cleaning = threading.Event(), threading.Event()
     if own_process:
-        threading.Thread(target=_exit_when_clean_up_hangs, args=(name, finished),
+        threading.Thread(target=_exit_when_clean_up_hangs, args=(name, finished, cleaning),
                          daemon=True).start()
     node = None
     exit_code = 0
@@ -161,6 +169,9 @@ def run_node(name, make_node, make_executor, args=None, spin=None, errors=(), er
         # A second Ctrl-C while shutting down must not abort the cleanup.  signal.signal()
         # runs pending Python handlers after installing the new one: a Ctrl-C that rclpy's
         # handler already turned into a shutdown can surface here once as KeyboardInterrupt.
+        # (an exception on its way out: the process ends in error, also when the watch ends it)
+        cleaning.code = exit_code if sys.exc_info()[0] is None else 1
+        cleaning.set()
         try:
             try:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
