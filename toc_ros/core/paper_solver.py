@@ -39,9 +39,9 @@ def next_chunk(per_iteration):
     return max(1, min(MAX_CHUNK, int(CHUNK_SECONDS / max(per_iteration, 1e-7))))
 
 
-# nogil: a chunk runs for ~CHUNK_SECONDS of CPU (far longer in wall time on a loaded machine);
+# nogil: a chunk runs for ~CHUNK_SECONDS of CPU (longer in wall time on a loaded machine);
 # without the GIL the node's executor thread (progress heartbeat, parameters, ~/cancel) runs
-# beside it instead of waiting for the chunk's end (CI: a 1.02 s progress gap at 64 circles).
+# beside it instead of waiting for the chunk's end.
 @njit(cache=True, nogil=True)
 def paper_iterations(n_iter, x0, x_goal, controls, tau, p, method, u_max, circles, k_b,
                      k_v_hat, k_p_hat, grad_mode, eta, d_tau, j_eps, best_controls, best_tau,
