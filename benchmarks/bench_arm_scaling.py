@@ -22,7 +22,13 @@ time and of the time per iteration against N are least-squares fits over the N g
 With obstacles from N = 200 on (coarse_grid.py) the iterations are the coarse search's on N / 4
 plus the refinement's on N, and the time per iteration is their mean.
 
+With --random K: instead, K random motions per arm and obstacle set, drawn as
+bench_arm_suite.py draws them (--seed; 'free' or '1 sphere' on the way), each solved at every
+N (the best of --repeats cold solves after a warm-up), and the median and range of their
+per-motion slopes: the benchmark's two motions are two points of that spread.
+
     python benchmarks/bench_arm_scaling.py [--arms panda ur5] [--obstacles free '1 sphere']
+                                           [--random 10 --seed 21]
 """
 
 import argparse
@@ -37,6 +43,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from benchmarks.bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
+from benchmarks.bench_arm_suite import draw_cases  # noqa: E402
 from toc_ros.core import Problem, solve  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
@@ -67,6 +74,37 @@ def measure(name, obstacle_set, n_int, repeats):
             'riccati_s': state.get('linalg_time_s', np.nan) / it}
 
 
+def random_slopes(name, obstacle_set, count, seed, n_grid, repeats):
+    """Print one line per random motion (iterations, times, slope); return the slopes."""
+    arm = load_arm(name)
+    robot = ArmRobot(arm, load_spheres(os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
+                                       arm))
+    cases = draw_cases(name, count, 1.2, obstacle_set != 'free', np.random.default_rng(seed))
+    slopes = []
+    for index, (start, goal, obstacles) in enumerate(cases):
+        rows = []
+        for n_int in n_grid:
+            problem = Problem(x0=start, x_goal=goal, model=robot, obstacles=obstacles,
+                              margin=MARGIN, n_intervals=n_int)
+            result = solve(problem)
+            best = None
+            for _ in range(repeats):
+                started = time.perf_counter()
+                result = solve(problem)
+                elapsed = time.perf_counter() - started
+                best = elapsed if best is None else min(best, elapsed)
+            rows.append({'N': n_int, 'time': best, 'it': max(result.iterations, 1),
+                         'status': result.status.value})
+        slopes.append(slope(rows, 'time'))
+        unsolved = [r['status'] for r in rows if r['status'] != 'SOLVED']
+        iterations = ' / '.join(str(r['it']) for r in rows)
+        times = ' / '.join(f"{1e3 * r['time']:.0f}" for r in rows)
+        print(f"| {name} | {obstacle_set} | {index} | {' / '.join(unsolved) or 'SOLVED'} | "
+              f"{iterations} | {times} | {slopes[-1]:.2f} | {slope(rows, 'it'):+.2f} |",
+              flush=True)
+    return slopes
+
+
 def slope(rows, key):
     """Least-squares slope of log(row[key]) against log(N)."""
     x = np.log([r['N'] for r in rows])
@@ -81,7 +119,26 @@ def main(argv=None):
     parser.add_argument('--obstacles', nargs='+', default=['free', '1 sphere'])
     parser.add_argument('--N', type=int, nargs='+', default=[50, 100, 200, 400])
     parser.add_argument('--repeats', type=int, default=3)
+    parser.add_argument('--random', type=int, default=0, metavar='K',
+                        help='K random motions per arm and obstacle set (docstring)')
+    parser.add_argument('--seed', type=int, default=21)
     args = parser.parse_args(argv)
+    if args.random:
+        print('| arm | obstacles | motion | status | iterations at N = '
+              f"{' / '.join(map(str, args.N))} | best time [ms] | slope of time | "
+              'slope of iterations |')
+        print('|---|---|---|---|---|---|---|---|')
+        summary = []
+        for name in args.arms:
+            for obstacle_set in args.obstacles:
+                found = np.array(random_slopes(name, obstacle_set, args.random, args.seed,
+                                               args.N, args.repeats))
+                summary.append(f'* {name}, {obstacle_set}: slope of time median '
+                               f'{np.median(found):.2f} ({found.min():.2f}-{found.max():.2f}), '
+                               f'{np.count_nonzero(found <= 1.1)} of {found.size} <= 1.1')
+        print()
+        print('\n'.join(summary))
+        return
     print('| arm | obstacles | N | status | t_f [s] | it | median [ms] | min-max [ms] | '
           'per it [ms] | per it and DOF [ms] | per it: pin / Riccati / rest [ms] |')
     print('|---|---|---|---|---|---|---|---|---|---|---|')
