@@ -1,0 +1,59 @@
+# Copyright 2026 toc_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""benchmarks/bench_arm_scaling.py --random: its rows are the solves of the motions it draws."""
+
+import os
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip('pinocchio')
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from benchmarks import bench_arm_scaling  # noqa: E402, I100
+from benchmarks.bench_arm_suite import draw_cases, MARGIN  # noqa: E402
+from toc_ros.core import Problem, solve  # noqa: E402
+from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
+from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
+
+
+def test_random_rows_report_each_drawn_motion_and_its_slope(capsys):
+    grid = (20, 40)
+    bench_arm_scaling.main(['--random', '2', '--arms', 'ur5', '--obstacles', 'free',
+                            '--N', *map(str, grid), '--repeats', '1', '--seed', '5'])
+    out = capsys.readouterr().out
+    rows = [line.split('|')[1:-1] for line in out.splitlines()
+            if line.startswith('| ur5 | free |')]
+    assert len(rows) == 2
+    cases = draw_cases('ur5', 2, 1.2, False, np.random.default_rng(5))
+    arm = load_arm('ur5')
+    robot = ArmRobot(arm, load_spheres(os.path.join(bench_arm_scaling.HERE, 'data',
+                                                    'arm_spheres_ur5.yaml'), arm))
+    slopes = []
+    for row, (start, goal, obstacles) in zip(rows, cases):
+        assert row[3].strip() == 'SOLVED'
+        # The iterations printed are those of solving the drawn motion itself.
+        expected = [solve(Problem(x0=start, x_goal=goal, model=robot, obstacles=obstacles,
+                                  margin=MARGIN, n_intervals=n)).iterations for n in grid]
+        assert [int(k) for k in row[4].split('/')] == expected
+        times = [float(t) for t in row[5].split('/')]
+        assert all(t >= 0.0 for t in times)
+        slopes.append(float(row[6]))
+    summary = [line for line in out.splitlines() if line.startswith('* ur5, free:')]
+    assert len(summary) == 1
+    assert f'median {np.median(slopes):.2f}' in summary[0]
+    assert f'{sum(s <= 1.1 for s in slopes)} of 2 <= 1.1' in summary[0]
