@@ -124,6 +124,8 @@ def main(argv=None):
     parser.add_argument('--seed', type=int, default=21)
     args = parser.parse_args(argv)
     if args.random:
+        if not set(args.obstacles) <= {'free', '1 sphere'}:
+            parser.error("--random draws 'free' motions or motions past '1 sphere'")
         print('| arm | obstacles | motion | status | iterations at N = '
               f"{' / '.join(map(str, args.N))} | best time [ms] | slope of time | "
               'slope of iterations |')
