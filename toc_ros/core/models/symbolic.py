@@ -21,10 +21,11 @@ energy, optional generalised forces) OR the explicit right-hand side dx/dt = f(x
 module parses it, derives the equations of motion and their exact first and second
 derivatives, and generates a Python module with the pointwise kernels of the model interface
 (base.py) and the cached horizon / interior-point wrappers, exactly like the hand-written
-models: symbolic_parse.py parses, symbolic_derive.py derives, symbolic_codegen.py generates,
-and this module loads the generated module as a RobotModel (SymbolicRobot).  The generated
-module is written into a cache directory keyed by a hash of the file's content (and of the
-generator), so the derivation and numba's compilation run once per model file.
+models: symbolic_parse.py parses, symbolic_derive.py derives, symbolic_print.py prints,
+symbolic_codegen.py generates, and this module loads the generated module as a RobotModel
+(SymbolicRobot).  The generated module is written into a cache directory keyed by a hash of
+the file's content (and of the generator), so the derivation and numba's compilation run once
+per model file.
 
 File format (every expression is a SymPy expression string; `^` means power):
 

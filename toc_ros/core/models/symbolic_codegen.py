@@ -19,29 +19,27 @@ The module holds the pointwise kernels of the model interface (base.py: rhs, rhs
 rhs_hess, segments), numpy/plain-Python helpers (link_segments, hand, the IK branches, the
 derived constants and control bounds) and the cached horizon / interior-point wrappers
 (generated.WRAPPERS).  Each kernel is straight-line code: the expressions of
-symbolic_derive.py with their common sub-expressions, printed as float arithmetic.  The text is
-a function of the model file and of these generator modules only (content_hash), so it can be
-cached on disk under that hash.
+symbolic_derive.py with their common sub-expressions, printed as float arithmetic
+(symbolic_print.py).  The text is a function of the model file and of these generator modules
+only (content_hash), so it can be cached on disk under that hash.
 """
 
 import hashlib
 import os
-import re
 
 from .generated import WRAPPERS
 from .symbolic_derive import AccelerationTerms, Hoister
 from .symbolic_parse import parse_model_text, Symbols
+from .symbolic_print import Block, kernel_code, MathPrinter, NumpyPrinter
 
 try:
     import sympy as sp
-    from sympy.printing.numpy import NumPyPrinter
-    from sympy.printing.precedence import precedence
-    from sympy.printing.pycode import PythonCodePrinter
 except ImportError:  # pragma: no cover - exercised only where sympy is absent
     sp = None
 
 # The modules whose source decides the generated text (their content is in the cache key).
-GENERATOR_FILES = ('symbolic_parse.py', 'symbolic_derive.py', 'symbolic_codegen.py')
+GENERATOR_FILES = ('symbolic_parse.py', 'symbolic_derive.py', 'symbolic_print.py',
+                   'symbolic_codegen.py')
 
 
 def _generator_digest():
@@ -61,147 +59,6 @@ def content_hash(text):
     return digest.hexdigest()[:16]
 
 
-class _PrinterMixin:
-    """Plain float literals, small integer powers as products, sqrt for x^(1/2)."""
-
-    def _print_Integer(self, expr):
-        return repr(float(expr))
-
-    def _print_Rational(self, expr):
-        return repr(float(expr))
-
-    def _print_Float(self, expr):
-        return repr(float(expr))
-
-    def _print_Half(self, expr):
-        return '0.5'
-
-    def _print_Pow(self, expr, rational=False):
-        base, exp = expr.as_base_exp()
-        b = self.parenthesize(base, precedence(expr), strict=True)
-        if exp.is_Integer and 1 <= abs(int(exp)) <= 4:
-            product = '*'.join([b] * abs(int(exp)))
-            return f'({product})' if exp > 0 else f'(1.0/({product}))'
-        if exp == sp.Rational(1, 2):
-            return f'{self._module_format(self._sqrt)}({self._print(base)})'
-        if exp == sp.Rational(-1, 2):
-            return f'(1.0/{self._module_format(self._sqrt)}({self._print(base)}))'
-        if exp.is_Integer:
-            return f'({b}**{int(exp)})'
-        return f'({b}**{self.parenthesize(exp, precedence(expr), strict=True)})'
-
-
-class _MathPrinter(_PrinterMixin, PythonCodePrinter if sp else object):
-    _sqrt = 'math.sqrt'
-
-
-class _NumpyPrinter(_PrinterMixin, NumPyPrinter if sp else object):
-    _sqrt = 'numpy.sqrt'
-
-
-class _Block:
-    """Straight-line code: definitions (symbol = expression [+ check lines]) and outputs."""
-
-    def __init__(self, after=None, temps='t'):
-        self.defs = []            # (symbol, expr, extra lines, symbols they need)
-        self.outputs = []         # (targets, expr)
-        self.required = []        # symbols later blocks use
-        self.count = after.count if after is not None else 0
-        self.temps = temps
-
-    def define(self, prefix, expr, extra=()):
-        """Return a new symbol for expr (expr itself when it is a number or a symbol)."""
-        expr = sp.sympify(expr)
-        if expr.is_Atom and not extra:
-            return expr
-        symbol = sp.Symbol(f'{prefix}_{self.count}', real=True)
-        self.count += 1
-        self.defs.append((symbol, expr, tuple(extra), ()))
-        return symbol
-
-    def require(self, symbols):
-        """Emit the definitions of symbols even if no output of this block needs them."""
-        self.required.extend(s for s in symbols if isinstance(s, sp.Symbol))
-
-    def output(self, targets, expr):
-        """Write expr to the target(s), e.g. 'f[1]' or ('hxx[0, 1]', 'hxx[1, 0]')."""
-        if isinstance(targets, str):
-            targets = (targets,)
-        self.outputs.append((tuple(targets), sp.sympify(expr)))
-
-    def code(self, printer):
-        """Source lines: common sub-expressions and definitions, outputs."""
-        exprs = [d[1] for d in self.defs] + [e for _, e in self.outputs]
-        temps, reduced = sp.cse(exprs, symbols=sp.numbered_symbols(f'{self.temps}_',
-                                                                   real=True), order='none')
-        nodes = {}
-        for sym, expr in temps:
-            nodes[sym] = (expr, ())
-        for (sym, _, extra, _), expr in zip(self.defs, reduced):
-            nodes[sym] = (expr, extra)
-        lines, done = [], set()
-
-        def emit(sym):
-            # Depth-first: every statement right after the statements it needs.
-            stack = [(sym, False)]
-            while stack:
-                node, ready = stack.pop()
-                if node in done:
-                    continue
-                expr, extra = nodes[node]
-                if ready:
-                    done.add(node)
-                    lines.append(f'{node} = {printer.doprint(expr)}')
-                    lines.extend(extra)
-                    continue
-                stack.append((node, True))
-                deps = sorted((s for s in expr.free_symbols if s in nodes and s not in done),
-                              key=_sort_key, reverse=True)
-                stack.extend((d, False) for d in deps)
-
-        # Definitions with checks are emitted in order; everything else on first use.
-        for sym, _, extra, needs in self.defs:
-            if extra:
-                for s in needs:
-                    if s in nodes:
-                        emit(s)
-                emit(sym)
-        for (targets, _), expr in zip(self.outputs, reduced[len(self.defs):]):
-            for s in sorted(expr.free_symbols, key=_sort_key):
-                if s in nodes:
-                    emit(s)
-            lines.append(f'{" = ".join(targets)} = {printer.doprint(expr)}')
-        for s in self.required:
-            if s in nodes:
-                emit(s)
-        return lines
-
-
-def _kernel_code(printer, read, blocks, indent='    '):
-    """
-    Input reads and the code of the blocks in order (each its own common sub-expressions).
-
-    read(name) gives the source of an input symbol's value (e.g. 'x[2]' for x_2).
-    """
-    lines = []
-    for block in blocks:
-        lines.extend(block.code(printer))
-    used = set()
-    for line in lines:
-        used.update(re.findall(r'\b(?:x|u|p|lam)_[0-9]+\b', line))
-    reads = [f'{name} = {read(name)}' for name in sorted(used, key=_name_key)]
-    return [indent + line for line in reads + lines]
-
-
-def _name_key(name):
-    head, _, index = name.rpartition('_')
-    return (head, int(index)) if index.isdigit() else (name, -1)   # goal_x, goal_y
-
-
-def _sort_key(symbol):
-    return _name_key(symbol.name)
-
-
 class _Generator:
     """Generates the kernel module source of a ModelSpec."""
 
@@ -211,8 +68,8 @@ class _Generator:
         self.n = len(spec.joint_names)
         self.sym = Symbols(self.n, len(spec.param_names))
         self.hoist = Hoister(self.sym.p, len(spec.param_names))
-        self.math = _MathPrinter({'fully_qualified_modules': True})
-        self.numpy = _NumpyPrinter({'fully_qualified_modules': True})
+        self.math = MathPrinter({'fully_qualified_modules': True})
+        self.numpy = NumpyPrinter({'fully_qualified_modules': True})
         self.vars = self.sym.x + self.sym.u
         self.terms = AccelerationTerms(spec, self.sym, self.hoist, self.vars)
 
@@ -246,7 +103,7 @@ class _Generator:
 
         The same code evaluates f in rhs, rhs_jac and rhs_hess, so they agree bit for bit.
         """
-        block = _Block(temps='t')
+        block = Block(temps='t')
         if self.spec.kind == 'explicit':
             for i, e in enumerate(self.spec.f):
                 block.output(f'f[{i}]', self.hoist(e))
@@ -263,19 +120,19 @@ class _Generator:
     def rhs(self):
         """Generate the body of the kernel rhs."""
         block, _, _ = self._f_block()
-        return _kernel_code(self.math, self._read, [block])
+        return kernel_code(self.math, self._read, [block])
 
     def rhs_jac(self):
         """Generate the body of the kernel rhs_jac."""
         first, factor, w = self._f_block()
-        block = _Block(first, temps='v')
+        block = Block(first, temps='v')
         nx = 2 * self.n
         if self.spec.kind == 'explicit':
             for i, e in enumerate(self.spec.f):
                 for c, z in enumerate(self.vars):
                     target = f'fx[{i}, {c}]' if c < nx else f'fu[{i}, {c - nx}]'
                     block.output(target, self.hoist(sp.diff(e, z)))
-            return _kernel_code(self.math, self._read, [first, block])
+            return kernel_code(self.math, self._read, [first, block])
         partials = self.terms.acceleration_partials(block, factor, w)
         for j in range(self.n):
             for c in range(len(self.vars)):
@@ -283,7 +140,7 @@ class _Generator:
                 block.output(row, 1 if c == 2 * j + 1 else 0)
                 row = f'fx[{2 * j + 1}, {c}]' if c < nx else f'fu[{2 * j + 1}, {c - nx}]'
                 block.output(row, partials[c][j])
-        return _kernel_code(self.math, self._read, [first, block])
+        return kernel_code(self.math, self._read, [first, block])
 
     def _hess_target(self, a, b):
         nx = 2 * self.n
@@ -299,16 +156,16 @@ class _Generator:
         nv = len(self.vars)
         lam = self.sym.lam
         if self.spec.kind == 'explicit':
-            block = _Block(temps='t')
+            block = Block(temps='t')
             for a in range(nv):
                 for b in range(a, nv):
                     expr = sum((lam[i] * self.hoist(sp.diff(e, self.vars[a], self.vars[b]))
                                 for i, e in enumerate(self.spec.f)), sp.Integer(0))
                     block.output(self._hess_target(a, b), expr)
-            return _kernel_code(self.math, self._read, [block])
+            return kernel_code(self.math, self._read, [block])
         n = self.n
         first, factor, w = self._f_block(write_f=False)
-        block = _Block(first, temps='v')
+        block = Block(first, temps='v')
         partials = self.terms.acceleration_partials(block, factor, w)
         nu = self.terms.solve(block, factor, [lam[2 * i + 1] for i in range(n)], 'nu')
         q = set(self.sym.q)
@@ -328,11 +185,11 @@ class _Generator:
                             acc -= self.hoist(self.terms.mass_entry(i, j, za, zb)) * w[j]
                     terms.append(nu[i] * acc)
                 block.output(self._hess_target(a, b), sp.Add(*terms))
-        return _kernel_code(self.math, self._read, [first, block])
+        return kernel_code(self.math, self._read, [first, block])
 
     def segments(self):
         """Generate the body of the kernel segments."""
-        block = _Block()
+        block = Block()
         q = self.sym.q
         for k, link in enumerate(self.spec.links):
             for r, e in enumerate(link):
@@ -344,33 +201,33 @@ class _Generator:
                         targets = (f'seg_qq[{k}, {r}, {j}, {i}]',) if i == j else (
                             f'seg_qq[{k}, {r}, {j}, {i}]', f'seg_qq[{k}, {r}, {i}, {j}]')
                         block.output(targets, self.hoist(sp.diff(d, q[i])))
-        return _kernel_code(self.math, self._read_q, [block])
+        return kernel_code(self.math, self._read_q, [block])
 
     def mass_matrix(self):
         """Generate the body of the kernel that writes M(q) (mass matrix)."""
-        block = _Block()
+        block = Block()
         for i in range(self.n):
             for j in range(i, self.n):
                 targets = (f'm[{i}, {j}]',) if i == j else (f'm[{i}, {j}]', f'm[{j}, {i}]')
                 block.output(targets, self.hoist(self.spec.mass[i, j]))
-        return _kernel_code(self.math, self._read, [block])
+        return kernel_code(self.math, self._read, [block])
 
     def link_segments(self):
         """Generate the body of the vectorised numpy segments function."""
-        block = _Block()
+        block = Block()
         for k, link in enumerate(self.spec.links):
             for r, e in enumerate(link):
                 block.output(f'seg[..., {k}, {r}]', self.hoist(e))
-        return _kernel_code(self.numpy, self._read_numpy, [block])
+        return kernel_code(self.numpy, self._read_numpy, [block])
 
     def hand(self):
         """Generate the body of the function hand: the last link's end and d hand / dq."""
-        block = _Block()
+        block = Block()
         for r, e in enumerate(self.spec.links[-1][2:4]):
             block.output(f'out[{r}]', e)
             for j, q in enumerate(self.sym.q):
                 block.output(f'out[{2 + r * self.n + j}]', sp.diff(e, q))
-        return _kernel_code(self.math, self._read_q, [block])
+        return kernel_code(self.math, self._read_q, [block])
 
     def inverse_kinematics(self):
         """Generate the IK functions of the inverse_kinematics section (plain Python)."""
@@ -380,7 +237,7 @@ class _Generator:
                     'def ik_reach(goal_x, goal_y, p):',
                     '    """No reach conditions: the file has no inverse_kinematics."""',
                     '    return []']
-        reach = _Block()
+        reach = Block()
         for k, (_, small, big, _) in enumerate(ik.reach):
             reach.output(f'out[{2 * k}]', small)
             reach.output(f'out[{2 * k + 1}]', big)
@@ -391,16 +248,16 @@ class _Generator:
                  'def ik_reach(goal_x, goal_y, p):',
                  '    """Sides (small, big) of the reach conditions small <= big."""',
                  f'    out = [0.0] * {2 * count}',
-                 *_kernel_code(self.math, self._read, [reach]),
+                 *kernel_code(self.math, self._read, [reach]),
                  f'    return [(out[2 * k], out[2 * k + 1]) for k in range({count})]']
         for k, (name, exprs) in enumerate(ik.branches.items()):
-            block = _Block()
+            block = Block()
             for j, e in enumerate(exprs):
                 block.output(f'out[{j}]', e)
             lines += ['', '', f'def _ik_{k}(goal_x, goal_y, p):',
                       f'    """Joint positions of IK branch {name!r} (hand at the goal)."""',
                       f'    out = [0.0] * {self.n}',
-                      *_kernel_code(self.math, self._read, [block]),
+                      *kernel_code(self.math, self._read, [block]),
                       '    return out']
         entries = ', '.join(f'{name!r}: _ik_{k}' for k, name in enumerate(ik.branches))
         return lines + ['', '', f'IK = {{{entries}}}']
@@ -418,10 +275,10 @@ class _Generator:
                     self.segments())]
         mass = self.mass_matrix() if spec.kind == 'lagrangian' else None
         link_np = self.link_segments()
-        u_max = _Block()
+        u_max = Block()
         for i, e in enumerate(spec.u_max):
             u_max.output(f'out[{i}]', self.hoist(e))
-        u_max_lines = _kernel_code(self.math, self._read, [u_max])
+        u_max_lines = kernel_code(self.math, self._read, [u_max])
         n_params = len(spec.param_names)
         derived = [f'    p_{i} = p[{i}]' for i in range(n_params)]
         derived.append(f'    out = [0.0] * {len(self.hoist.derived)}')

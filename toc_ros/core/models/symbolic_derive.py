@@ -118,7 +118,7 @@ class AccelerationTerms:
     """
     The accelerations w = M^-1 r of a Lagrangian ModelSpec and their derivatives, as code.
 
-    Each method adds definitions to a kernel code block (symbolic_codegen._Block) through its
+    Each method adds definitions to a kernel code block (symbolic_print.Block) through its
     define(); expressions pass through hoist (parameter-only parts -> derived constants).
     """
 
