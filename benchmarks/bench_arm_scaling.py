@@ -25,10 +25,13 @@ plus the refinement's on N, and the time per iteration is their mean.
 With --random K: instead, K random motions per arm and obstacle set, drawn as
 bench_arm_suite.py draws them (--seed; 'free' or '1 sphere' on the way), each solved at every
 N (the best of --repeats cold solves after a warm-up), and the median and range of their
-per-motion slopes: the benchmark's two motions are two points of that spread.
+per-motion slopes: the benchmark's two motions are two points of that spread.  Each row also
+counts the bound arcs of the solution at every N (bound_arcs: how much switching structure the
+grid resolves), and with --ipopt the iterations of IPOPT (toc_ros/bench/arm_reference.py, the
+same discretisation from fast mode's cold start point) and their slope.
 
     python benchmarks/bench_arm_scaling.py [--arms panda ur5] [--obstacles free '1 sphere']
-                                           [--random 10 --seed 21]
+                                           [--random 10 --seed 21 [--ipopt]]
 """
 
 import argparse
@@ -46,8 +49,14 @@ from benchmarks.bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
 from benchmarks.bench_arm_suite import draw_cases  # noqa: E402
 from toc_ros.core import Problem, solve  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
+from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
 from toc_ros.core.arms.coarse_grid import COARSE_FACTOR, COARSE_FROM  # noqa: E402
+from toc_ros.core.arms.cold_runs import start_point  # noqa: E402
+
+# An entry counts as at its bound within this fraction of the bound (the solver stops with
+# barrier slacks of order 1e-9 relative; a loose test would count nearly active entries).
+AT_BOUND = 1e-3
 
 
 def measure(name, obstacle_set, n_int, repeats):
@@ -74,13 +83,44 @@ def measure(name, obstacle_set, n_int, repeats):
             'riccati_s': state.get('linalg_time_s', np.nan) / it}
 
 
-def random_slopes(name, obstacle_set, count, seed, n_grid, repeats):
-    """Print one line per random motion (iterations, times, slope); return the slopes."""
+def bound_arcs(values, bound):
+    """
+    Count the arcs at a bound, summed over the columns (values (rows, n), bound (n,)).
+
+    An arc is a maximal run of consecutive rows where a column is at +bound, or at -bound
+    (within AT_BOUND).
+    """
+    scaled = np.asarray(values) / np.asarray(bound)
+    side = np.where(scaled >= 1.0 - AT_BOUND, 1, np.where(scaled <= AT_BOUND - 1.0, -1, 0))
+    starts = (side[1:] != side[:-1]) & (side[1:] != 0)
+    return int(np.count_nonzero(starts) + np.count_nonzero(side[0]))
+
+
+def ipopt_iterations(name, robot, start, goal, obstacles, n_int):
+    """Return IPOPT's (iterations, t_f, success) on the same grid from fast mode's start."""
+    from toc_ros.bench.arm_check import example_robot_urdf
+    from toc_ros.bench.arm_problem import ArmProblem, ArmSpec
+    from toc_ros.bench.arm_reference import ArmTranscription
+    arm = robot.arm
+    spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
+                   goal=goal, obstacles=obstacles,
+                   robot_spheres=os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
+                   margin=MARGIN)
+    zeros = np.zeros(arm.n)
+    x0, xg = np.concatenate([start, zeros]), np.concatenate([goal, zeros])
+    evaluator = ArmEvaluator(arm, robot.spheres, obstacles, MARGIN, n_int)
+    guess = start_point(robot, evaluator, x0, xg, n_int)[:3]
+    out = ArmTranscription(ArmProblem(spec), n_int, 'euler', 'ipopt').solve(guess)
+    return out['iterations'], out['t_f'], bool(out['success'])
+
+
+def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False):
+    """Print one line per random motion (iterations, times, slopes, arcs); return the slopes."""
     arm = load_arm(name)
     robot = ArmRobot(arm, load_spheres(os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
                                        arm))
     cases = draw_cases(name, count, 1.2, obstacle_set != 'free', np.random.default_rng(seed))
-    slopes = []
+    found = {'time': [], 'it': [], 'ipopt': []}
     for index, (start, goal, obstacles) in enumerate(cases):
         rows = []
         for n_int in n_grid:
@@ -93,16 +133,32 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats):
                 result = solve(problem)
                 elapsed = time.perf_counter() - started
                 best = elapsed if best is None else min(best, elapsed)
-            rows.append({'N': n_int, 'time': best, 'it': max(result.iterations, 1),
-                         'status': result.status.value})
-        slopes.append(slope(rows, 'time'))
+            arcs = (bound_arcs(result.controls, arm.effort)
+                    + bound_arcs(result.states[:, arm.n:], arm.velocity))
+            row = {'N': n_int, 'time': best, 'it': max(result.iterations, 1),
+                   'status': result.status.value, 'arcs': arcs}
+            if ipopt:
+                row['ipopt'], t_f, success = ipopt_iterations(name, robot, start, goal,
+                                                              obstacles, n_int)
+                row['ipopt_note'] = '' if success else ' (failed)'
+                if success and t_f > result.final_time * (1 + 1e-6):
+                    row['ipopt_note'] = f' (t_f +{100 * (t_f / result.final_time - 1):.2f} %)'
+            rows.append(row)
+        for key in found:
+            if key in rows[0]:
+                found[key].append(slope(rows, key))
         unsolved = [r['status'] for r in rows if r['status'] != 'SOLVED']
         iterations = ' / '.join(str(r['it']) for r in rows)
         times = ' / '.join(f"{1e3 * r['time']:.0f}" for r in rows)
-        print(f"| {name} | {obstacle_set} | {index} | {' / '.join(unsolved) or 'SOLVED'} | "
-              f"{iterations} | {times} | {slopes[-1]:.2f} | {slope(rows, 'it'):+.2f} |",
-              flush=True)
-    return slopes
+        arcs = ' / '.join(str(r['arcs']) for r in rows)
+        line = (f"| {name} | {obstacle_set} | {index} | {' / '.join(unsolved) or 'SOLVED'} | "
+                f"{iterations} | {times} | {found['time'][-1]:.2f} | {found['it'][-1]:+.2f} | "
+                f'{arcs} |')
+        if ipopt:
+            line += (' ' + ' / '.join(f"{r['ipopt']}{r['ipopt_note']}" for r in rows)
+                     + f" | {found['ipopt'][-1]:+.2f} |")
+        print(line, flush=True)
+    return found
 
 
 def slope(rows, key):
@@ -122,22 +178,34 @@ def main(argv=None):
     parser.add_argument('--random', type=int, default=0, metavar='K',
                         help='K random motions per arm and obstacle set (docstring)')
     parser.add_argument('--seed', type=int, default=21)
+    parser.add_argument('--ipopt', action='store_true',
+                        help='with --random: also IPOPT on each motion and N (slow at N = 400)')
     args = parser.parse_args(argv)
+    if args.ipopt and not args.random:
+        parser.error('--ipopt goes with --random')
     if args.random:
         if not set(args.obstacles) <= {'free', '1 sphere'}:
             parser.error("--random draws 'free' motions or motions past '1 sphere'")
-        print('| arm | obstacles | motion | status | iterations at N = '
-              f"{' / '.join(map(str, args.N))} | best time [ms] | slope of time | "
-              'slope of iterations |')
-        print('|---|---|---|---|---|---|---|---|')
+        header = ('| arm | obstacles | motion | status | iterations at N = '
+                  f"{' / '.join(map(str, args.N))} | best time [ms] | slope of time | "
+                  'slope of iterations | bound arcs |')
+        if args.ipopt:
+            header += ' IPOPT iterations | IPOPT slope of iterations |'
+        print(header)
+        print('|---' * (header.count('|') - 1) + '|')
         summary = []
         for name in args.arms:
             for obstacle_set in args.obstacles:
-                found = np.array(random_slopes(name, obstacle_set, args.random, args.seed,
-                                               args.N, args.repeats))
-                summary.append(f'* {name}, {obstacle_set}: slope of time median '
-                               f'{np.median(found):.2f} ({found.min():.2f}-{found.max():.2f}), '
-                               f'{np.count_nonzero(found <= 1.1)} of {found.size} <= 1.1')
+                found = random_slopes(name, obstacle_set, args.random, args.seed, args.N,
+                                      args.repeats, args.ipopt)
+                times = np.array(found['time'])
+                line = (f'* {name}, {obstacle_set}: slope of time median '
+                        f'{np.median(times):.2f} ({times.min():.2f}-{times.max():.2f}), '
+                        f'{np.count_nonzero(times <= 1.1)} of {times.size} <= 1.1; '
+                        f"slope of iterations median {np.median(found['it']):+.2f}")
+                if args.ipopt:
+                    line += f"; IPOPT's median {np.median(found['ipopt']):+.2f}"
+                summary.append(line)
         print()
         print('\n'.join(summary))
         return

@@ -14,6 +14,7 @@
 
 """benchmarks/bench_arm_scaling.py --random: its rows are the solves of the motions it draws."""
 
+import itertools
 import os
 import sys
 
@@ -53,8 +54,53 @@ def test_random_rows_report_each_drawn_motion_and_its_slope(capsys):
         times = [float(t) for t in row[5].split('/')]
         assert all(t >= 0.0 for t in times)
         slopes.append(float(row[6]))
+        # The bound arcs, counted again here: runs of entries at +bound or at -bound.
+        arcs = []
+        for n in grid:
+            result = solve(Problem(x0=start, x_goal=goal, model=robot, obstacles=obstacles,
+                                   margin=MARGIN, n_intervals=n))
+            count = 0
+            for values, bound in ((result.controls, arm.effort),
+                                  (result.states[:, arm.n:], arm.velocity)):
+                for column, limit in zip(np.transpose(values), bound):
+                    sides = [1 if x >= (1 - 1e-3) * limit else -1 if x <= -(1 - 1e-3) * limit
+                             else 0 for x in column]
+                    count += sum(1 for side, _ in itertools.groupby(sides) if side)
+            arcs.append(count)
+        assert [int(k) for k in row[8].split('/')] == arcs
     summary = [line for line in out.splitlines() if line.startswith('* ur5, free:')]
     assert len(summary) == 1
     median = float(summary[0].split('median ')[1].split()[0])
     assert abs(median - np.median(slopes)) <= 0.006        # (the rows' slopes are rounded)
     assert f'{sum(s <= 1.1 for s in slopes)} of 2 <= 1.1' in summary[0]
+
+
+def test_bound_arcs_counts_runs_at_either_bound():
+    bound = np.array([1.0, 2.0])
+    values = np.array([[1.0, 0.0], [1.0, 2.0], [0.2, 2.0], [-1.0, -2.0], [1.0, 1.999]])
+    # column 0: +, +, 0, -, + -> 3 arcs; column 1: 0, +, +, -, + (1.999 within 1e-3) -> 3
+    assert bench_arm_scaling.bound_arcs(values, bound) == 6
+    assert bench_arm_scaling.bound_arcs(np.zeros((4, 2)), bound) == 0
+
+
+def test_random_with_ipopt_reports_its_iterations_and_their_slope(capsys):
+    pytest.importorskip('casadi')
+    grid = (20, 40)
+    bench_arm_scaling.main(['--random', '1', '--arms', 'ur5', '--obstacles', 'free',
+                            '--N', *map(str, grid), '--repeats', '1', '--seed', '5',
+                            '--ipopt'])
+    out = capsys.readouterr().out
+    row = [line.split('|')[1:-1] for line in out.splitlines()
+           if line.startswith('| ur5 | free |')][0]
+    assert len(row) == 11
+    ipopt = [int(cell.split()[0]) for cell in row[9].split('/')]
+    assert all(k > 0 for k in ipopt)
+    expected = np.polyfit(np.log(grid), np.log(ipopt), 1)[0]
+    assert abs(float(row[10]) - expected) <= 0.006
+    summary = [line for line in out.splitlines() if line.startswith('* ur5, free:')][0]
+    assert f"IPOPT's median {expected:+.2f}" in summary
+
+
+def test_ipopt_needs_random():
+    with pytest.raises(SystemExit):
+        bench_arm_scaling.main(['--ipopt'])
