@@ -142,7 +142,7 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False)
                                                               obstacles, n_int)
                 row['ipopt_note'] = '' if success else ' (failed)'
                 if success and t_f > result.final_time * (1 + 1e-6):
-                    row['ipopt_note'] = f' (t_f +{100 * (t_f / result.final_time - 1):.2f} %)'
+                    row['ipopt_note'] = f' (t_f +{100 * (t_f / result.final_time - 1):.3f} %)'
             rows.append(row)
         for key in found:
             if key in rows[0]:
