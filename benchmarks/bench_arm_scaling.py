@@ -46,13 +46,11 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from benchmarks.bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
-from benchmarks.bench_arm_suite import draw_cases  # noqa: E402
+from benchmarks.bench_arm_suite import draw_cases, fast_start, reference_spec  # noqa: E402
 from toc_ros.core import Problem, solve  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
-from toc_ros.core.arms.arm_eval import ArmEvaluator  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
 from toc_ros.core.arms.coarse_grid import COARSE_FACTOR, COARSE_FROM  # noqa: E402
-from toc_ros.core.arms.cold_runs import start_point  # noqa: E402
 
 # An entry counts as at its bound within this fraction of the bound (the solver stops with
 # barrier slacks of order 1e-9 relative; a loose test would count nearly active entries).
@@ -98,19 +96,11 @@ def bound_arcs(values, bound):
 
 def ipopt_iterations(name, robot, start, goal, obstacles, n_int):
     """Return IPOPT's (iterations, t_f, success) on the same grid from fast mode's start."""
-    from toc_ros.bench.arm_check import example_robot_urdf
-    from toc_ros.bench.arm_problem import ArmProblem, ArmSpec
+    from toc_ros.bench.arm_problem import ArmProblem
     from toc_ros.bench.arm_reference import ArmTranscription
-    arm = robot.arm
-    spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
-                   goal=goal, obstacles=obstacles,
-                   robot_spheres=os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
-                   margin=MARGIN)
-    zeros = np.zeros(arm.n)
-    x0, xg = np.concatenate([start, zeros]), np.concatenate([goal, zeros])
-    evaluator = ArmEvaluator(arm, robot.spheres, obstacles, MARGIN, n_int)
-    guess = start_point(robot, evaluator, x0, xg, n_int)[:3]
-    out = ArmTranscription(ArmProblem(spec), n_int, 'euler', 'ipopt').solve(guess)
+    spec = reference_spec(name, robot.arm, start, goal, obstacles)
+    out = ArmTranscription(ArmProblem(spec), n_int, 'euler', 'ipopt').solve(
+        fast_start(robot, start, goal, obstacles, n_int))
     return out['iterations'], out['t_f'], bool(out['success'])
 
 

@@ -86,6 +86,22 @@ def run_case_fast_only(name, start, goal, obstacles, n_int, model):
                              margin=MARGIN, n_intervals=n_int), SolverOptions(), hessian=model)
 
 
+def reference_spec(name, arm, start, goal, obstacles):
+    """Return the ArmSpec of a case (the CasADi reference and the independent checks)."""
+    return ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
+                   goal=goal, obstacles=obstacles,
+                   robot_spheres=os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
+                   margin=MARGIN)
+
+
+def fast_start(robot, start, goal, obstacles, n_int):
+    """(states, torques, t_f): fast mode's cold start point of a case (rest to rest)."""
+    zeros = np.zeros(robot.arm.n)
+    x0, xg = np.concatenate([start, zeros]), np.concatenate([goal, zeros])
+    evaluator = ArmEvaluator(robot.arm, robot.spheres, obstacles, MARGIN, n_int)
+    return start_point(robot, evaluator, x0, xg, n_int)[:3]
+
+
 def run_case(name, start, goal, obstacles, n_int):
     """One row: fast mode with each curvature model, IPOPT from two starts, checks."""
     arm = load_arm(name)
@@ -94,8 +110,7 @@ def run_case(name, start, goal, obstacles, n_int):
     problem = Problem(x0=start, x_goal=goal, model=robot, obstacles=obstacles, margin=MARGIN,
                       n_intervals=n_int)
     row = {'arm': name, 'goal': np.round(goal, 3).tolist()}
-    spec = ArmSpec(urdf=example_robot_urdf(name), joints=arm.joint_names, start=start,
-                   goal=goal, obstacles=obstacles, robot_spheres=spheres_file, margin=MARGIN)
+    spec = reference_spec(name, arm, start, goal, obstacles)
     for model in MODELS:
         started = time.perf_counter()
         result = solve_arm(problem, SolverOptions(), hessian=model)
@@ -108,10 +123,7 @@ def run_case(name, start, goal, obstacles, n_int):
             row[model]['check'] = max(check['terminal_error'], check['max_position_excess'],
                                       check['max_velocity_excess'], check['max_effort_excess'],
                                       -min(check['min_clearance'], 0.0))
-    n = arm.n
-    x0, xg = np.concatenate([start, np.zeros(n)]), np.concatenate([goal, np.zeros(n)])
-    evaluator = ArmEvaluator(arm, robot.spheres, obstacles, MARGIN, n_int)
-    guesses = {'start': start_point(robot, evaluator, x0, xg, n_int)[:3]}
+    guesses = {'start': fast_start(robot, start, goal, obstacles, n_int)}
     fast = row['auto']['result']
     if np.isfinite(fast.final_time):
         guesses['fast'] = (fast.states, fast.controls, fast.final_time)
