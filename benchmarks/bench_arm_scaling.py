@@ -27,8 +27,10 @@ bench_arm_suite.py draws them (--seed; 'free' or '1 sphere' on the way), each so
 N (the best of --repeats cold solves after a warm-up), and the median and range of their
 per-motion slopes: the benchmark's two motions are two points of that spread.  Each row also
 counts the bound arcs of the solution at every N (bound_arcs: how much switching structure the
-grid resolves), and with --ipopt the iterations of IPOPT (toc_ros/bench/arm_reference.py, the
-same discretisation from fast mode's cold start point) and their slope.
+grid resolves) and the returned run's iterations per barrier parameter (barrier_phases: where
+on the barrier path the iterations go), and with --ipopt the iterations of IPOPT
+(toc_ros/bench/arm_reference.py, the same discretisation from fast mode's cold start point)
+and their slope.
 
     python benchmarks/bench_arm_scaling.py [--arms panda ur5] [--obstacles free '1 sphere']
                                            [--random 10 --seed 21 [--ipopt]]
@@ -94,6 +96,20 @@ def bound_arcs(values, bound):
     return int(np.count_nonzero(starts) + np.count_nonzero(side[0]))
 
 
+def barrier_phases(result):
+    """
+    Return {barrier parameter: iterations} of the result's returned run (arm_solve).
+
+    Keys are the parameters rounded to one digit ('1e-06'), in the order the run met them; the
+    counts add up to result.iterations when the solve made one run (a free motion).
+    """
+    phases = {}
+    for mu in (result.solver_state or {}).get('barrier_parameters', ()):
+        key = f'{mu:.0e}'
+        phases[key] = phases.get(key, 0) + 1
+    return phases
+
+
 def ipopt_iterations(name, robot, start, goal, obstacles, n_int):
     """Return IPOPT's (iterations, t_f, success) on the same grid from fast mode's start."""
     from toc_ros.bench.arm_problem import ArmProblem
@@ -110,7 +126,7 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False)
     robot = ArmRobot(arm, load_spheres(os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
                                        arm))
     cases = draw_cases(name, count, 1.2, obstacle_set != 'free', np.random.default_rng(seed))
-    found = {'time': [], 'it': [], 'ipopt': []}
+    found = {'time': [], 'it': [], 'ipopt': [], 'phases': {n_int: {} for n_int in n_grid}}
     for index, (start, goal, obstacles) in enumerate(cases):
         rows = []
         for n_int in n_grid:
@@ -126,7 +142,11 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False)
             arcs = (bound_arcs(result.controls, arm.effort)
                     + bound_arcs(result.states[:, arm.n:], arm.velocity))
             row = {'N': n_int, 'time': best, 'it': max(result.iterations, 1),
-                   'status': result.status.value, 'arcs': arcs}
+                   'status': result.status.value, 'arcs': arcs,
+                   'phases': barrier_phases(result)}
+            for key, count in row['phases'].items():
+                total = found['phases'][n_int]
+                total[key] = total.get(key, 0) + count
             if ipopt:
                 row['ipopt'], t_f, success = ipopt_iterations(name, robot, start, goal,
                                                               obstacles, n_int)
@@ -134,16 +154,18 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False)
                 if success and t_f > result.final_time * (1 + 1e-6):
                     row['ipopt_note'] = f' (t_f +{100 * (t_f / result.final_time - 1):.3f} %)'
             rows.append(row)
-        for key in found:
+        for key in ('time', 'it', 'ipopt'):
             if key in rows[0]:
                 found[key].append(slope(rows, key))
         unsolved = [r['status'] for r in rows if r['status'] != 'SOLVED']
         iterations = ' / '.join(str(r['it']) for r in rows)
         times = ' / '.join(f"{1e3 * r['time']:.0f}" for r in rows)
         arcs = ' / '.join(str(r['arcs']) for r in rows)
+        phases = ' / '.join(' '.join(f'{key}:{count}' for key, count in r['phases'].items())
+                            for r in rows)
         line = (f"| {name} | {obstacle_set} | {index} | {' / '.join(unsolved) or 'SOLVED'} | "
                 f"{iterations} | {times} | {found['time'][-1]:.2f} | {found['it'][-1]:+.2f} | "
-                f'{arcs} |')
+                f'{arcs} | {phases} |')
         if ipopt:
             line += (' ' + ' / '.join(f"{r['ipopt']}{r['ipopt_note']}" for r in rows)
                      + f" | {found['ipopt'][-1]:+.2f} |")
@@ -178,7 +200,7 @@ def main(argv=None):
             parser.error("--random draws 'free' motions or motions past '1 sphere'")
         header = ('| arm | obstacles | motion | status | iterations at N = '
                   f"{' / '.join(map(str, args.N))} | best time [ms] | slope of time | "
-                  'slope of iterations | bound arcs |')
+                  'slope of iterations | bound arcs | iterations per barrier parameter |')
         if args.ipopt:
             header += ' IPOPT iterations | IPOPT slope of iterations |'
         print(header)
@@ -195,6 +217,11 @@ def main(argv=None):
                         f"slope of iterations median {np.median(found['it']):+.2f}")
                 if args.ipopt:
                     line += f"; IPOPT's median {np.median(found['ipopt']):+.2f}"
+                line += '; iterations per barrier parameter, summed: ' + '; '.join(
+                    f'N = {n_int}: ' + ', '.join(f'{key} {count}' for key, count in
+                                                 sorted(found['phases'][n_int].items(),
+                                                        key=lambda item: -float(item[0])))
+                    for n_int in args.N)
                 summary.append(line)
         print()
         print('\n'.join(summary))

@@ -544,6 +544,28 @@ def test_a_motion_the_cheap_curvature_model_cannot_finish_is_solved_with_exact_c
     assert result.final_time <= best * (1 + 1e-6)
 
 
+def test_starts_that_repeat_an_earlier_run_are_abandoned_without_changing_the_optimum(
+        monkeypatch):
+    # The UR5 benchmark motion past one sphere (bench_arm_fast.py): several of its starts
+    # are, once their first barrier problem is solved, where an earlier start's run was
+    # (cold_runs.REPEAT_PATH); the search abandons them there and ends at the same optimum
+    # as when every start is run to its end, in fewer iterations.
+    from benchmarks.bench_arm_fast import SCENARIOS as BENCH
+    from toc_ros.core.arms import cold_runs
+    start, goal, sets = BENCH['ur5']
+    problem = _problem('ur5', 50, x0=start, x_goal=goal, obstacles=sets['1 sphere'])
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert "repeats an earlier start's run" in result.message
+    monkeypatch.setattr(cold_runs, 'REPEAT_PATH', -1.0)
+    every = solve(problem)
+    assert every.status is Status.SOLVED, every.message
+    assert 'repeats' not in every.message
+    assert result.final_time == pytest.approx(every.final_time, rel=1e-12, abs=0.0)
+    assert result.iterations < every.iterations
+    _independent_check('ur5', result, sets['1 sphere'], start, goal)
+
+
 def test_detours_keep_the_joint_limits_and_clear_the_sphere():
     # A goal 0.05 rad inside joint 4's lower limit with a sphere where the hand passes halfway:
     # bending the line towards that limit is not allowed, the detours bend the other joints.

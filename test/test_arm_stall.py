@@ -18,13 +18,14 @@ import os
 import sys
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from toc_ros.core.arms import cold_runs  # noqa: E402
 from toc_ros.core.arms.cold_runs import (ABANDON_GAP, DUPLICATE_PATH,  # noqa: E402
-                                         SETTLED_PRIMAL, STALL_ALPHA, STALL_MU, STALL_STEPS,
-                                         STALL_WINDOW)
+                                         REPEAT_PATH, REPEAT_TIME, SETTLED_PRIMAL,
+                                         STALL_ALPHA, STALL_MU, STALL_STEPS, STALL_WINDOW)
 
 
 class FakeRun:
@@ -132,3 +133,39 @@ def test_a_start_that_may_still_do_better_is_kept():
     assert _abandon(1.0 + 2.0 * ABANDON_GAP, shift=0.0, mu=1e-4) == (False, False)
     assert _abandon(1.0 + 2.0 * ABANDON_GAP, shift=0.0, primal=10 * SETTLED_PRIMAL) == \
         (False, False)
+
+
+def _first_barrier_problem(ends, t=1.0, shift=0.0):
+    """Run the watch as run() calls it: mu 1e-4 twice, then 1e-6; return (calls, watch)."""
+    x = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5, 0.0, 0.0])
+    run = FakeRun(1e-4)
+    run.n, run.t, run.primal = 2, t, 1.0
+    run.x = x.copy()
+    run.x[5, 1] += shift
+    watch = cold_runs._abandon_above(run, None, lambda: False, ends)
+    calls = []
+    for mu in (1e-4, 1e-4, 1e-6, 1e-6):
+        run.mu = mu
+        calls.append(watch())
+    return calls, watch
+
+
+def test_a_start_that_repeats_an_ended_run_is_abandoned_after_its_first_barrier_problem():
+    path = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5])
+    ends = [(2.0, path + 1.0), (1.0 + 0.5 * REPEAT_TIME, path)]
+    calls, watch = _first_barrier_problem(ends, shift=0.5 * REPEAT_PATH)
+    # Not while its first barrier problem is solved; at the first call after mu fell.
+    assert calls == [False, False, True, True]
+    assert watch.fired and watch.repeat and not watch.duplicate
+    assert watch.first[0] == 1.0 and watch.first[1].shape == (11, 2)
+
+
+def test_a_start_off_every_ended_run_is_kept_and_its_first_point_recorded():
+    path = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5])
+    for ends, t, shift in ((((1.0, path),), 1.0, 2.0 * REPEAT_PATH),
+                           (((1.0, path),), 1.0 + 2.0 * REPEAT_TIME, 0.0),
+                           ((), 1.0, 0.0)):
+        calls, watch = _first_barrier_problem(ends, t=t, shift=shift)
+        assert calls == [False] * 4 and not watch.repeat
+        assert watch.first[0] == t
+        assert np.abs(watch.first[1] - path).max() == pytest.approx(shift)

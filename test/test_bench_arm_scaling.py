@@ -29,6 +29,7 @@ from benchmarks import bench_arm_scaling  # noqa: E402, I100
 from benchmarks.bench_arm_suite import draw_cases, MARGIN  # noqa: E402
 from toc_ros.core import Problem, solve  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
+from toc_ros.core.arms.arm_ipm import MU_INIT  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
 
 
@@ -45,6 +46,7 @@ def test_random_rows_report_each_drawn_motion_and_its_slope(capsys):
     robot = ArmRobot(arm, load_spheres(os.path.join(bench_arm_scaling.HERE, 'data',
                                                     'arm_spheres_ur5.yaml'), arm))
     slopes = []
+    totals = {n: {} for n in grid}
     for row, (start, goal, obstacles) in zip(rows, cases):
         assert row[3].strip() == 'SOLVED'
         # The iterations printed are those of solving the drawn motion itself.
@@ -68,11 +70,26 @@ def test_random_rows_report_each_drawn_motion_and_its_slope(capsys):
                     count += sum(1 for side, _ in itertools.groupby(sides) if side)
             arcs.append(count)
         assert [int(k) for k in row[8].split('/')] == arcs
+        # A free motion is one run: its iterations per barrier parameter add up to the
+        # solve's, the parameter falling from the first one (arm_ipm.MU_INIT) on.
+        for cell, n, n_iterations in zip(row[9].split('/'), grid, expected):
+            pairs = [item.split(':') for item in cell.split()]
+            assert sum(int(count) for _, count in pairs) == n_iterations
+            levels = [float(key) for key, _ in pairs]
+            assert levels[0] == pytest.approx(MU_INIT) and levels == sorted(levels)[::-1]
+            for key, count in pairs:
+                totals[n][float(key)] = totals[n].get(float(key), 0) + int(count)
     summary = [line for line in out.splitlines() if line.startswith('* ur5, free:')]
     assert len(summary) == 1
     median = float(summary[0].split('median ')[1].split()[0])
     assert abs(median - np.median(slopes)) <= 0.006        # (the rows' slopes are rounded)
     assert f'{sum(s <= 1.1 for s in slopes)} of 2 <= 1.1' in summary[0]
+    # ... and the iterations per barrier parameter summed over both motions, per N.
+    summed = summary[0].split('summed: ')[1].split('; ')
+    for part, n in zip(summed, grid):
+        head, cells = part.split(': ')
+        assert head == f'N = {n}'
+        assert {float(c.split()[0]): int(c.split()[1]) for c in cells.split(', ')} == totals[n]
 
 
 def test_bound_arcs_counts_runs_at_either_bound():
@@ -92,11 +109,11 @@ def test_random_with_ipopt_reports_its_iterations_and_their_slope(capsys):
     out = capsys.readouterr().out
     row = [line.split('|')[1:-1] for line in out.splitlines()
            if line.startswith('| ur5 | free |')][0]
-    assert len(row) == 11
-    ipopt = [int(cell.split()[0]) for cell in row[9].split('/')]
+    assert len(row) == 12
+    ipopt = [int(cell.split()[0]) for cell in row[10].split('/')]
     assert all(k > 0 for k in ipopt)
     expected = np.polyfit(np.log(grid), np.log(ipopt), 1)[0]
-    assert abs(float(row[10]) - expected) <= 0.006
+    assert abs(float(row[11]) - expected) <= 0.006
     summary = [line for line in out.splitlines() if line.startswith('* ur5, free:')][0]
     assert f"IPOPT's median {expected:+.2f}" in summary
 

@@ -387,6 +387,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
                          solver_state={'start': getattr(run, 'start_name',
                                                         runs[-1].split(':')[0]),
                                        'ipm_status': run.status, 'arm_duals': run.duals,
+                                       # (the returned run's, one per iteration)
+                                       'barrier_parameters': run.history[:, 3].copy(),
                                        'pin_calls': evaluator.pin_calls,
                                        'pin_time_s': evaluator.pin_time,
                                        'linalg_time_s': linalg_time})

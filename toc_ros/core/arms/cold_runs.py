@@ -78,6 +78,14 @@ ABANDON_GAP = 2e-3
 # more than 1 rad).  It cannot end more than 0.1 % below the best; on 60 random motions past
 # a sphere every final time stayed the same to 6 digits.
 DUPLICATE_PATH = 0.2
+# ... and so is a start whose run, once its first barrier problem is solved (the first iteration
+# after the barrier parameter falls), lies within REPEAT_PATH [rad] of an earlier start's run at
+# that point at every node, its t_f within REPEAT_TIME (relative): from there it follows the same
+# barrier path to the same end, and the earlier run has ended (converged, or abandoned itself).
+# Searches around a sphere often reach one optimum from several starts (benchmarks/RESULTS.md,
+# "Arms: starts that repeat an earlier run").
+REPEAT_PATH = 1e-2
+REPEAT_TIME = 1e-3
 # Every start but the last gets at most START_BUDGET iterations; the last one the rest of the
 # budget only when no start converged (a UR5 case spent 1727 iterations there, 11 s, after a
 # start had converged in 86).
@@ -223,6 +231,7 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
         runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
                     f'{used} iterations')
     best = run = None
+    ends = []           # (t_f, joint path) of the ended runs after their first barrier problem
     for start_name, make, last in start_points(robot, evaluator, x0, xg, n_int, line, free):
         if run is not None and iterations >= budget:
             break
@@ -231,18 +240,23 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
         allowed = budget - iterations
         if not last or best is not None:
             allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
-        abandon = _abandon_above(ipm, best, should_stop)
+        abandon = _abandon_above(ipm, best, should_stop, ends)
         run = run_ipm(ipm, allowed, abandon, hessian)
         run.start_name = start_name
         iterations += run.iterations
         linalg_time += ipm.linalg_time
         if abandon.fired:
-            why = ("on the best start's way around" if abandon.duplicate
-                   else 'above the best start')
+            why = ("repeats an earlier start's run after the first barrier problem"
+                   if abandon.repeat else "settled on the best start's way around"
+                   if abandon.duplicate else 'settled above the best start')
             runs.append(f'{start_name}: abandoned after {run.iterations} iterations at t_f = '
-                        f'{run.t:.6f} s (settled {why})')
+                        f'{run.t:.6f} s ({why})')
+            if abandon.first is not None and not abandon.repeat:
+                ends.append(abandon.first)
             continue
         runs.append(f'{start_name}: {run_summary(run)}')
+        if run.status in ('converged', 'acceptable') and abandon.first is not None:
+            ends.append(abandon.first)
         if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
             best = run
         free_reached = (best is not None and free is not None
@@ -265,15 +279,24 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
     return run, iterations, linalg_time
 
 
-def _abandon_above(ipm, best, should_stop):
+def _abandon_above(ipm, best, should_stop, ends=()):
     """
     should_stop for ipm's run that also fires (.fired) once it settles above best.
 
-    .duplicate: it fired because the run settled on best's way around (above).
+    .duplicate: it fired because the run settled on best's way around (above); .repeat: because
+    after its first barrier problem it was where a run of ends was (above); .first: (t_f, joint
+    path) there, None before.
     """
     def stop():
-        if should_stop():
+        if should_stop() or stop.repeat:
             return True
+        if stop.mu_start is None:
+            stop.mu_start = ipm.mu
+        elif stop.first is None and ipm.mu < stop.mu_start:
+            stop.first = (ipm.t, ipm.x[:, :ipm.n].copy())
+            stop.fired = stop.repeat = any(_repeats(stop.first, end) for end in ends)
+            if stop.fired:
+                return True
         settled = (best is not None and ipm.mu <= SETTLED_MU
                    and ipm.primal <= SETTLED_PRIMAL)
         stop.fired = settled and ipm.t > best.t * (1.0 + ABANDON_GAP)
@@ -282,8 +305,16 @@ def _abandon_above(ipm, best, should_stop):
             stop.fired = stop.duplicate = bool(
                 np.abs(ipm.x[:, :n] - best.x[:, :n]).max() <= DUPLICATE_PATH)
         return stop.fired
-    stop.fired = stop.duplicate = False
+    stop.fired = stop.duplicate = stop.repeat = False
+    stop.mu_start = stop.first = None
     return stop
+
+
+def _repeats(first, end):
+    """Return True when first (t_f, joint path) lies within REPEAT_TIME/REPEAT_PATH of end."""
+    (t_f, path), (t_end, path_end) = first, end
+    return bool(abs(t_f - t_end) <= REPEAT_TIME * t_end
+                and np.abs(path - path_end).max() <= REPEAT_PATH)
 
 
 def run_summary(run):
