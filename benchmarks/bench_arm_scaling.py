@@ -37,6 +37,7 @@ and their slope.
 """
 
 import argparse
+from collections import Counter
 import os
 import statistics
 import sys
@@ -98,16 +99,13 @@ def bound_arcs(values, bound):
 
 def barrier_phases(result):
     """
-    Return {barrier parameter: iterations} of the result's returned run (arm_solve).
+    Return a Counter {barrier parameter: iterations} of the result's returned run (arm_solve).
 
     Keys are the parameters rounded to one digit ('1e-06'), in the order the run met them; the
     counts add up to result.iterations when the solve made one run (a free motion).
     """
-    phases = {}
-    for mu in (result.solver_state or {}).get('barrier_parameters', ()):
-        key = f'{mu:.0e}'
-        phases[key] = phases.get(key, 0) + 1
-    return phases
+    return Counter(f'{mu:.0e}'
+                   for mu in (result.solver_state or {}).get('barrier_parameters', ()))
 
 
 def ipopt_iterations(name, robot, start, goal, obstacles, n_int):
@@ -126,7 +124,7 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False)
     robot = ArmRobot(arm, load_spheres(os.path.join(HERE, 'data', f'arm_spheres_{name}.yaml'),
                                        arm))
     cases = draw_cases(name, count, 1.2, obstacle_set != 'free', np.random.default_rng(seed))
-    found = {'time': [], 'it': [], 'ipopt': [], 'phases': {n_int: {} for n_int in n_grid}}
+    found = {'time': [], 'it': [], 'ipopt': [], 'phases': {n_int: Counter() for n_int in n_grid}}
     for index, (start, goal, obstacles) in enumerate(cases):
         rows = []
         for n_int in n_grid:
@@ -144,9 +142,7 @@ def random_slopes(name, obstacle_set, count, seed, n_grid, repeats, ipopt=False)
             row = {'N': n_int, 'time': best, 'it': max(result.iterations, 1),
                    'status': result.status.value, 'arcs': arcs,
                    'phases': barrier_phases(result)}
-            for key, count in row['phases'].items():
-                total = found['phases'][n_int]
-                total[key] = total.get(key, 0) + count
+            found['phases'][n_int].update(row['phases'])
             if ipopt:
                 row['ipopt'], t_f, success = ipopt_iterations(name, robot, start, goal,
                                                               obstacles, n_int)

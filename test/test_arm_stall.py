@@ -103,9 +103,14 @@ class FakeBest:
         self.t, self.x = t, x
 
 
+# A run's states for the abandon watch: 11 nodes of n = 2 joints (positions, then velocities).
+STATES = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5, 0.0, 0.0])
+PATH = STATES[:, :2]
+
+
 def _abandon(t, shift, mu=1e-4 ** 1.5, primal=0.1 * SETTLED_PRIMAL, t_best=1.0):
     """Return (fired, duplicate) for a run at t whose path is the best's shifted by shift."""
-    x = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5, 0.0, 0.0])
+    x = STATES
     run = FakeRun(mu)
     run.n, run.t, run.primal = 2, t, primal
     run.x = x.copy()
@@ -137,10 +142,9 @@ def test_a_start_that_may_still_do_better_is_kept():
 
 def _first_barrier_problem(ends, t=1.0, shift=0.0):
     """Run the watch as run() calls it: mu 1e-4 twice, then 1e-6; return (calls, watch)."""
-    x = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5, 0.0, 0.0])
     run = FakeRun(1e-4)
     run.n, run.t, run.primal = 2, t, 1.0
-    run.x = x.copy()
+    run.x = STATES.copy()
     run.x[5, 1] += shift
     watch = cold_runs._abandon_above(run, None, lambda: False, ends)
     calls = []
@@ -151,8 +155,7 @@ def _first_barrier_problem(ends, t=1.0, shift=0.0):
 
 
 def test_a_start_that_repeats_an_ended_run_is_abandoned_after_its_first_barrier_problem():
-    path = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5])
-    ends = [(2.0, path + 1.0), (1.0 + 0.5 * REPEAT_TIME, path)]
+    ends = [(2.0, PATH + 1.0), (1.0 + 0.5 * REPEAT_TIME, PATH)]
     calls, watch = _first_barrier_problem(ends, shift=0.5 * REPEAT_PATH)
     # Not while its first barrier problem is solved; at the first call after mu fell.
     assert calls == [False, False, True, True]
@@ -161,11 +164,10 @@ def test_a_start_that_repeats_an_ended_run_is_abandoned_after_its_first_barrier_
 
 
 def test_a_start_off_every_ended_run_is_kept_and_its_first_point_recorded():
-    path = np.linspace(0.0, 1.0, 11)[:, None] * np.array([1.0, -0.5])
-    for ends, t, shift in ((((1.0, path),), 1.0, 2.0 * REPEAT_PATH),
-                           (((1.0, path),), 1.0 + 2.0 * REPEAT_TIME, 0.0),
+    for ends, t, shift in ((((1.0, PATH),), 1.0, 2.0 * REPEAT_PATH),
+                           (((1.0, PATH),), 1.0 + 2.0 * REPEAT_TIME, 0.0),
                            ((), 1.0, 0.0)):
         calls, watch = _first_barrier_problem(ends, t=t, shift=shift)
         assert calls == [False] * 4 and not watch.repeat
         assert watch.first[0] == t
-        assert np.abs(watch.first[1] - path).max() == pytest.approx(shift)
+        assert np.abs(watch.first[1] - PATH).max() == pytest.approx(shift)
