@@ -71,7 +71,7 @@ def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(p
     assert cold.status is Status.SOLVED and warm.status is Status.SOLVED, warm.message
     assert 'warm start with multipliers' in warm.message
     # The remainder is nearly optimal: fewer Newton steps than from the cold start (on the
-    # plan none; 1e-3 off it 4-6 against 11-12, by the plan's last digits).
+    # plan none; 1e-3 off it 2 against 11-12: WARM_NEAR).
     assert warm.iterations <= 2 * cold.iterations // 3, (warm.iterations, cold.iterations)
     if drift == 0.0:
         # On the plan itself it is the solution (its multipliers scaled to the remainder's
@@ -84,6 +84,51 @@ def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(p
         # convergence tolerance (1e-8) leaves of it.
         assert warm.final_time == pytest.approx(cold.final_time, rel=1e-9)
     _check(replan, warm)
+
+
+def _drifted_replan(panda_plan, drift):
+    problem, plan = panda_plan
+    rest = plan.remainder(0.3 * plan.final_time)
+    state = rest.states[0].copy()
+    state[:7] += drift
+    state[7:] *= 1.0 - drift
+    return _from(problem, state, rest.controls.shape[0]), rest
+
+
+def test_a_start_near_the_plan_begins_at_the_last_barrier_parameter(panda_plan, monkeypatch):
+    # 1e-3 off the plan is within WARM_NEAR: the run starts at mu = 1e-9, where it
+    # converges in fewer Newton steps than from mu = 1e-7 (the same optimum).
+    from toc_ros.core.arms import arm_solve
+    replan, rest = _drifted_replan(panda_plan, 1e-3)
+    near = solve(replan, initial_guess=rest)
+    monkeypatch.setattr(arm_solve, 'WARM_NEAR', 0.0)
+    drifted = solve(replan, initial_guess=rest)
+    assert near.status is Status.SOLVED and drifted.status is Status.SOLVED
+    assert near.message.startswith('warm start with multipliers at mu = 1e-09: converged'), \
+        near.message
+    assert 'mu = 1e-07' not in near.message
+    assert drifted.message.startswith('warm start with multipliers: converged')
+    assert near.iterations < drifted.iterations, (near.iterations, drifted.iterations)
+    assert near.final_time == pytest.approx(drifted.final_time, rel=1e-9)
+    _check(replan, near)
+
+
+def test_a_near_start_that_fails_at_the_last_barrier_parameter_tries_the_drift_one(
+        panda_plan, monkeypatch):
+    # One iteration at mu = 1e-9 is too few to converge (it takes two): the second try
+    # starts from the same guess at mu = 1e-7, not from the cold start.
+    from toc_ros.core.arms import arm_solve
+    monkeypatch.setattr(arm_solve, 'WARM_NEAR_BUDGET', 1)
+    replan, rest = _drifted_replan(panda_plan, 1e-3)
+    result = solve(replan, initial_guess=rest)
+    assert result.status is Status.SOLVED, result.message
+    first, second = result.message.split('; ')[:2]
+    assert first.startswith('warm start with multipliers at mu = 1e-09: max_iterations after '
+                            '1 iteration'), result.message
+    assert second.startswith('warm start with multipliers at mu = 1e-07: converged'), \
+        result.message
+    assert 'without the obstacles' not in result.message     # (no cold search ran)
+    _check(replan, result)
 
 
 def test_remainder_slices_the_arm_multipliers_with_the_plan(panda_plan):

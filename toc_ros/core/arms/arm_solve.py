@@ -77,6 +77,14 @@ WARM_BUDGET = 60
 WARM_EXACT = 1e-6
 MU_WARM_EXACT = 1e-9
 MU_WARM_DRIFT = 1e-7
+# A guess with multipliers within WARM_NEAR of the start is tried at MU_WARM_EXACT first, for
+# at most WARM_NEAR_BUDGET iterations, then at MU_WARM_DRIFT: on 1,046 replans of the
+# benchmark and random Panda/UR5 motions (N = 50-200, drifts 1e-4 to 5e-3 rad with velocity
+# errors up to 3x that) MU_WARM_EXACT alone took 3 iterations in the median against 6, and
+# fell back to the cold start on 9 where MU_WARM_DRIFT did on 6 (benchmarks/RESULTS.md, "Warm
+# starts near the plan").
+WARM_NEAR = 1e-2
+WARM_NEAR_BUDGET = 30
 WARM_PUSH = 1e-6
 # ... but a guess at the solution itself (within WARM_EXACT, with multipliers) only as far as
 # strictly inside: its bounds' slacks are ~ mu / z, and a push of WARM_PUSH on a joint at its
@@ -248,6 +256,45 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator=
         self_clearance=self_clear, self_constrained=robot.self_collision)
 
 
+def _warm_runs(evaluator, x0, xg, warm, budget, should_stop, hessian, runs):
+    """
+    Run the interior point from a warm start; return (run, iterations, linalg time).
+
+    A guess on this grid with its multipliers continues near the end of the barrier path (at
+    the last barrier parameter when the start is within WARM_NEAR of it, else a little before
+    it, and there again when the first try fails); any other guess restarts the path with the
+    cold start's parameter but keeps its active bounds nearly active.  runs: the summaries.
+    """
+    states, torques, t_f, duals, drift = warm
+    if duals is None:
+        tries = ((MU_INIT, WARM_BUDGET),)
+    elif drift <= WARM_EXACT:
+        tries = ((MU_WARM_EXACT, WARM_BUDGET),)
+    elif drift <= WARM_NEAR:
+        tries = ((MU_WARM_EXACT, WARM_NEAR_BUDGET), (MU_WARM_DRIFT, WARM_BUDGET))
+    else:
+        tries = ((MU_WARM_DRIFT, WARM_BUDGET),)
+    exact = duals is not None and drift <= WARM_EXACT
+    run, iterations, linalg_time = None, 0, 0.0
+    for mu, limit in tries:
+        if run is not None and (run.status in ('converged', 'acceptable', 'stopped')
+                                or iterations >= budget):
+            break
+        ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=mu)
+        if duals is not None:
+            ipm.accept_iterations = WARM_ACCEPT_ITERATIONS
+            ipm.accept_at_start = exact
+        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH_EXACT if exact else WARM_PUSH,
+                  prox=PROX_GUARDED if duals is None else None)
+        run = run_ipm(ipm, min(budget - iterations, limit), should_stop, hessian,
+                      CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        runs.append(f'warm start{" with multipliers" if duals else ""}'
+                    f'{f" at mu = {mu:g}" if len(tries) > 1 else ""}: {run_summary(run)}')
+    return run, iterations, linalg_time
+
+
 def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
               hessian='auto'):
     """Solve an arm Problem (fast or paper mode); never raises for bad input (INVALID_INPUT)."""
@@ -286,24 +333,8 @@ def solve_arm(problem, options, progress=None, cancel=None, initial_guess=None,
     runs = [unusable] if unusable else []
     run = None
     if warm is not None:
-        # A guess on this grid with its multipliers continues near the end of the barrier
-        # path; any other guess restarts it with the cold start's parameter but keeps its
-        # active bounds nearly active.
-        states, torques, t_f, duals, drift = warm
-        mu = MU_INIT if duals is None else (MU_WARM_EXACT if drift <= WARM_EXACT
-                                            else MU_WARM_DRIFT)
-        ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=mu)
-        exact = duals is not None and drift <= WARM_EXACT
-        if duals is not None:
-            ipm.accept_iterations = WARM_ACCEPT_ITERATIONS
-            ipm.accept_at_start = exact
-        ipm.start(states, torques, t_f, duals=duals, push=WARM_PUSH_EXACT if exact else WARM_PUSH,
-                  prox=PROX_GUARDED if duals is None else None)
-        run = run_ipm(ipm, min(budget, WARM_BUDGET), should_stop, hessian,
-                      CHEAP_ITERATIONS if duals is None else WARM_CHEAP)
-        iterations += run.iterations
-        linalg_time += ipm.linalg_time
-        runs.append(f'warm start{" with multipliers" if duals else ""}: {run_summary(run)}')
+        run, iterations, linalg_time = _warm_runs(evaluator, x0, xg, warm, budget, should_stop,
+                                                  hessian, runs)
     if run is None or (run.status not in ('converged', 'acceptable', 'stopped')
                        and iterations < budget):
         # A poor guess is solved from scratch rather than reported as a failure.
