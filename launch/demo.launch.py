@@ -19,7 +19,7 @@ Closed-loop demo: solver_node, plant_node and (optionally) recorder_node.
         [params_file:=my.yaml] [use_sim_time:=true]
 
 Send a goal with e.g.
-    ros2 topic pub --once --keep-alive 1 goal_joints sensor_msgs/msg/JointState \
+    ros2 topic pub --once -w 2 --keep-alive 1 goal_joints sensor_msgs/msg/JointState \
         "{name: [rotation_joint, extension_joint], position: [1.309, 1.0]}"
 """
 

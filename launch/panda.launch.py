@@ -22,7 +22,7 @@ robot_description is example-robot-data's Panda URDF (both nodes get it as a par
 execute:=action sends every plan through the plant's FollowJointTrajectory server, as to a
 ros2_control JointTrajectoryController (needs control_msgs); the solver's trajectory topic is
 then remapped to planned_trajectory so that the plant hears each plan once.  Send a goal with
-    ros2 topic pub --once --keep-alive 1 goal_joints sensor_msgs/msg/JointState "{name: [
+    ros2 topic pub --once -w 2 --keep-alive 1 goal_joints sensor_msgs/msg/JointState "{name: [
         panda_joint1, panda_joint2, panda_joint3, panda_joint4, panda_joint5, panda_joint6,
         panda_joint7],
         position: [0.8, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785]}"
