@@ -33,6 +33,7 @@ import pinocchio as pin
 from toc_ros import conversions
 from toc_ros.core import SolverOptions
 from toc_ros.core.arms import ArmError, default_spheres, load_arm, load_spheres
+from toc_ros.core.arms.arm_eval import ArmEvaluator
 from toc_ros.core.arms.arm_solve import ArmRobot
 from toc_ros.core.arms.model import tip_link
 from toc_ros.core.arms.payload import with_payload
@@ -165,16 +166,22 @@ class ArmPlanModel(PendingArm):
         return ArmRobot(own, self.robot.spheres, self.robot.self_collision)
 
     def warm_up(self):
-        """Compile (or load from the cache) the arm solver's kernels with a tiny solve."""
+        """Compile (or load from the cache) the arm solver's kernels: tiny solves, sphere rows."""
         from toc_ros.core import solve
         arm = self.arm
         middle = np.where(arm.continuous, 0.0, 0.5 * (arm.lower + arm.upper))
         goal = np.clip(middle + 0.05, arm.lower, arm.upper)
-        # An obstacle far away: the sphere kernels compile too, without constraining.
-        obstacles = ((100.0, 0.0, 0.0, 0.1),) if self.robot.spheres is not None else ()
-        solve(Problem(model=self.robot, x0=tuple(self.state(middle)),
-                      x_goal=tuple(self.state(goal)), obstacles=obstacles, n_intervals=10),
-              SolverOptions(mode='fast', max_iterations=3))
+        for integrator in ('euler', 'rk4'):
+            solve(Problem(model=self.robot, x0=tuple(self.state(middle)),
+                          x_goal=tuple(self.state(goal)), n_intervals=10, integrator=integrator),
+                  SolverOptions(mode='fast', max_iterations=3))
+        spheres = self.robot.spheres
+        if spheres is not None:
+            # The sphere rows' kernel runs only for obstacles within the arm's reach, which a
+            # solve refuses when they touch its start: called here on an obstacle at the tip.
+            tip = arm.frame_position(middle, spheres.links[-1])
+            evaluator = ArmEvaluator(arm, spheres, ((*tip, 0.05),), 0.0, 2)
+            evaluator.clearance_terms(middle[None, :], np.ones((1, evaluator.n_pairs)))
 
     def accelerations(self, states, controls):
         """Return ddq = ABA(q, dq, u) at every node (the last node repeats the last u)."""
