@@ -76,12 +76,13 @@ def old_reports():
                                   latency_s=0.020)]
 
 
-def write_run(path, oracle, reports=None, sets=None):
+def write_run(path, oracle, reports=None, sets=None, plans='/trajectory'):
     """
     Write the synthetic run; return (times, q, dq, effort) of its joint_states.
 
     reports: the progress reports, one every 0.3 s from 0.18 s (default: old_reports());
-    sets: the two obstacle sets [(time, rows)] (default: obstacle_sets(oracle)).
+    sets: the two obstacle sets [(time, rows)] (default: obstacle_sets(oracle)); plans: the
+    topic of the plan.
     """
     times, q, dq, effort = motion(oracle)
     events = []
@@ -98,7 +99,7 @@ def write_run(path, oracle, reports=None, sets=None):
     plan.header.stamp = stamp(0.2)
     plan.points = [JointTrajectoryPoint(positions=list(p), time_from_start=Duration(
         sec=0, nanosec=int(k * 5e8))) for k, p in enumerate((READY, 0.5 * (READY + GOAL), GOAL))]
-    events.append((0.19, '/trajectory', plan))
+    events.append((0.19, plans, plan))
     for k, report in enumerate(old_reports() if reports is None else reports):
         events.append((0.18 + 0.3 * k, '/solver_node/progress',
                        schema.progress_msg('solver_node', report)))
@@ -110,7 +111,7 @@ def write_run(path, oracle, reports=None, sets=None):
         events.append((t, '/joint_states', msg))
     types = {'/obstacles': 'std_msgs/msg/Float64MultiArray',
              '/obstacle_markers': 'visualization_msgs/msg/MarkerArray',
-             '/trajectory': 'trajectory_msgs/msg/JointTrajectory',
+             plans: 'trajectory_msgs/msg/JointTrajectory',
              '/solver_node/progress': 'diagnostic_msgs/msg/DiagnosticStatus',
              '/joint_states': 'sensor_msgs/msg/JointState'}
     writer = BagWriter(path, flush_period=None).create()
@@ -163,6 +164,20 @@ def test_arm_recording_is_analysed_against_its_spheres_and_limits(tmp_path, caps
     assert len(assumed) == 1 and 'assumed the shipped panda collision spheres' in assumed[0]
     assert "the URDF's joint limits" in assumed[0] and 'default tip link' in assumed[0]
     assert summary['model']['tip_link'] == 'panda_hand'
+
+
+def test_plans_executed_through_the_action_are_read_from_planned_trajectory(tmp_path, capsys):
+    # panda.launch.py execute:=action remaps solver_node's trajectory to planned_trajectory.
+    oracle = ArmOracle(find_panda_urdf().read_text())
+    summaries = []
+    for topic in ('/trajectory', '/planned_trajectory'):
+        bag = tmp_path / topic.strip('/')
+        write_run(bag, oracle, plans=topic)
+        out = tmp_path / (topic.strip('/') + '_report')
+        assert main([str(bag), '--out', str(out)]) == 0, capsys.readouterr().err
+        summaries.append(json.loads((out / 'summary.json').read_text()))
+    assert summaries[1]['plans'] == summaries[0]['plans'] == 1
+    assert summaries[1]['final_error'] == summaries[0]['final_error']
 
 
 def test_an_arm_that_cannot_be_rebuilt_is_refused_with_the_reason(tmp_path, capsys):

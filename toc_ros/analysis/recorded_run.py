@@ -49,6 +49,9 @@ ROLES = {
     'obstacle_markers': ('obstacle_markers', 'visualization_msgs/msg/MarkerArray'),
     'robot_description': ('robot_description', 'std_msgs/msg/String'),
 }
+# Names a role's topic has when no topic has its own: panda.launch.py execute:=action remaps
+# solver_node's trajectory to planned_trajectory (the plant hears the plans as action goals).
+FALLBACK_TOKENS = {'trajectory': ('planned_trajectory',)}
 # What is lost without a role (for the 'missing' list).
 NEEDED_FOR = {
     'trajectory': 'plans, planned curves, violations',
@@ -79,12 +82,15 @@ def find_topics(topics: Dict[str, object], warn=None) -> Dict[str, Optional[str]
     """Topic of each role: last name token and type match; the shortest name wins."""
     found = {}
     for role, (token, type_name) in ROLES.items():
-        names = sorted((n for n, info in topics.items()
-                        if n.rstrip('/').split('/')[-1] == token
-                        and info.type_name == type_name), key=lambda n: (n.count('/'), n))
+        for name in (token,) + FALLBACK_TOKENS.get(role, ()):
+            names = sorted((n for n, info in topics.items()
+                            if n.rstrip('/').split('/')[-1] == name
+                            and info.type_name == type_name), key=lambda n: (n.count('/'), n))
+            if names:
+                break
         found[role] = names[0] if names else None
         if len(names) > 1 and warn is not None:
-            warn(f'several {token} topics ({", ".join(names)}); analysing {names[0]}')
+            warn(f'several {name} topics ({", ".join(names)}); analysing {names[0]}')
     return found
 
 
