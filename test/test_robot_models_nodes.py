@@ -311,7 +311,9 @@ def test_plant_refuses_knobs_and_gain_sizes_that_do_not_fit_the_model():
                                                        inertia_scale=1.2))
     assert errors and 'no meaning for robot model' in errors[0], errors
     errors = plant_node.parameter_errors(_plant_params(kp=[1.0, 2.0, 3.0]))
-    assert errors == ['kp must have 2 entries, got 3']
+    assert len(errors) == 1 and errors[0].startswith('kp must have 2 entries, got 3 (one per '
+                                                     'joint of planar_2r;'), errors
+    assert 'config/panda.yaml' in errors[0]
 
 
 def test_plant_step_is_the_models_rk4():
