@@ -226,9 +226,14 @@ def test_new_trajectory_preempts_and_empty_one_stops(plant):
                           'stopped')
     stopped = latest_state(plant, since)
     time.sleep(1.0)
-    held = latest_state(plant, time.monotonic() - 0.05)
+
+    def at_rest():
+        x = latest_state(plant, time.monotonic() - 0.05)
+        return [x] if np.all(np.abs(x[[1, 3]]) < 1e-2) else None
+    # At rest within a few seconds more (on a loaded machine the simulation can lag the wall
+    # clock: in one CI run 0.0107 rad/s were left 1 s after the stop), where it stopped.
+    held = plant.client.wait_for(at_rest, 5.0, 'rest after the stop')[0]
     assert np.all(np.abs(held[[0, 2]] - stopped[[0, 2]]) < 0.05)    # braked, not moving on
-    assert np.all(np.abs(held[[1, 3]]) < 1e-2)
 
 
 def test_reset_and_bad_trajectories(plant):
