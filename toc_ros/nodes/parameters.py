@@ -246,14 +246,18 @@ def result(errors):
     return SetParametersResult(successful=True)
 
 
-def vector_errors(name, value, size, minimum=None):
-    """Errors of an array parameter that must hold size finite numbers (>= minimum)."""
+def vector_errors(name, value, size, minimum=None, size_hint=''):
+    """
+    Errors of an array parameter that must hold size finite numbers (>= minimum).
+
+    size_hint: appended to the error of a wrong number of entries (what the size is for).
+    """
     try:
         numbers = [float(v) for v in value]
     except (TypeError, ValueError):
         return [f'{name} must be {size} numbers, got {value!r}']
     if len(numbers) != size:
-        return [f'{name} must have {size} entries, got {len(numbers)}']
+        return [f'{name} must have {size} entries, got {len(numbers)}{size_hint}']
     if not all(math.isfinite(v) for v in numbers):
         return [f'{name} must be finite, got {numbers}']
     if minimum is not None and min(numbers) < minimum:

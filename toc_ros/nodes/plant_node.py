@@ -180,11 +180,11 @@ def parameter_errors(params):
     n = model.n_joints
     errors = parameters.joint_name_errors(params['joint_names'], n, model.name)
     errors += parameters.vector_errors('initial_state', params['initial_state'], model.nx)
+    # The default gains are two (the planar models'): an arm needs its own, one per joint.
+    hint = (f' (one per joint of {model.name}; for an arm see config/panda.yaml and '
+            "docs/own_arm.md's kp, kd)")
     for name in ('kp', 'kd'):
-        # The defaults are two gains (the planar models'): an arm needs its own, one per joint.
-        errors += [f'{e} (one per joint of {model.name}; for an arm see config/panda.yaml '
-                   "and docs/own_arm.md's kp, kd)" if 'entries' in e else e
-                   for e in parameters.vector_errors(name, params[name], n, minimum=0.0)]
+        errors += parameters.vector_errors(name, params[name], n, minimum=0.0, size_hint=hint)
     errors += actuator_errors(params)
     errors += [e + f' (plant: {MISMATCH.get(model.name, "")})' for e in model.check()]
     if not float(params['integration_rate']) >= float(params['rate']):
