@@ -113,13 +113,17 @@ class ArmOracle:
         assert np.all(np.abs(dq[first:]) <= self.velocity + 1e-9)
         assert np.all(np.abs(dq[0]) <= 1.1 * self.velocity + 1e-9)
         assert np.all(np.abs(u) <= self.effort + 1e-9)
-        # Explicit Euler with the piecewise-constant torques, re-integrated here (the step
-        # from the final time: the message's times are rounded to nanoseconds).
+        # The points are the motion of an explicit-Euler plan, each half a step ahead of its
+        # node (core/plan_reference.py): the nodes q_k = p_k - h dq_k / 2 are re-integrated
+        # here with the piecewise-constant torques (the step from the final time: the
+        # message's times are rounded to nanoseconds).
         step = times[-1] / (len(times) - 1)
+        nodes = q - 0.5 * step * dq
         for k in range(len(times) - 1):
-            acc = pin.aba(self.model, self.data, q[k], dq[k], u[k])
-            assert np.allclose(q[k + 1], q[k] + step * dq[k], rtol=0, atol=1e-8)
+            acc = pin.aba(self.model, self.data, nodes[k], dq[k], u[k])
+            assert np.allclose(nodes[k + 1], nodes[k] + step * dq[k], rtol=0, atol=1e-8)
             assert np.allclose(dq[k + 1], dq[k] + step * acc, rtol=0, atol=1e-7)
-        worst = min((self.clearance(qk, obstacles, margin) for qk in q), default=np.inf) \
-            if len(obstacles) else np.inf
+        # Clearance at the plan's nodes and at the published points between them.
+        worst = min((self.clearance(qk, obstacles, margin) for qk in np.vstack([q, nodes])),
+                    default=np.inf) if len(obstacles) else np.inf
         return worst, float(times[-1])

@@ -104,11 +104,15 @@ def _stage_spans(messages, samples):
     Return the (start, end) log times of each goal.
 
     From its goal message to the next one, or to the plant's reset between the runs (the
-    first sample that jumps by more than 0.1 rad).
+    first sample that jumps by more than 0.1 rad from rest to rest: a joint_states gap in a
+    fast motion under load jumps too, but not at rest).
     """
     sent = sorted([t for t, _ in messages.get('/goal_joints', [])]
                   + [t for t, _ in messages.get('/goal_pose', [])])
-    jumps = [t for (_, a), (t, b) in zip(samples, samples[1:]) if np.max(np.abs(b - a)) > 0.1]
+    states = [(t, q, np.max(np.abs(m.velocity)))
+              for (t, q), (_, m) in zip(samples, messages['/joint_states'])]
+    jumps = [t for (_, a, speed_a), (t, b, speed_b) in zip(states, states[1:])
+             if np.max(np.abs(b - a)) > 0.1 and max(speed_a, speed_b) <= SETTLE_VELOCITY]
     return [(start, min([end] + [t for t in jumps if start < t < end]))
             for start, end in zip(sent, sent[1:] + [float('inf')])]
 

@@ -17,9 +17,10 @@ A URDF arm as solver_node plans for it: the core's ArmRobot plus what the node r
 
 States are the core's arm states x = (q_1..q_n, dq_1..dq_n), positions first; joint_states
 arrive as (q1, dq1, q2, dq2, ...) and ``full_state`` reorders them.  The messages of an arm
-plan are built here: the JointTrajectory (accelerations from pinocchio.aba of the plan's
-torques), the tip link's path, the braking stop.  Pinocchio's Data is not thread-safe, so
-every function here uses its own (the solver thread and the node's thread both call them).
+plan are built here: the JointTrajectory (the motion the plan stands for,
+core/plan_reference.py), the tip link's path, the braking stop.  Pinocchio's Data is not
+thread-safe, so every function here uses its own (the solver thread and the node's thread both
+call them).
 """
 
 import dataclasses
@@ -37,6 +38,7 @@ from toc_ros.core.arms.arm_eval import ArmEvaluator
 from toc_ros.core.arms.arm_solve import ArmRobot
 from toc_ros.core.arms.model import tip_link
 from toc_ros.core.arms.payload import with_payload
+from toc_ros.core.plan_reference import reference_positions
 from toc_ros.core.problem import Problem, ProblemError
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -183,38 +185,31 @@ class ArmPlanModel(PendingArm):
             evaluator = ArmEvaluator(arm, spheres, ((*tip, 0.05),), 0.0, 2)
             evaluator.clearance_terms(middle[None, :], np.ones((1, evaluator.n_pairs)))
 
-    def accelerations(self, states, controls):
-        """Return ddq = ABA(q, dq, u) at every node (the last node repeats the last u)."""
-        model = self.arm.model
-        data = model.createData()
-        n = self.n_joints
-        out = np.empty((states.shape[0], n))
-        for k, x in enumerate(states):
-            u = controls[min(k, controls.shape[0] - 1)]
-            out[k] = pin.aba(model, data, x[:n], x[n:], u)
-        return out
-
     def trajectory_msg(self, result, joint_names, stamp):
         """
         Build the JointTrajectory of an arm plan (a result or an ExecutingPlan).
 
-        Every node at its time: positions, velocities, accelerations of the plan's torques
-        (ABA), effort = the torque held from that node (the last repeats the last one).
+        Every node at its time: the positions of the motion the plan stands for (an Euler
+        plan's shifted by half a step, core/plan_reference.py), its velocities, effort = the
+        torque held from that node (the last repeats the last one).  No accelerations: they
+        jump at every node, and a controller's quintic through one value per point would bend
+        the velocity past the limits where the cubic of positions and velocities is the motion.
         """
         states = np.asarray(result.states, dtype=float)
         controls = np.asarray(result.controls, dtype=float)
-        acc = self.accelerations(states, controls)
+        times = np.asarray(result.time_grid, dtype=float)
+        # A SolveResult's integrator, or an ExecutingPlan's ('' for a braking stop).
+        positions = reference_positions(self.positions(states), self.velocities(states), times,
+                                        getattr(result, 'integrator', ''))
         msg = JointTrajectory()
         msg.header.stamp = stamp
         msg.joint_names = list(joint_names)
         last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
-        times = np.asarray(result.time_grid, dtype=float)
         msg.points = [
-            JointTrajectoryPoint(positions=q, velocities=dq, accelerations=ddq, effort=u,
+            JointTrajectoryPoint(positions=q, velocities=dq, effort=u,
                                  time_from_start=conversions.duration_msg(t))
-            for q, dq, ddq, u, t in zip(self.positions(states).tolist(),
-                                        self.velocities(states).tolist(), acc.tolist(),
-                                        controls[last].tolist(), times.tolist())]
+            for q, dq, u, t in zip(positions.tolist(), self.velocities(states).tolist(),
+                                   controls[last].tolist(), times.tolist())]
         return msg
 
     def path_msg(self, states, link, frame_id, stamp):

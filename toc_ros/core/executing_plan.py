@@ -30,6 +30,7 @@ from typing import Any, Optional
 import numpy as np
 
 from toc_ros.core.obstacles import model_clearance
+from toc_ros.core.plan_reference import cubic_at, reference_positions
 from toc_ros.core.replan import brake
 
 # Fewest remaining plan nodes for which a goal's solve warm-starts from the executing plan.
@@ -81,8 +82,30 @@ class ExecutingPlan:
         """Tell whether it still executes at now (its duration plus slack not yet over)."""
         return self.elapsed(now) <= self.duration + slack
 
+    @property
+    def integrator(self):
+        """Return the integrator of its nodes ('' for a stop: its nodes are on the motion)."""
+        return '' if self.result is None else getattr(self.result, 'integrator', '')
+
+    def published_positions(self):
+        """Return the positions of its published points (plan_reference: arms' Euler plans)."""
+        q = self.model.positions(self.states)
+        if not getattr(self.model, 'is_arm', False):
+            return q
+        return reference_positions(q, self.model.velocities(self.states), self.times,
+                                   self.integrator)
+
     def reference_positions(self, t):
-        """Return the joint positions the plan holds at plan time t (linear between nodes)."""
+        """
+        Return the joint positions the plan holds at plan time t.
+
+        An arm's: the cubic through its published points, the motion its controller follows.
+        Other robots' (their points are the nodes, and they have no velocity limits to keep):
+        linear between the nodes.
+        """
+        if getattr(self.model, 'is_arm', False):
+            return cubic_at(self.times, self.published_positions(),
+                            self.model.velocities(self.states), t)
         q_plan = self.model.positions(self.states)
         return np.array([np.interp(t, self.times, q_plan[:, j])
                          for j in range(q_plan.shape[1])])

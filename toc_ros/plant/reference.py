@@ -26,19 +26,9 @@ import dataclasses
 
 import numpy as np
 
+from toc_ros.core.plan_reference import hermite
+
 NS = 1_000_000_000
-
-
-def hermite(t0, t1, p0, v0, p1, v1, t):
-    """Cubic Hermite position and velocity at t in [t0, t1] (arrays per joint)."""
-    h = t1 - t0
-    s = (t - t0) / h
-    s2, s3 = s * s, s * s * s
-    pos = ((2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * v0
-           + (3 * s2 - 2 * s3) * p1 + (s3 - s2) * h * v1)
-    vel = ((6 * s2 - 6 * s) / h * p0 + (3 * s2 - 4 * s + 1) * v0
-           + (6 * s - 6 * s2) / h * p1 + (3 * s2 - 2 * s) * v1)
-    return pos, vel
 
 
 class Reference:
