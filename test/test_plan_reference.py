@@ -28,6 +28,8 @@ from toc_ros.conversions import duration_seconds
 from toc_ros.core import Problem, solve, Status
 from toc_ros.core.executing_plan import plan_from_result
 from toc_ros.core.plan_reference import reference_positions
+from toc_ros.core.replan import predict
+from toc_ros.core.replan_policy import cycle_start_state
 from toc_ros.plant.jtc_trajectory import interpolate, Point
 
 pytestmark = pytest.mark.slow
@@ -126,3 +128,29 @@ def test_deviation_is_measured_from_the_published_motion(panda):
     # The Euler nodes' line is half a step behind it.
     assert np.max(np.abs(on_motion - 0.5 * (result.states[k, :7] + result.states[k + 1, :7]))) \
         > 1e-3
+
+
+def test_a_cycle_from_a_prediction_publishes_from_the_prediction(panda):
+    model, results = panda
+    result = results[0]
+    plan = plan_from_result(result, 0.0, result.states[-1], 'goal_joints', model)
+    h = result.time_grid[1] - result.time_grid[0]
+    measured = result.states[20] + np.concatenate([np.full(7, 0.05), np.zeros(7)])
+    start_at = float(result.time_grid[24])
+    start = cycle_start_state(plan, measured, float(result.time_grid[20]), start_at,
+                              deviation=0.05, stitch=-1.0)
+    predicted = predict(model, measured, plan.times, plan.controls,
+                        float(result.time_grid[20]), start_at)
+    np.testing.assert_allclose(start[7:], predicted[7:], rtol=0, atol=0)
+    # Its first point (an Euler plan on the same step) is the prediction, not h dq / 2 ahead.
+    nodes = np.vstack([start, start])
+    first = reference_positions(nodes[:, :7], nodes[:, 7:], [0.0, h], 'euler')[0]
+    np.testing.assert_allclose(first, predicted[:7], rtol=0, atol=1e-12)
+    assert np.max(np.abs(start[:7] - predicted[:7])) > 1e-3
+    # Within the stitch: the plan's own node, unchanged.
+    np.testing.assert_array_equal(cycle_start_state(plan, measured, 0.0, start_at, 0.01, -1.0),
+                                  result.states[24])
+    # Never past a position limit: at panda_joint4's upper limit, leaving it.
+    at_limit = np.array(result.states[20])
+    at_limit[3], at_limit[7 + 3] = model.arm.upper[3], -2.0
+    assert plan.start_for(at_limit)[3] == model.arm.upper[3]

@@ -95,6 +95,26 @@ class ExecutingPlan:
         return reference_positions(q, self.model.velocities(self.states), self.times,
                                    self.integrator)
 
+    def start_for(self, x):
+        """
+        Return the start of a new plan on this plan's grid whose published motion begins at x.
+
+        An arm's Euler plan publishes its nodes half a step ahead (plan_reference): a replan
+        from a measured state x starts its nodes half a step behind it, so that the commanded
+        motion does not jump ahead by h dq / 2.  Other plans: x.
+        """
+        x = np.array(x, dtype=float)
+        if not getattr(self.model, 'is_arm', False) or self.integrator != 'euler' \
+                or self.times.shape[0] < 2:
+            return x
+        n = self.model.n_joints
+        q = x[:n] - 0.5 * float(self.times[1] - self.times[0]) * x[n:2 * n]
+        arm = self.model.arm         # never past a position limit the measured state is within
+        bounded = ~np.asarray(arm.continuous, dtype=bool)
+        x[:n] = np.where(bounded, np.clip(q, np.minimum(arm.lower, x[:n]),
+                                          np.maximum(arm.upper, x[:n])), q)
+        return x
+
     def reference_positions(self, t):
         """
         Return the joint positions the plan holds at plan time t.

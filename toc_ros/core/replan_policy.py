@@ -193,7 +193,9 @@ def cycle_start_state(plan, state, measured_at, start_at, deviation, stitch):
     reference without a jump.  Farther off (or stitch 0) the measured state predicted forward
     under the plan's controls.  stitch < 0: by model (ARM_STITCH for URDF arms, else 0: on
     the paper's robot with a 20 % heavier plant, cycles from the prediction arrived 0.3-0.9 %
-    after the plant's best plan, from the plan's state 1.2-1.3 %).
+    after the plant's best plan, from the plan's state 1.2-1.3 %).  A prediction starts an
+    arm's Euler plan half a step behind it (ExecutingPlan.start_for): its published motion
+    then begins at the prediction.
     """
     if stitch < 0.0:
         stitch = ARM_STITCH if getattr(plan.model, 'is_arm', False) else 0.0
@@ -201,7 +203,8 @@ def cycle_start_state(plan, state, measured_at, start_at, deviation, stitch):
         node = int(np.searchsorted(plan.times, start_at))
         if node < plan.times.shape[0] and plan.times[node] == start_at:
             return np.array(plan.states[node], dtype=float)
-    return predict(plan.model, state, plan.times, plan.controls, measured_at, start_at)
+    return plan.start_for(predict(plan.model, state, plan.times, plan.controls, measured_at,
+                                  start_at))
 
 
 def next_cycle(plan, state, t, now, received, lead, settings, next_due, revision,
