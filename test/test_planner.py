@@ -82,6 +82,7 @@ class Port:
         self.config, self.measured, self.clock = settings, measured, 100.0
         self.measured_at = None      # node-clock time of measured (None: unknown)
         self.trajectories, self.paths, self.reports = [], [], []
+        self.holds = []              # each trajectory's hold_effort
         self.markers, self.arm = 0, 0
         self.logger = Log()
         self.estimate = (None, '')
@@ -98,8 +99,9 @@ class Port:
     def now(self):
         return self.clock
 
-    def publish_trajectory(self, msg):
+    def publish_trajectory(self, msg, hold_effort=None):
         self.trajectories.append(msg)
+        self.holds.append(hold_effort)
 
     def publish_path(self, msg):
         self.paths.append(msg)
@@ -188,6 +190,29 @@ def test_a_goal_is_solved_published_at_the_start_lead_and_reported(solved):
     assert revision == 0 and plan.source == 'goal_joints' and plan.replannable
     np.testing.assert_array_equal(plan.goal, NEAR_GOAL)
     assert plan.start == stamp(msg) and request.path is port.paths[0]
+
+
+def test_an_arm_goal_from_rest_ends_at_rest_and_is_held_until_it_starts():
+    pytest.importorskip('pinocchio')
+    from arm_oracle import ArmOracle, find_panda_urdf, PANDA_JOINTS
+    import pinocchio as pin
+    ready = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
+    settings = config(**{'robot.model': 'panda', 'joint_names': PANDA_JOINTS,
+                         'initial_state': ready, 'solver.N': 30, 'replan.rate': 0.0,
+                         'obstacles.rows': []})
+    p, port = planner(settings)
+    goal = np.array([0.6, -0.5, 0.2, -2.1, 0.1, 1.7, 0.7])
+    finish(p, p.submit(lambda c: c.model.state(goal), 'goal_joints'))
+    oracle = ArmOracle(find_panda_urdf().read_text())
+    assert len(port.trajectories) == 1, port.logger.lines
+    msg, hold = port.trajectories[0], port.holds[0]
+    # The controller's goal holds the start with its gravity torque (recomputed here).
+    np.testing.assert_allclose(hold, pin.computeGeneralizedGravity(
+        oracle.model, oracle.model.createData(), np.array(ready)), rtol=0, atol=1e-9)
+    _, q, dq, u = points(msg)
+    assert np.all(dq[-1] == 0.0)                       # JTC refuses a moving last point
+    np.testing.assert_allclose(u[-1], pin.computeGeneralizedGravity(
+        oracle.model, oracle.model.createData(), q[-1]), rtol=0, atol=1e-9)
 
 
 def test_a_goal_is_planned_with_the_online_estimate_once_one_is_in_use():

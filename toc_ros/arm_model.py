@@ -38,7 +38,7 @@ from toc_ros.core.arms.arm_eval import ArmEvaluator
 from toc_ros.core.arms.arm_solve import ArmRobot
 from toc_ros.core.arms.model import tip_link
 from toc_ros.core.arms.payload import with_payload
-from toc_ros.core.plan_reference import reference_positions
+from toc_ros.core.plan_reference import reference_positions, rest_at_end
 from toc_ros.core.problem import Problem, ProblemError
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -185,32 +185,44 @@ class ArmPlanModel(PendingArm):
             evaluator = ArmEvaluator(arm, spheres, ((*tip, 0.05),), 0.0, 2)
             evaluator.clearance_terms(middle[None, :], np.ones((1, evaluator.n_pairs)))
 
-    def trajectory_msg(self, result, joint_names, stamp):
+    def trajectory_msg(self, result, joint_names, stamp, robot=None):
         """
         Build the JointTrajectory of an arm plan (a result or an ExecutingPlan).
 
         Every node at its time: the positions of the motion the plan stands for (an Euler
-        plan's shifted by half a step, core/plan_reference.py), its velocities, effort = the
-        torque held from that node (the last repeats the last one).  No accelerations: they
-        jump at every node, and a controller's quintic through one value per point would bend
-        the velocity past the limits where the cubic of positions and velocities is the motion.
+        plan's shifted by half a step, core/plan_reference.py), its velocities (a plan that
+        ends at rest ends exactly at rest), effort = the torque held from that node; the last
+        point's effort is the torque that holds the arm there (robot's gravity torque, robot:
+        the ArmRobot planned with, default this arm's) when the plan ends at rest, so that a
+        controller that keeps the last point's effort holds the arm, else it repeats the last
+        torque.  No accelerations: they jump at every node, and a controller's quintic through
+        one value per point would bend the velocity past the limits where the cubic of
+        positions and velocities is the motion.
         """
         states = np.asarray(result.states, dtype=float)
         controls = np.asarray(result.controls, dtype=float)
         times = np.asarray(result.time_grid, dtype=float)
+        velocities, at_rest = rest_at_end(self.velocities(states))
         # A SolveResult's integrator, or an ExecutingPlan's ('' for a braking stop).
-        positions = reference_positions(self.positions(states), self.velocities(states), times,
+        positions = reference_positions(self.positions(states), velocities, times,
                                         getattr(result, 'integrator', ''))
+        last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
+        efforts = controls[last]
+        if at_rest:
+            efforts[-1] = self.holding_torque(positions[-1], robot)
         msg = JointTrajectory()
         msg.header.stamp = stamp
         msg.joint_names = list(joint_names)
-        last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
         msg.points = [
             JointTrajectoryPoint(positions=q, velocities=dq, effort=u,
                                  time_from_start=conversions.duration_msg(t))
-            for q, dq, u, t in zip(positions.tolist(), self.velocities(states).tolist(),
-                                   controls[last].tolist(), times.tolist())]
+            for q, dq, u, t in zip(positions.tolist(), velocities.tolist(), efforts.tolist(),
+                                   times.tolist())]
         return msg
+
+    def holding_torque(self, q, robot=None):
+        """Return the torques that hold the arm at q at rest (robot: an ArmRobot, else its own)."""
+        return holding_torque(self.robot if robot is None else robot, q)
 
     def path_msg(self, states, link, frame_id, stamp):
         """Return the nav_msgs/Path of the tip link (position and orientation) along states."""
@@ -258,6 +270,15 @@ class ArmPlanModel(PendingArm):
             if np.all(np.abs(tau) <= self.arm.effort[None, :]):
                 return times, np.hstack([q, dq]), tau
         return None
+
+
+def holding_torque(robot, q):
+    """Return the torques that hold an ArmRobot at positions q at rest, within its limits."""
+    arm = robot.arm
+    zero = np.zeros(arm.model.nv)
+    # Its own Data: this runs beside the solver, which uses the arm's.
+    tau = arm.inverse_dynamics(np.asarray(q, dtype=float), zero, zero, arm.model.createData())
+    return np.clip(tau, -arm.effort, arm.effort)
 
 
 def build_arm(name, description, joints, locked, limits, spheres_path, tip='',

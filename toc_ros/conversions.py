@@ -32,6 +32,7 @@ from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from toc_ros.core import ProblemError
 from toc_ros.core.model import dynamics, RobotParams
 from toc_ros.core.models import CylindricalRobot, ModelError, RobotModel
+from toc_ros.core.plan_reference import rest_at_end
 from toc_ros.core.problem import check_obstacles
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
@@ -120,9 +121,10 @@ def trajectory_msg(result, joint_names, robot, stamp):
     Build the JointTrajectory of a solved result: all N+1 nodes at t_i = i tau.
 
     robot: the RobotModel (or RobotParams of the cylindrical robot).  Positions q, velocities
-    dq, accelerations from the model's dynamics, effort = u_i (the optimal controls,
-    zero-order hold from t_i; the last point repeats u_{N-1}; with actuator states
-    (models/actuated.py) the commands, which the drives turn into the applied efforts).
+    dq (a plan that ends at rest ends exactly at rest: core/plan_reference.py), accelerations
+    from the model's dynamics, effort = u_i (the optimal controls, zero-order hold from t_i;
+    the last point repeats u_{N-1}; with actuator states (models/actuated.py) the commands,
+    which the drives turn into the applied efforts).
     """
     model = as_model(robot)
     states = np.asarray(result.states, dtype=float)
@@ -138,8 +140,8 @@ def trajectory_msg(result, joint_names, robot, stamp):
     # be most of the cost on long plans.  Times rounded as in _sec_nanosec.
     last = np.minimum(np.arange(states.shape[0]), controls.shape[0] - 1)
     total = np.round(np.asarray(result.time_grid, dtype=float) * 1e9).astype(np.int64)
-    rows = zip(model.positions(states).tolist(), model.velocities(states).tolist(),
-               np.asarray(acc).tolist(),
+    velocities = rest_at_end(model.velocities(states))[0]
+    rows = zip(model.positions(states).tolist(), velocities.tolist(), np.asarray(acc).tolist(),
                controls[last].tolist(), (total // 1_000_000_000).tolist(),
                (total % 1_000_000_000).tolist())
     msg.points = [JointTrajectoryPoint(positions=q, velocities=dq, accelerations=ddq, effort=u,

@@ -23,6 +23,12 @@ preempted by new incoming action."): that is the normal course of replanning, re
 node reports on ``~/progress``; a rejected or aborted goal is a failed execution, which the node
 treats like a failed plan.
 
+A plan from rest is stamped start_lead ahead, and a JointTrajectoryController interpolates from
+the state it commanded last to the first point from the goal's arrival on, the effort too: the
+plan's first torque would fade in while its positions still rest, and a controller that feeds
+the effort forward would move the arm ahead of its reference.  Such a goal is led in by a point
+that holds the start with the holding torque until HOLD_LEAD_S before the plan (``held_start``).
+
 control_msgs is not a wheel: it is imported lazily (``follow_joint_trajectory_action``), and
 without it execution through the action is refused with that reason.
 """
@@ -36,6 +42,9 @@ ERROR_NAMES = {0: 'SUCCESSFUL', -1: 'INVALID_GOAL', -2: 'INVALID_JOINTS',
                -3: 'OLD_HEADER_TIMESTAMP', -4: 'PATH_TOLERANCE_VIOLATED',
                -5: 'GOAL_TOLERANCE_VIOLATED'}
 PREEMPTED_TEXT = 'Current goal preempted by new incoming action.'
+# The hold point of a goal from rest comes this long [s] before the plan's first point: the
+# first torque takes over within about one control period.
+HOLD_LEAD_S = 0.001
 
 # Outcome kinds.
 ACCEPTED = 'accepted'
@@ -118,6 +127,41 @@ def classify_result(goal_id, newest_id, goal_status, code, text):
     return Outcome(ABORTED, goal_id, code, text)
 
 
+def held_start(trajectory, effort, hold_s=HOLD_LEAD_S):
+    """
+    Return a trajectory that holds its first positions, at rest with effort, until it starts.
+
+    The copy has a point (the first positions, zero velocities and accelerations where the
+    points have them, effort) at time_from_start 0, and the trajectory's points hold_s later;
+    its stamp is hold_s earlier, so that every point of the plan keeps its time.
+    """
+    from builtin_interfaces.msg import Duration, Time
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+    hold_ns = int(round(hold_s * 1e9))
+    first = trajectory.points[0]
+    n = len(first.positions)
+    hold = JointTrajectoryPoint(
+        positions=list(first.positions), velocities=[0.0] * n if len(first.velocities) else [],
+        accelerations=[0.0] * n if len(first.accelerations) else [],
+        effort=[float(e) for e in effort], time_from_start=Duration())
+
+    def later(point):
+        ns = point.time_from_start.sec * 1_000_000_000 + point.time_from_start.nanosec + hold_ns
+        return JointTrajectoryPoint(
+            positions=point.positions, velocities=point.velocities,
+            accelerations=point.accelerations, effort=point.effort,
+            time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
+    stamp = trajectory.header.stamp
+    msg = JointTrajectory(joint_names=list(trajectory.joint_names),
+                          points=[hold] + [later(p) for p in trajectory.points])
+    msg.header.frame_id = trajectory.header.frame_id
+    start_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+    if start_ns:            # a zero stamp means "on arrival": it stays zero
+        start_ns = max(start_ns - hold_ns, 1)
+        msg.header.stamp = Time(sec=start_ns // 1_000_000_000, nanosec=start_ns % 1_000_000_000)
+    return msg
+
+
 def build_goal(action_type, trajectory, tolerances: Tolerances):
     """Return the FollowJointTrajectory goal of a trajectory_msgs/JointTrajectory message."""
     from builtin_interfaces.msg import Duration
@@ -178,11 +222,18 @@ class TrajectoryExecutor:
         """Wait up to timeout [s] for the action server; tell whether it is there."""
         return self._client.wait_for_server(timeout_sec=timeout)
 
-    def send(self, trajectory):
-        """Send a trajectory as the newest goal; return its goal id (never blocks)."""
+    def send(self, trajectory, hold_effort=None):
+        """
+        Send a trajectory as the newest goal; return its goal id (never blocks).
+
+        hold_effort: for a trajectory from rest, the torques that hold its start (it is sent
+        ``held_start``), or None.
+        """
         with self._lock:
             self._sent += 1
             goal_id = self._sent
+        if hold_effort is not None:
+            trajectory = held_start(trajectory, hold_effort)
         goal = build_goal(self._action_type, trajectory, self._tolerances)
         if self._client.server_is_ready():
             self._send(goal_id, goal)

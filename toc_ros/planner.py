@@ -28,8 +28,10 @@ itself: the node gives it a *port*, an object with
   [s] of that measured state (None: none);
 - ``now()``: the node clock [s]; ``estimated_model(settings)``: (model, text) of the online
   estimate (replan.estimate);
-- ``publish_trajectory(msg)``, ``publish_path(msg)``, ``publish_markers()``, ``arm_moved()``
-  (the markers are due), ``report(progress_report)``; ``logger`` (info, warning, error).
+- ``publish_trajectory(msg, hold_effort=None)`` (hold_effort: an arm plan from rest's
+  holding torque, for a controller's goal: execution.held_start), ``publish_path(msg)``,
+  ``publish_markers()``, ``arm_moved()`` (the markers are due), ``report(progress_report)``;
+  ``logger`` (info, warning, error).
 
 The settings are a ``nodes.solver_settings.SolverNodeConfig``.  The policy it applies is
 core/replan_policy.py; see solver_node's docstring for the behaviour on the topics.
@@ -360,8 +362,12 @@ class Planner(ReplanCycles):
         rest = stamp_s is None and policy.at_rest(model, problem.x0)
         lead = config.node.start_lead if rest else 0.0
         names = config.frames.joint_names
+        hold_effort = None
         if arm:
-            trajectory = model.trajectory_msg(result, names, conversions.time_msg(0.0))
+            trajectory = model.trajectory_msg(result, names, conversions.time_msg(0.0),
+                                              problem.model)
+            if rest:
+                hold_effort = model.holding_torque(model.positions(problem.x0), problem.model)
         else:
             trajectory = conversions.trajectory_msg(result, names, model,
                                                     conversions.time_msg(0.0))
@@ -389,7 +395,7 @@ class Planner(ReplanCycles):
                 # take milliseconds on a loaded machine, and a cycle's plan starts at its
                 # stamp, right after the deadline.
                 return False
-            port.publish_trajectory(trajectory)
+            port.publish_trajectory(trajectory, hold_effort)
             request.published_at = time.monotonic()
             request.published_stamp = port.now()
             plans.executing = plan

@@ -30,9 +30,18 @@ rest), and a plan that starts at a node of an earlier one starts where the earli
 reference is there (up to the change of h).  A plan from a moving measured start begins
 h dq_0 / 2 ahead of it.  RK4 plans and braking stops have their nodes on the motion and are
 published as they are.
+
+A plan that ends at rest is published ending exactly at rest (``rest_at_end``): a solved plan
+reaches its goal within the solver's tolerance, its last velocities up to ~1e-7 rad/s, and
+JointTrajectoryController refuses a goal whose last point moves by more than float32's epsilon
+(1.2e-7, unless allow_nonzero_velocity_at_trajectory_end).
 """
 
 import numpy as np
+
+# Last velocities at most this [rad/s or m/s] are published as zero: far above a solved plan's
+# terminal residual, far below anything a controller could follow.
+END_REST_SPEED = 1e-6
 
 
 def reference_positions(positions, velocities, times, integrator):
@@ -49,6 +58,15 @@ def reference_positions(positions, velocities, times, integrator):
     steps = np.diff(np.asarray(times, dtype=float))
     steps = np.append(steps, steps[-1])
     return positions + 0.5 * steps[:, None] * np.asarray(velocities, dtype=float)
+
+
+def rest_at_end(velocities):
+    """Return (velocities with the last row zeroed when within END_REST_SPEED, at rest)."""
+    velocities = np.array(velocities, dtype=float)
+    at_rest = bool(np.max(np.abs(velocities[-1]), initial=0.0) <= END_REST_SPEED)
+    if at_rest:
+        velocities[-1] = 0.0
+    return velocities, at_rest
 
 
 def hermite(t0, t1, p0, v0, p1, v1, t):

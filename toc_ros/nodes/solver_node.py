@@ -207,12 +207,12 @@ class SolverNode(Node):
         """Return the node clock's time [s] (simulated time under use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def publish_trajectory(self, msg):
+    def publish_trajectory(self, msg, hold_effort=None):
         """Send a trajectory (the planner holds its plan lock meanwhile)."""
         self._trajectory_pub.publish(msg)
         executor = self._executor
         if executor is not None:
-            executor.send(msg)
+            executor.send(msg, hold_effort)
 
     def publish_path(self, msg):
         """Send a planned path."""

@@ -248,6 +248,8 @@ class PlantSimulator:
 
     def _follow_step(self):
         """Return the follower's reference at this step (it checks tolerances, starts goals)."""
+        holding = getattr(self.model, 'holding_torque', None)
+        held = holding is not None and self.holding()
         if self.following:
             sample = self.follower.reference(self.sim_ns)
             before = (sample.positions, sample.velocities, sample.accelerations, sample.effort)
@@ -258,6 +260,10 @@ class PlantSimulator:
             self.active = self.pending = None
             self.following = True
             self.max_error = np.zeros(self.n)
+        if held:
+            # The effort this controller commands while it holds (command()): a goal that
+            # interpolates from the desired state starts from it.
+            before = (*before[:3], holding(before[0]))
         sample = self.follower.update(self.sim_ns, self.x[0::2], self.x[1::2], before)
         return sample.positions, sample.velocities, sample.effort
 
