@@ -326,6 +326,32 @@ def test_executor_reports_preemption_success_and_invalid_joints(plant):
 
 
 @needs_control_msgs
+def test_an_empty_trajectory_cancels_the_running_goal(plant):
+    """A stop without a braking plan: JTC rejects an empty goal, so the executor cancels."""
+    from toc_ros import execution as ex
+    executor, outcomes, wait = _outcomes_of(plant, 'plant_node/follow_joint_trajectory')
+    try:
+        assert executor.wait_for_server(30.0)
+        q0 = _current(plant)
+        target = q0 + np.array([0.6, 0.3])
+        long = _trajectory(_smooth(q0, target - q0, 0.0, 4.0, np.arange(41) * 0.1))
+        assert executor.send(long) == 1
+        time.sleep(0.8)
+        assert executor.send(JointTrajectory(joint_names=JOINTS)) == 2
+        seen = wait({(1, ex.CANCELED)})
+        assert (1, ex.CANCELED) in [(o.goal_id, o.kind) for o in seen], \
+            f'{[o.describe() for o in seen]}\n{plant.node.tail(20)}'
+        time.sleep(1.0)
+        held = _current(plant)
+        time.sleep(1.0)
+        # The plant holds where it stopped, far from the goal the trajectory went to.
+        np.testing.assert_allclose(_current(plant), held, atol=2e-3)
+        assert np.max(np.abs(held - target)) > 0.1
+    finally:
+        executor.destroy()
+
+
+@needs_control_msgs
 def test_executor_without_a_server_reports_unavailable(plant):
     from toc_ros import execution as ex
     executor, outcomes, _ = _outcomes_of(plant, 'no_such_controller/follow_joint_trajectory')

@@ -28,6 +28,8 @@ the state it commanded last to the first point from the goal's arrival on, the e
 plan's first torque would fade in while its positions still rest, and a controller that feeds
 the effort forward would move the arm ahead of its reference.  Such a goal is led in by a point
 that holds the start with the holding torque until HOLD_LEAD_S before the plan (``held_start``).
+A stop without a braking plan (an empty trajectory) cancels our goals: JTC rejects an empty
+goal and would go on with the running one.
 
 control_msgs is not a wheel: it is imported lazily (``follow_joint_trajectory_action``), and
 without it execution through the action is refused with that reason.
@@ -205,6 +207,7 @@ class TrajectoryExecutor:
         self._on_outcome = on_outcome
         self._lock = threading.Lock()
         self._sent = 0
+        self._cancel_below = 0      # goals older than the last stop are canceled on acceptance
         self._handles = {}          # goal id -> accepted goal handle, until its result
         self._destroyed = False
 
@@ -227,11 +230,18 @@ class TrajectoryExecutor:
         Send a trajectory as the newest goal; return its goal id (never blocks).
 
         hold_effort: for a trajectory from rest, the torques that hold its start (it is sent
-        ``held_start``), or None.
+        ``held_start``), or None.  An empty trajectory (a stop without a braking plan) is no
+        goal: JTC rejects it and goes on with the running goal.  It cancels our goals instead,
+        running or still on their way (JTC then holds the robot where it is).
         """
         with self._lock:
             self._sent += 1
             goal_id = self._sent
+            if not trajectory.points:
+                self._cancel_below = goal_id
+        if not trajectory.points:
+            self.cancel()
+            return goal_id
         if hold_effort is not None:
             trajectory = held_start(trajectory, hold_effort)
         goal = build_goal(self._action_type, trajectory, self._tolerances)
@@ -292,7 +302,10 @@ class TrajectoryExecutor:
             return
         with self._lock:
             self._handles[goal_id] = handle
+            stopped = goal_id < self._cancel_below
         self._on_outcome(Outcome(ACCEPTED, goal_id))
+        if stopped:
+            handle.cancel_goal_async()
         handle.get_result_async().add_done_callback(
             lambda done: self._on_result(goal_id, done))
 
