@@ -90,7 +90,9 @@ def generate_launch_description():
         executable='solver_node', name='solver_node',
         parameters=[params_file, description,
                     {'execute.follow_joint_trajectory': ParameterValue(action_of_plant,
-                                                                       value_type=str)}],
+                                                                       value_type=str),
+                     # plant_node's server is an effort-commanding controller.
+                     'execute.effort': True}],
         remappings=[('trajectory', 'planned_trajectory')],
         condition=IfCondition(through_action), **common)
     plant = Node(executable='plant_node', name='plant_node',

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from std_msgs.msg import Header
 from toc_ros.core.plan_reference import END_REST_SPEED, rest_at_end
-from toc_ros.execution import held_start, HOLD_LEAD_S
+from toc_ros.execution import goal_trajectory, held_start, HOLD_LEAD_S
 from toc_ros.plant import jtc_trajectory as jtc
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -82,6 +82,21 @@ def test_held_start_keeps_every_point_at_its_time():
     assert ns(msg.header.stamp) == stamp_ns
     # A zero stamp ("start on arrival") stays zero.
     assert ns(held_start(plan_msg(0, [3.0, -4.0]), [0.0, 0.0]).header.stamp) == 0
+
+
+def test_goals_carry_efforts_only_when_told():
+    msg = plan_msg(12 * NS, [3.0, -4.0])
+    # By default (execute.effort false) no point has efforts: JTC without an effort command
+    # interface rejects goals that carry them.  Nor is there a hold point.
+    plain = goal_trajectory(msg, False, [0.5, -0.25])
+    assert len(plain.points) == 3 and all(len(p.effort) == 0 for p in plain.points)
+    assert [list(p.positions) for p in plain.points] == [list(p.positions) for p in msg.points]
+    assert [ns(p.time_from_start) for p in plain.points] == [0, NS // 10, 2 * NS // 10]
+    assert ns(plain.header.stamp) == 12 * NS
+    assert all(len(p.effort) == 2 for p in msg.points)       # the published plan keeps them
+    held = goal_trajectory(msg, True, [0.5, -0.25])
+    assert len(held.points) == 4 and list(held.points[0].effort) == [0.5, -0.25]
+    assert goal_trajectory(msg, True, None) is msg            # a moving start: as published
 
 
 def efforts_before_the_plan(msg, holding, plan_ns):

@@ -23,7 +23,9 @@ preempted by new incoming action."): that is the normal course of replanning, re
 node reports on ``~/progress``; a rejected or aborted goal is a failed execution, which the node
 treats like a failed plan.
 
-A plan from rest is stamped start_lead ahead, and a JointTrajectoryController interpolates from
+Goals carry the planned torques as efforts only with ``effort`` (execute.effort): JTC rejects
+goals with efforts unless it commands an effort interface, and then feeds them forward.  A plan
+from rest is stamped start_lead ahead, and a JointTrajectoryController interpolates from
 the state it commanded last to the first point from the goal's arrival on, the effort too: the
 plan's first torque would fade in while its positions still rest, and a controller that feeds
 the effort forward would move the arm ahead of its reference.  Such a goal is led in by a point
@@ -164,6 +166,30 @@ def held_start(trajectory, effort, hold_s=HOLD_LEAD_S):
     return msg
 
 
+def without_effort(trajectory):
+    """Return a copy of a JointTrajectory whose points have no efforts."""
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+    return JointTrajectory(header=trajectory.header, joint_names=list(trajectory.joint_names),
+                           points=[JointTrajectoryPoint(
+                               positions=p.positions, velocities=p.velocities,
+                               accelerations=p.accelerations, time_from_start=p.time_from_start)
+                               for p in trajectory.points])
+
+
+def goal_trajectory(trajectory, effort, hold_effort=None):
+    """
+    Return the trajectory a goal carries for a published one.
+
+    effort: whether goals carry efforts (else a copy without them); hold_effort: the holding
+    torques of a plan from rest (then, with efforts, ``held_start``), or None.
+    """
+    if not effort:
+        return without_effort(trajectory)
+    if hold_effort is not None:
+        return held_start(trajectory, hold_effort)
+    return trajectory
+
+
 def build_goal(action_type, trajectory, tolerances: Tolerances):
     """Return the FollowJointTrajectory goal of a trajectory_msgs/JointTrajectory message."""
     from builtin_interfaces.msg import Duration
@@ -194,7 +220,7 @@ class TrajectoryExecutor:
     SERVER_WAIT_S = 2.0
 
     def __init__(self, node, action_name, tolerances: Tolerances,
-                 on_outcome: Callable[[Outcome], None], action_type=None):
+                 on_outcome: Callable[[Outcome], None], action_type=None, effort=False):
         from rclpy.action import ActionClient
         if action_type is None:
             action_type, reason = follow_joint_trajectory_action()
@@ -204,6 +230,7 @@ class TrajectoryExecutor:
         self._client = ActionClient(node, action_type, action_name)
         self._action_name = action_name
         self._tolerances = tolerances
+        self._effort = bool(effort)     # goals carry the efforts (else their fields are empty)
         self._on_outcome = on_outcome
         self._lock = threading.Lock()
         self._sent = 0
@@ -229,10 +256,11 @@ class TrajectoryExecutor:
         """
         Send a trajectory as the newest goal; return its goal id (never blocks).
 
-        hold_effort: for a trajectory from rest, the torques that hold its start (it is sent
-        ``held_start``), or None.  An empty trajectory (a stop without a braking plan) is no
-        goal: JTC rejects it and goes on with the running goal.  It cancels our goals instead,
-        running or still on their way (JTC then holds the robot where it is).
+        hold_effort: for a trajectory from rest, the torques that hold its start (sent
+        ``held_start`` when the goals carry efforts), or None.  An empty trajectory (a stop
+        without a braking plan) is no goal: JTC rejects it and goes on with the running goal.
+        It cancels our goals instead, running or still on their way (JTC then holds the robot
+        where it is).
         """
         with self._lock:
             self._sent += 1
@@ -242,9 +270,9 @@ class TrajectoryExecutor:
         if not trajectory.points:
             self.cancel()
             return goal_id
-        if hold_effort is not None:
-            trajectory = held_start(trajectory, hold_effort)
-        goal = build_goal(self._action_type, trajectory, self._tolerances)
+        goal = build_goal(self._action_type,
+                          goal_trajectory(trajectory, self._effort, hold_effort),
+                          self._tolerances)
         if self._client.server_is_ready():
             self._send(goal_id, goal)
         else:

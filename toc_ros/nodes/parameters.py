@@ -125,6 +125,12 @@ class SolverNodeSettings:
         0.0, 'goal_time_tolerance sent with each goal: how long after the end the joints may '
         "take to get within the goal tolerance; 0 = the controller's own", unit='s', low=0.0,
         high=1e3, ros_name='execute.goal_time_tolerance')
+    execute_effort: bool = setting(
+        False, "send the planned joint torques in each goal's effort field, for a "
+        'JointTrajectoryController with an effort command interface (it feeds them forward); '
+        "one without rejects goals that carry efforts ('Trajectories with effort fields are "
+        "only supported for controllers using the effort command interface')",
+        ros_name='execute.effort')
 
 
 # Largest plant actuator_lag and control_delay [s]: the delay's ring buffer holds

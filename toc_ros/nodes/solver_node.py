@@ -256,8 +256,10 @@ class SolverNode(Node):
                                           node_settings.execute_goal_tolerance,
                                           node_settings.execute_goal_time)
         self._executor = execution.TrajectoryExecutor(
-            self, name, tolerances, self._on_execution, action_type)
-        self.get_logger().info(f'executing plans through {name} (FollowJointTrajectory)')
+            self, name, tolerances, self._on_execution, action_type,
+            effort=node_settings.execute_effort)
+        self.get_logger().info(f'executing plans through {name} (FollowJointTrajectory'
+                               + (', with efforts)' if node_settings.execute_effort else ')'))
         self._executor.watch_server(
             lambda: self.get_logger().info(f'action server {name} found'))
 
