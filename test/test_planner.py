@@ -31,8 +31,8 @@ import numpy as np
 import numpy_model as nm
 import pytest
 from toc_ros import goal_requests as goals, progress as schema
-from toc_ros import kernel_loader
-from toc_ros.core import Progress, replan_policy as policy, Status
+from toc_ros import kernel_loader, planner as planner_module
+from toc_ros.core import Progress, replan_policy as policy, solve, Status
 from toc_ros.core.executing_plan import braking_plan, ExecutingPlan, Seed
 from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
@@ -223,6 +223,9 @@ def test_a_goal_is_planned_with_the_online_estimate_once_one_is_in_use():
     configured_t_f = port.reports[-1].t_f
     heavier = CylindricalRobot(RobotParams(hand_mass=60.0))     # the online estimate
     port.estimate = (heavier, 'hand_mass=60')
+    # Once that plan is over, from the start again (a goal while it runs would start on it).
+    port.clock += port.config.node.start_lead + configured_t_f + 1.0
+    port.measured = np.array(X0)
     finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
     final = port.reports[-1]
     assert final.status is Status.SOLVED and final.estimate == 'hand_mass=60'
@@ -287,6 +290,72 @@ def test_with_a_measured_state_the_stop_brakes_and_unchanged_data_change_nothing
     np.testing.assert_allclose(dq[-1], [0.0, 0.0], atol=1e-2)
     assert np.all(np.abs(u) <= U_MAX * (1 + 1e-9))
     p.worker.stop()
+
+
+def test_a_goal_while_a_plan_moves_the_robot_starts_on_it_and_late_ones_go_farther(
+        monkeypatch):
+    p, port = planner(config(**{'replan.rate': 0.0}))
+    finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan, _ = p.plans.current()
+    lead = port.config.node.goal_lead
+    k = int(np.searchsorted(plan.times, 0.3 * plan.duration))
+    port.clock = port.measured_at = plan.start + plan.times[k]    # measured on it, just now
+    port.measured = plan.states[k].copy()
+    other = np.array([-0.3, 0.0, 1.2, 0.0])
+    finish(p, p.submit(lambda _c: other, 'goal_joints'))
+    msg = port.trajectories[-1]
+    # Stamped at the executing plan's node at or after now + goal_lead, starting on its state
+    # there (the robot follows the plan until then), not where it was measured.
+    node = int(np.searchsorted(plan.times, port.clock + lead - plan.start - 1e-12))
+    assert stamp(msg) == pytest.approx(plan.start + plan.times[node], abs=1e-6)
+    _, q, _, _ = points(msg)
+    # The measured state predicted to that node under the plan's controls (the robot's motion
+    # there; the goal's Euler plan nodes are within millimetres of it).
+    start = policy.goal_start_on_plan(plan, 4, port.measured, port.measured_at, port.clock,
+                                      lead, port.config.node.replan_stitch)[0]
+    np.testing.assert_allclose(q[0], start[0::2], atol=1e-9)
+    assert np.max(np.abs(start - plan.states[node])) < 0.01
+    assert np.max(np.abs(start - port.measured)) > 0.05
+    assert port.reports[-1].start_source == goals.ON_PLAN
+    np.testing.assert_allclose(q[-1], other[0::2], atol=1e-3)
+
+    # A solve that ends after its start's time is not published: solved again from twice as
+    # far ahead, until the plan's rest (here every solve takes 0.12 s of the node clock, and
+    # the robot is measured on its plan at the start of each).
+    p2, port2 = planner(config(**{'replan.rate': 0.0, 'goal_lead': 0.05}))
+    finish(p2, p2.submit(lambda _c: NEAR_GOAL, 'goal_joints'))
+    plan2, _ = p2.plans.current()
+    k = int(np.searchsorted(plan2.times, 0.3 * plan2.duration))
+    port2.clock = port2.measured_at = plan2.start + plan2.times[k]
+    port2.measured = plan2.states[k].copy()
+
+    def slow_solve(*args, **kwargs):
+        k = min(int(np.searchsorted(plan2.times, port2.clock - plan2.start)), N_NODES - 1)
+        port2.measured, port2.measured_at = plan2.states[k].copy(), port2.clock
+        result = solve(*args, **kwargs)
+        port2.clock += 0.12
+        return result
+    N_NODES = len(plan2.times)
+    monkeypatch.setattr(planner_module, 'solve', slow_solve)
+    request = p2.submit(lambda _c: other, 'goal_joints')
+    finish(p2, request)
+    late = [text for _, text in port2.logger.lines if 'solved after its start' in text]
+    assert late, port2.logger.lines
+    final = port2.trajectories[-1]
+    assert len(port2.trajectories) == 2 and port2.reports[-1].status is Status.SOLVED
+    source = port2.reports[-1].start_source
+    assert source in (goals.ON_PLAN, goals.ON_PLAN_REST)
+    _, q2, _, _ = points(final)
+    if source == goals.ON_PLAN_REST:
+        np.testing.assert_allclose(q2[0], plan2.states[-1, 0::2], atol=1e-9)
+        assert stamp(final) >= plan2.start + plan2.duration - 1e-9
+    else:           # published before its stamp, on the plan (the prediction of the
+        #             robot's motion there, within centimetres of the Euler plan's node)
+        assert request.published_stamp < stamp(final)
+        k = int(np.searchsorted(plan2.times, stamp(final) - plan2.start - 1e-9))
+        np.testing.assert_allclose(q2[0], plan2.states[k, 0::2], atol=0.03)
+    p.worker.stop()
+    p2.worker.stop()
 
 
 def moving_with_a_circle_ahead():

@@ -228,6 +228,35 @@ def test_cycle_starts_on_the_first_plan_node_after_the_lead(plan):
     assert policy.cycle_start(shifted, 100.0 + T + 1.0, 0.025, 0.0) is None
 
 
+def test_a_goal_while_a_plan_moves_the_robot_starts_on_it_ahead(plan):
+    """policy.goal_start_on_plan: the plan's node at now + lead, its time, or its rest."""
+    moving = make_plan(start=10.0, result=SimpleNamespace())      # a solved plan, no stop
+    now, lead = 10.3, 0.15
+    measured = moving.states[25]                 # on the plan at 0.3 s, measured just now
+    start, stamp, rest = policy.goal_start_on_plan(moving, 4, measured, 10.3, now, lead, 0.0)
+    node = int(np.searchsorted(moving.times, 0.45))
+    assert not rest and stamp == pytest.approx(10.0 + moving.times[node], abs=1e-12)
+    assert moving.times[node] >= 0.45 - 1e-12 and moving.times[node - 1] < 0.45
+    # stitch 0: the measured state predicted to the node under the plan's controls (an
+    # independent RK4 of the same controls from the same state: the plan's own state).
+    np.testing.assert_allclose(start, moving.states[node], rtol=0, atol=1e-9)
+    # Far behind the robot is what the old start was: the measured state itself.
+    assert np.max(np.abs(start - measured)) > 0.05
+    # A plan that ends before now + lead: its rest, from its end.
+    start, stamp, rest = policy.goal_start_on_plan(moving, 4, moving.states[90], 11.08, 11.1,
+                                                   lead, 0.0)
+    assert rest and stamp == pytest.approx(10.0 + T) and np.array_equal(start, moving.states[-1])
+    # Not started yet (stamped ahead, the robot rests at its start): the plan's own node.
+    start, stamp, rest = policy.goal_start_on_plan(moving, 4, X0, 9.9, 9.95, lead, 0.0)
+    assert np.array_equal(start, moving.states[int(np.searchsorted(moving.times, 0.1))])
+    # Over, a braking stop, another model, no plan: not this rule.
+    assert policy.goal_start_on_plan(moving, 4, X0, 11.3, 11.3, lead, 0.0) is None
+    stop = dataclasses.replace(moving, result=None, source='brake')
+    assert policy.goal_start_on_plan(stop, 4, measured, 10.3, now, lead, 0.0) is None
+    assert policy.goal_start_on_plan(moving, 6, measured, 10.3, now, lead, 0.0) is None
+    assert policy.goal_start_on_plan(None, 4, measured, 10.3, now, lead, 0.0) is None
+
+
 def test_cycle_nodes_budget_and_reason():
     assert policy.cycle_nodes(800, 300, 1.0, math.inf) == 300
     assert policy.cycle_nodes(120, 300, 1.0, math.inf) == 120

@@ -42,6 +42,11 @@ REPLAN = 'replan'
 BRAKING_REST = 'braking stop (its rest)'
 # ... and of one solved while the robot brakes into a true circle (policy.braking_rest_start).
 BRAKING_AHEAD = 'braking stop (its state at now + replan.lead: it rests inside a circle)'
+# ... and of one that arrives while a plan moves the robot (policy.goal_start_on_plan): its
+# plan must be published before the start's time (a strict stamp), else it is solved again.
+ON_PLAN = 'executing plan (its state at now + goal_lead)'
+# ... when that plan ends before then: its rest, from its end on.
+ON_PLAN_REST = 'executing plan (its rest)'
 
 
 def start_state(config, measured):
@@ -51,20 +56,28 @@ def start_state(config, measured):
     return np.asarray(config.problem.x0, dtype=float), 'initial_state'
 
 
-def goal_start(config, measured, executing, now, measured_time=None):
+def goal_start(config, measured, executing, now, measured_time=None, lead_scale=1.0):
     """
     Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
 
     While a braking stop executes that the measured state (at measured_time) follows, the
     stop's rest (policy.braking_rest_start), or its node at now + replan.lead when its path
-    enters a true circle; else start_state.
+    enters a true circle.  While another plan executes, its node at now + goal_lead x
+    lead_scale or its rest (policy.goal_start_on_plan: ON_PLAN, whose time is the plan's
+    stamp, or ON_PLAN_REST).  Else start_state.
     """
+    nx = np.shape(config.problem.x0)[0]
     rows = None if config.is_arm else config.problem.obstacles
-    rest = policy.braking_rest_start(executing, now, np.shape(config.problem.x0)[0],
-                                     measured, measured_time, rows, config.node.replan_lead)
+    rest = policy.braking_rest_start(executing, now, nx, measured, measured_time, rows,
+                                     config.node.replan_lead)
     if rest is not None:
         at_rest = rest[1] >= executing.start + executing.duration
         return rest[0], BRAKING_REST if at_rest else BRAKING_AHEAD, rest[1]
+    on_plan = policy.goal_start_on_plan(
+        executing, nx, measured, measured_time, now, config.node.goal_lead * lead_scale,
+        config.node.replan_stitch)
+    if on_plan is not None:
+        return on_plan[0], ON_PLAN_REST if on_plan[2] else ON_PLAN, on_plan[1]
     return (*start_state(config, measured), None)
 
 

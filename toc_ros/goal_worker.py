@@ -55,6 +55,8 @@ class Request:
         self.published_at = None         # time.monotonic() when its trajectory was published
         self.published_stamp = None      # the node clock then [s]
         self.late = False                # a cycle's plan was ready only after its deadline
+        #                                  (a goal's: after the stamp of its start on a plan)
+        self.lead_scale = 1.0            # a goal's goal_lead factor (doubled when late)
         self.path = None                 # what the node answers a plan request with
         self.done = threading.Event()
         self._lock = threading.Lock()

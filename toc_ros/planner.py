@@ -284,11 +284,14 @@ class Planner(ReplanCycles):
         config, measured = port.snapshot()
         executing, revision = self.plans.current()
         start, start_source, not_before = goals.goal_start(
-            config, measured, executing, port.now(), port.measured_time())
+            config, measured, executing, port.now(), port.measured_time(), request.lead_scale)
+        # A start on the executing plan applies at that node's time (published before it).
+        stamp_s = not_before if start_source == goals.ON_PLAN else None
         try:
             problem, guess, margin = goals.goal_problem(
                 config, start, request.goal, request.source,
-                executing if start_source == 'joint_states' else None, port.now())
+                executing if start_source in ('joint_states', goals.ON_PLAN) else None,
+                port.now())
         except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
             self.refuse(request.source, str(exc))
             return
@@ -318,8 +321,18 @@ class Planner(ReplanCycles):
         request.result = result
         status, message = goals.goal_outcome(result, request.stop_reason, start_source)
         if status in schema.PUBLISHED and result.has_trajectory \
-                and not self._publish_plan(request, result, problem, config, revision,
-                                           not_before=not_before):
+                and not self._publish_plan(
+                    request, result, problem, config, revision, stamp_s=stamp_s,
+                    not_before=None if stamp_s is not None else not_before):
+            if request.late and self.worker.current(request):
+                # Solved after its start on the executing plan: that start is behind the
+                # robot now.  Again from twice as far ahead (or from the plan's rest).
+                request.late, request.lead_scale = False, 2.0 * request.lead_scale
+                request.restart_reason = (
+                    f'solved after its start on the executing plan ({result.wall_time_s:.3f} s)'
+                    f': again from {config.node.goal_lead * request.lead_scale:.3g} s ahead')
+                self._log.warning(f'goal from {request.source} {request.restart_reason}')
+                return
             if self.worker.current(request):
                 request.restart_reason = 'planning data changed at the end of the solve'
                 return
@@ -350,13 +363,21 @@ class Planner(ReplanCycles):
         Publish the plan unless its data revision is stale or its goal canceled (then False).
 
         stamp_s: the plan's header.stamp [s, node clock], when it starts to apply (replan
-        cycles: ahead of now); None: start_lead after publication for a start at rest (the
-        stamp is taken once the message is built), else now; not before not_before [s] (the
-        rest of the braking stop it starts from).  A replan cycle's plan whose data
+        cycles, and goals started on the executing plan: ahead of now; a goal's is late, and
+        not published, from then on); None: start_lead after publication for a start at rest
+        (the stamp is taken once the message is built), else now; not before not_before [s]
+        (the rest of the braking stop or plan it starts from).  A replan cycle's plan whose data
         changed meanwhile is published when it also satisfies the current data (checked as
         executing plans are).
         """
         port, plans = self._port, self.plans
+
+        def late():
+            # A cycle past its deadline, or a goal started on the executing plan past the
+            # time of that start: the robot is no longer where its plan begins.
+            if request.cycle is None and stamp_s is not None and port.now() >= stamp_s:
+                request.late = True
+            return overdue(request)
         arm = config.is_arm         # the node's view of the arm (the problem's is the core's)
         model = config.model if arm else problem.robot_model
         rest = stamp_s is None and policy.at_rest(model, problem.x0)
@@ -372,7 +393,7 @@ class Planner(ReplanCycles):
             trajectory = conversions.trajectory_msg(result, names, model,
                                                     conversions.time_msg(0.0))
         now = port.now()
-        if overdue(request):           # over the cycle's budget (the lead): keep the old plan
+        if late():                     # over the cycle's budget (the lead): keep the old plan
             return False
         start = now + lead if stamp_s is None else float(stamp_s)
         if not_before is not None:
@@ -390,7 +411,7 @@ class Planner(ReplanCycles):
                            if current.is_arm else problem_from_parameters(
                                current.flat, x0=problem.x0, x_goal=problem.x_goal))
                 revision = plans.revision
-            if overdue(request):
+            if late():
                 # Checked again at the last moment: building the messages and taking the lock
                 # take milliseconds on a loaded machine, and a cycle's plan starts at its
                 # stamp, right after the deadline.

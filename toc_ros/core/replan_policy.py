@@ -369,6 +369,41 @@ def recovery_margin(model, start, rows, margin):
 BRAKE, HOLD, NOTHING = 'brake', 'hold', 'nothing'
 
 
+def goal_start_on_plan(plan, nx, measured, measured_time, now, lead, stitch):
+    """
+    Return (start state, its time [s, node clock], whether it is the plan's rest) or None.
+
+    A goal that arrives while plan executes cannot start from the measured state: its plan
+    would be stamped when it is published, a solve later, and the robot has moved on along
+    plan meanwhile, so the reference would jump back (a Panda goal solved in 0.33 s jumped it
+    by 0.37 rad).  It starts on plan instead, at its node at or after now + lead, from the
+    plan's state there or the measured state predicted to it (cycle_start_state, as replan
+    cycles do); its plan applies from that node's time, and the robot follows plan until then.
+    When plan ends before now + lead: its final state, at rest from its end; so also when it
+    is over and the newest measured state is from before its end.  None when plan is a braking
+    stop (braking_rest_start), of another model (nx), or over by the measured state (or none
+    is known).
+    """
+    if plan is None or plan.braking or plan.states.shape[1] != nx:
+        return None
+    known = measured is not None and np.shape(measured) == (nx,) and measured_time is not None
+    measured_at = plan.elapsed(state_time(measured_time, now)) if known else None
+    elapsed = plan.elapsed(now)
+    if elapsed >= plan.duration and (measured_at is None or measured_at >= plan.duration):
+        return None
+    start_at = elapsed + float(lead)
+    if start_at >= plan.duration:
+        return np.array(plan.states[-1], dtype=float), plan.start + plan.duration, True
+    node = int(np.searchsorted(plan.times, max(start_at, 0.0)))
+    start_at = float(plan.times[node])
+    if measured_at is None or measured_at < 0.0 or measured_at > start_at:
+        # No state of the robot on this plan yet (it starts ahead, from rest): its own.
+        return np.array(plan.states[node], dtype=float), plan.start + start_at, False
+    deviation = plan.deviation(measured, measured_at)
+    start = cycle_start_state(plan, measured, measured_at, start_at, deviation, stitch)
+    return np.asarray(start, dtype=float), plan.start + start_at, False
+
+
 def cancel_goal_action(plan, now, measured):
     """
     Return how a goal cancel stops the robot: BRAKE, HOLD or NOTHING.

@@ -93,6 +93,12 @@ class SolverNodeSettings:
         'to 0.2 s), from the state predicted along the executing plan; a cycle not published '
         'by then keeps the executing plan (and seeds the next)', unit='s', low=0.001,
         high=1.0, ros_name='replan.lead')
+    goal_lead: float = setting(
+        0.15, 'a goal that arrives while a plan moves the robot starts on that plan this long '
+        'ahead (its node then; the robot follows the plan meanwhile): a plan from the measured '
+        'state would start where the robot was when its solve began. A solve not done by then '
+        'is solved again from twice as far ahead; a plan that ends sooner is continued from '
+        'its rest', unit='s', low=0.01, high=2.0)
     start_lead: float = setting(
         0.03, "a goal's plan from rest starts (header.stamp) this long after it is published, "
         'so that the controller has it before its first point applies (the robot holds its '
