@@ -16,7 +16,8 @@
 solver_node: minimum-time trajectories of the robot model (robot.model) on request.
 
 Goals arrive on ``goal_pose``, ``goal_joints`` or ``~/plan``; each plan starts from the latest
-``joint_states`` (``initial_state`` until one arrived), avoids the current obstacles and is
+``joint_states`` (``initial_state`` until one arrived; while a plan moves the robot, on that
+plan ``goal_lead`` ahead), avoids the current obstacles and is
 published on ``trajectory``; ``~/progress`` reports every solve, cycle and stop, ``~/cancel``
 stops a solve, ``~/cancel_goal`` abandons a goal, ``~/ready`` tells when the kernels are loaded.
 The interface and its rules (goal lifecycle, newest goal wins, no plan for stale data, replan
