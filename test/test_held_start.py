@@ -22,12 +22,14 @@ controller holds until the plan starts.  Checked on the JTC emulation's samples 
 the loop on MuJoCo, on how far the Panda moves before its plan starts.
 """
 
+import math
+
 from builtin_interfaces.msg import Duration, Time
 import numpy as np
 import pytest
 from std_msgs.msg import Header
 from toc_ros.core.plan_reference import END_REST_SPEED, rest_at_end
-from toc_ros.execution import goal_trajectory, held_start, HOLD_LEAD_S
+from toc_ros.execution import continued, goal_trajectory, held_start, HOLD_LEAD_S
 from toc_ros.plant import jtc_trajectory as jtc
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -97,6 +99,65 @@ def test_goals_carry_efforts_only_when_told():
     held = goal_trajectory(msg, True, [0.5, -0.25])
     assert len(held.points) == 4 and list(held.points[0].effort) == [0.5, -0.25]
     assert goal_trajectory(msg, True, None) is msg            # a moving start: as published
+
+
+def motion_msg(stamp_ns, t0, count, dt=0.1):
+    """
+    Return a 2-joint motion sampled every dt from t0, stamped.
+
+    Joint a accelerates at 5 rad/s^2 up to 2 rad/s at t = 0.4 s, then holds it (effort 5,
+    then 0); joint b moves as sin t.
+    """
+    points = []
+    for k in range(count):
+        t = t0 + k * dt
+        ns_k = round(k * dt * NS)
+        a = 2.5 * t * t if t <= 0.4 else 0.4 + 2.0 * (t - 0.4)
+        points.append(JointTrajectoryPoint(
+            positions=[a, math.sin(t)], velocities=[min(5.0 * t, 2.0), math.cos(t)],
+            effort=[5.0 if t < 0.4 - 1e-9 else 0.0, -math.sin(t)],
+            time_from_start=Duration(sec=ns_k // NS, nanosec=ns_k % NS)))
+    return JointTrajectory(header=Header(stamp=Time(sec=stamp_ns // NS, nanosec=stamp_ns % NS)),
+                           joint_names=['a', 'b'], points=points)
+
+
+def samples(msg, arrival_ns, until_ns, state):
+    """Return JTC's desired (positions, velocities, efforts) every ms from arrival to until."""
+    # The test motions end moving (they stand for parts of longer plans).
+    trajectory = jtc.validate(msg, ['a', 'b'], 0, allow_nonzero_velocity_at_end=True)
+    trajectory.begin(arrival_ns, state)
+    out = [trajectory.sample(t) for t in range(arrival_ns, until_ns, NS // 1000)]
+    return np.array([np.concatenate([s.positions, s.velocities, s.effort]) for s in out])
+
+
+def test_a_goal_ahead_of_now_continues_the_previous_motion_until_it_starts():
+    previous = motion_msg(10 * NS, 0.0, 11)           # 10.0 .. 11.0 s
+    # The new plan starts on the previous one's node at 10.5 s, where it is (a cycle's start).
+    new = motion_msg(10 * NS + NS // 2, 0.5, 8)
+    now = 10 * NS + 320_000_000
+    goal = continued(previous, new, now)
+    # Stamped at the previous point at or before now; every point keeps its absolute time.
+    assert ns(goal.header.stamp) == 10 * NS + 300_000_000
+    absolute = [ns(goal.header.stamp) + ns(p.time_from_start) for p in goal.points]
+    assert absolute[:2] == [10 * NS + 300_000_000, 10 * NS + 400_000_000]
+    assert absolute[2:] == [10 * NS + NS // 2 + ns(p.time_from_start) for p in new.points]
+    # The controller, taking it at now from the reference it followed, goes on exactly as the
+    # previous goal would have until the new plan starts, and follows the plan after.
+    before = jtc.validate(previous, ['a', 'b'], 0, allow_nonzero_velocity_at_end=True)
+    before.begin(10 * NS, jtc.Point(np.array([0.0, 0.0]), np.array([1.0, 0.0]), None,
+                                    np.zeros(2)))
+    state = before.sample(now)
+    state = jtc.Point(state.positions, state.velocities, None, state.effort)
+    expected = samples(previous, now, 10 * NS + NS // 2, state)
+    np.testing.assert_allclose(samples(goal, now, 10 * NS + NS // 2, state), expected,
+                               rtol=0, atol=1e-12)
+    # Without it, JTC bridges the 180 ms to the plan with one cubic and an effort ramp.
+    assert np.max(np.abs(samples(new, now, 10 * NS + NS // 2, state) - expected)) > 0.05
+    # Nothing to continue: no previous goal, one that is over, a plan that starts now.
+    assert continued(None, new, now) is new
+    assert continued(previous, new, 11 * NS + 1) is new
+    assert continued(previous, new, 10 * NS + NS // 2) is new
+    assert continued(JointTrajectory(joint_names=['a', 'b']), new, now) is new
 
 
 def efforts_before_the_plan(msg, holding, plan_ns):

@@ -30,7 +30,10 @@ the state it commanded last to the first point from the goal's arrival on, the e
 plan's first torque would fade in while its positions still rest, and a controller that feeds
 the effort forward would move the arm ahead of its reference.  Such a goal is led in by a point
 that holds the start with the holding torque until HOLD_LEAD_S before the plan (``held_start``).
-A stop without a braking plan (an empty trajectory) cancels our goals: JTC rejects an empty
+A goal stamped ahead of now (a replan cycle's lead, a goal's goal_lead) also carries the
+previous goal's points from now to its start (``continued``): JTC would otherwise bridge that
+time with one cubic from the state it commanded to the new first point.  A stop without a
+braking plan (an empty trajectory) cancels our goals: JTC rejects an empty
 goal and would go on with the running one.
 
 control_msgs is not a wheel: it is imported lazily (``follow_joint_trajectory_action``), and
@@ -176,6 +179,51 @@ def without_effort(trajectory):
                                for p in trajectory.points])
 
 
+def _ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def continued(previous, trajectory, now_ns):
+    """
+    Return trajectory preceded by the points of previous still to come before it starts.
+
+    A JointTrajectoryController takes a goal at once and, until its first point, interpolates
+    from the state it commanded to that point (one cubic, the effort a ramp): a plan stamped
+    ahead of now (a cycle's lead, a goal's goal_lead) would replace the motion still to be made
+    on the previous goal by that bridge.  So the goal also carries the previous goal's points
+    from the one at or before now_ns up to its start, and is stamped at that point: the
+    controller goes on along the previous motion and reaches the plan at its stamp.  previous
+    and trajectory are goal trajectories (stamped, same joints and fields); trajectory as it
+    is when nothing of previous is left before its start.
+    """
+    if previous is None or not previous.points or not trajectory.points \
+            or list(previous.joint_names) != list(trajectory.joint_names):
+        return trajectory
+    old_ns, new_ns = _ns(previous.header.stamp), _ns(trajectory.header.stamp)
+    if old_ns == 0 or new_ns <= now_ns:
+        return trajectory
+    times = [old_ns + _ns(p.time_from_start) for p in previous.points]
+    first = max((k for k, t in enumerate(times) if t <= now_ns), default=0)
+    kept = [k for k in range(first, len(times)) if times[k] < new_ns]
+    if not kept or times[kept[-1]] <= now_ns:
+        return trajectory       # previous is over by now (or starts after trajectory)
+    from builtin_interfaces.msg import Duration, Time
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    def at(point, ns):
+        return JointTrajectoryPoint(
+            positions=point.positions, velocities=point.velocities,
+            accelerations=point.accelerations, effort=point.effort,
+            time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
+    start = times[kept[0]]
+    points = [at(previous.points[k], times[k] - start) for k in kept]
+    points += [at(p, new_ns + _ns(p.time_from_start) - start) for p in trajectory.points]
+    msg = JointTrajectory(joint_names=list(trajectory.joint_names), points=points)
+    msg.header.frame_id = trajectory.header.frame_id
+    msg.header.stamp = Time(sec=start // 1_000_000_000, nanosec=start % 1_000_000_000)
+    return msg
+
+
 def goal_trajectory(trajectory, effort, hold_effort=None):
     """
     Return the trajectory a goal carries for a published one.
@@ -227,6 +275,7 @@ class TrajectoryExecutor:
             if action_type is None:
                 raise RuntimeError(reason)
         self._action_type = action_type
+        self._node = node
         self._client = ActionClient(node, action_type, action_name)
         self._action_name = action_name
         self._tolerances = tolerances
@@ -234,6 +283,7 @@ class TrajectoryExecutor:
         self._on_outcome = on_outcome
         self._lock = threading.Lock()
         self._sent = 0
+        self._previous = None       # the newest goal's trajectory (None: none runs)
         self._cancel_below = 0      # goals older than the last stop are canceled on acceptance
         self._handles = {}          # goal id -> accepted goal handle, until its result
         self._destroyed = False
@@ -262,17 +312,21 @@ class TrajectoryExecutor:
         It cancels our goals instead, running or still on their way (JTC then holds the robot
         where it is).
         """
+        sent = goal_trajectory(trajectory, self._effort, hold_effort)
+        now_ns = self._node.get_clock().now().nanoseconds
         with self._lock:
             self._sent += 1
             goal_id = self._sent
             if not trajectory.points:
                 self._cancel_below = goal_id
+                self._previous = None
+            else:
+                sent = continued(self._previous, sent, now_ns)
+                self._previous = sent
         if not trajectory.points:
             self.cancel()
             return goal_id
-        goal = build_goal(self._action_type,
-                          goal_trajectory(trajectory, self._effort, hold_effort),
-                          self._tolerances)
+        goal = build_goal(self._action_type, sent, self._tolerances)
         if self._client.server_is_ready():
             self._send(goal_id, goal)
         else:
@@ -289,12 +343,12 @@ class TrajectoryExecutor:
     def _send_when_ready(self, goal_id, goal):
         ready = self._client.wait_for_server(timeout_sec=self.SERVER_WAIT_S)
         if goal_id != self.newest:
-            self._on_outcome(Outcome(PREEMPTED, goal_id, text='a newer goal was sent first'))
+            self._deliver(Outcome(PREEMPTED, goal_id, text='a newer goal was sent first'))
         elif ready:
             self._send(goal_id, goal)
         else:
-            self._on_outcome(Outcome(UNAVAILABLE, goal_id, text=f'no action server '
-                                     f'{self.action_name} within {self.SERVER_WAIT_S:g} s'))
+            self._deliver(Outcome(UNAVAILABLE, goal_id, text=f'no action server '
+                                  f'{self.action_name} within {self.SERVER_WAIT_S:g} s'))
 
     def cancel(self):
         """Ask the server to cancel every goal of ours that is still running."""
@@ -318,20 +372,27 @@ class TrajectoryExecutor:
         self._destroyed = True
         self._client.destroy()
 
+    def _deliver(self, outcome):
+        """Pass an outcome on; the newest goal's failure or cancel leaves nothing running."""
+        if outcome.failed or outcome.kind == CANCELED:
+            with self._lock:
+                if outcome.goal_id == self._sent:
+                    self._previous = None       # the controller holds the robot
+        self._on_outcome(outcome)
+
     def _on_response(self, goal_id, future):
         try:
             handle = future.result()
         except Exception as exc:   # noqa: B902 - a transport error is an outcome, not a crash
-            self._on_outcome(Outcome(REJECTED, goal_id, text=f'no goal response: {exc}'))
+            self._deliver(Outcome(REJECTED, goal_id, text=f'no goal response: {exc}'))
             return
         if not handle.accepted:
-            self._on_outcome(Outcome(REJECTED, goal_id,
-                                     text='the server rejected the goal'))
+            self._deliver(Outcome(REJECTED, goal_id, text='the server rejected the goal'))
             return
         with self._lock:
             self._handles[goal_id] = handle
             stopped = goal_id < self._cancel_below
-        self._on_outcome(Outcome(ACCEPTED, goal_id))
+        self._deliver(Outcome(ACCEPTED, goal_id))
         if stopped:
             handle.cancel_goal_async()
         handle.get_result_async().add_done_callback(
@@ -343,8 +404,8 @@ class TrajectoryExecutor:
         try:
             response = future.result()
         except Exception as exc:   # noqa: B902
-            self._on_outcome(Outcome(ABORTED, goal_id, text=f'no result: {exc}'))
+            self._deliver(Outcome(ABORTED, goal_id, text=f'no result: {exc}'))
             return
         result = response.result
-        self._on_outcome(classify_result(goal_id, self.newest, response.status,
-                                         result.error_code, result.error_string))
+        self._deliver(classify_result(goal_id, self.newest, response.status,
+                                      result.error_code, result.error_string))
