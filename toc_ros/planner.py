@@ -55,6 +55,10 @@ from toc_ros.replan_cycles import overdue, ReplanCycles
 from toc_ros.solve_progress import SolveProgress
 from trajectory_msgs.msg import JointTrajectory
 
+# [rad] an arm goal's start on the executing plan is set again for its own Euler step when
+# that moves it by more than this (Planner._rebased).
+REBASE_TOL = 1e-5
+
 
 class Planner(ReplanCycles):
     """Solves goals and replan cycles for a node's port; see the module docstring."""
@@ -314,6 +318,9 @@ class Planner(ReplanCycles):
             port.report(schema.refusal_report(
                 f'internal solver error: {exc!r}', status=Status.INVALID_INPUT, event=''))
             return
+            if start_source == goals.ON_PLAN and config.is_arm:
+                result, problem = self._rebased(executing, problem, result, config.options,
+                                                cancel)
         finally:
             self.progress.end()
         if request.restart_reason is not None:
@@ -356,6 +363,29 @@ class Planner(ReplanCycles):
         else:
             self._log.error(text)
         port.report(report)
+
+    @staticmethod
+    def _rebased(plan, problem, result, options, cancel):
+        """
+        Return (result, problem) of an arm goal started on plan, its start set for its own step.
+
+        The start's published position is plan's there (its Euler node shifted by plan's
+        h dq / 2); the goal's plan shifts its start by its own h = t_f / N, known only now:
+        millimetres apart at full speed, a jump of the commanded reference.  Solved again from
+        the start moved by the difference, warm-started from result (a few iterations); kept
+        when that is solved.
+        """
+        if result.status is not Status.SOLVED or not result.has_trajectory:
+            return result, problem
+        x0 = np.asarray(problem.x0, dtype=float)
+        start = plan.start_for(plan.published_start(x0), result.final_time / problem.n_intervals)
+        if np.max(np.abs(start - x0)) <= REBASE_TOL:
+            return result, problem
+        rebased = dataclasses.replace(problem, x0=tuple(float(v) for v in start))
+        again = solve(rebased, options, cancel=cancel, initial_guess=result)
+        if again.status is Status.SOLVED and again.has_trajectory:
+            return again, rebased
+        return result, problem
 
     def _publish_plan(self, request, result, problem, config, revision, stamp_s=None,
                       not_before=None):

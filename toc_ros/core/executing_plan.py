@@ -95,25 +95,38 @@ class ExecutingPlan:
         return reference_positions(q, self.model.velocities(self.states), self.times,
                                    self.integrator)
 
-    def start_for(self, x):
+    def start_for(self, x, step=None):
         """
-        Return the start of a new plan on this plan's grid whose published motion begins at x.
+        Return the start of a new plan whose published motion begins at x.
 
         An arm's Euler plan publishes its nodes half a step ahead (plan_reference): a replan
         from a measured state x starts its nodes half a step behind it, so that the commanded
-        motion does not jump ahead by h dq / 2.  Other plans: x.
+        motion does not jump ahead by h dq / 2; step: the new plan's h [s] (default this
+        plan's, which a replan cycle keeps).  Other plans: x.
         """
         x = np.array(x, dtype=float)
         if not getattr(self.model, 'is_arm', False) or self.integrator != 'euler' \
                 or self.times.shape[0] < 2:
             return x
         n = self.model.n_joints
-        q = x[:n] - 0.5 * float(self.times[1] - self.times[0]) * x[n:2 * n]
+        h = float(self.times[1] - self.times[0]) if step is None else float(step)
+        q = x[:n] - 0.5 * h * x[n:2 * n]
         arm = self.model.arm         # never past a position limit the measured state is within
         bounded = ~np.asarray(arm.continuous, dtype=bool)
         x[:n] = np.where(bounded, np.clip(q, np.minimum(arm.lower, x[:n]),
                                           np.maximum(arm.upper, x[:n])), q)
         return x
+
+    def published_start(self, start):
+        """Return (published positions, velocities) of a start this plan's start_for gave."""
+        start = np.asarray(start, dtype=float)
+        if not getattr(self.model, 'is_arm', False) or self.integrator != 'euler' \
+                or self.times.shape[0] < 2:
+            return start
+        n = self.model.n_joints
+        published = start.copy()
+        published[:n] += 0.5 * float(self.times[1] - self.times[0]) * start[n:2 * n]
+        return published
 
     def reference_positions(self, t):
         """
