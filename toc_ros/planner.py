@@ -313,14 +313,14 @@ class Planner(ReplanCycles):
         try:
             result = solve(problem, config.options, progress=self._on_progress, cancel=cancel,
                            initial_guess=guess)
+            if start_source == goals.ON_PLAN and config.is_arm:
+                result, problem = self._rebased(executing, problem, result, config.options,
+                                                cancel)
         except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
             self._log.error(f'solver failed: {exc!r}')
             port.report(schema.refusal_report(
                 f'internal solver error: {exc!r}', status=Status.INVALID_INPUT, event=''))
             return
-            if start_source == goals.ON_PLAN and config.is_arm:
-                result, problem = self._rebased(executing, problem, result, config.options,
-                                                cancel)
         finally:
             self.progress.end()
         if request.restart_reason is not None:
