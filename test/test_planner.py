@@ -215,6 +215,41 @@ def test_an_arm_goal_from_rest_ends_at_rest_and_is_held_until_it_starts():
         oracle.model, oracle.model.createData(), q[-1]), rtol=0, atol=1e-9)
 
 
+def test_an_arm_goal_while_the_arm_moves_continues_the_commanded_motion():
+    """Started on the executing Euler plan, set for its own step: no jump of the reference."""
+    pytest.importorskip('pinocchio')
+    from arm_oracle import PANDA_JOINTS
+    from toc_ros.core.plan_reference import cubic_at
+    ready = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
+    settings = config(**{'robot.model': 'panda', 'joint_names': PANDA_JOINTS,
+                         'initial_state': ready, 'solver.N': 30, 'replan.rate': 0.0,
+                         'obstacles.rows': []})
+    p, port = planner(settings)
+    first = np.array([0.8, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785])
+    finish(p, p.submit(lambda c: c.model.state(first), 'goal_joints'))
+    plan, _ = p.plans.current()
+    k = int(np.searchsorted(plan.times, 0.3 * plan.duration))
+    port.clock = port.measured_at = plan.start + plan.times[k]
+    port.measured = plan.states[k].copy()
+    goal = np.array([-0.6, 0.2, 0.5, -1.6, 0.4, 1.5, 0.2])
+    finish(p, p.submit(lambda c: c.model.state(goal), 'goal_joints'))
+    assert len(port.trajectories) == 2 and port.reports[-1].start_source == goals.ON_PLAN
+    old, new = port.trajectories
+    times, q_old, dq_old, _ = points(old)
+    _, q_new, dq_new, _ = points(new)
+    at = stamp(new) - stamp(old)
+    assert at >= plan.times[k] + port.config.node.goal_lead - 1e-9
+    # The new plan's first point is where the commanded motion (the cubic through the old
+    # points) is at its stamp, moving as fast: the old point there shifted by the new plan's
+    # own half step would be millimetres off at these speeds.
+    np.testing.assert_allclose(q_new[0], cubic_at(times, q_old, dq_old, at), atol=1e-5)
+    assert np.max(np.abs(dq_new[0])) > 1.0
+    node = int(np.argmin(np.abs(times - at)))
+    np.testing.assert_allclose(dq_new[0], dq_old[node], atol=1e-9)
+    assert 'from the start set for its step' in port.reports[-1].message
+    p.worker.stop()
+
+
 def test_a_goal_is_planned_with_the_online_estimate_once_one_is_in_use():
     p, port = planner(config(**{'replan.rate': 0.0}))
     finish(p, p.submit(lambda _c: NEAR_GOAL, 'goal_joints'))

@@ -56,8 +56,9 @@ from toc_ros.solve_progress import SolveProgress
 from trajectory_msgs.msg import JointTrajectory
 
 # [rad] an arm goal's start on the executing plan is set again for its own Euler step when
-# that moves it by more than this (Planner._rebased).
+# that moves it by more than this, at most REBASE_ROUNDS times (Planner._rebased).
 REBASE_TOL = 1e-5
+REBASE_ROUNDS = 3
 
 
 class Planner(ReplanCycles):
@@ -372,20 +373,32 @@ class Planner(ReplanCycles):
         The start's published position is plan's there (its Euler node shifted by plan's
         h dq / 2); the goal's plan shifts its start by its own h = t_f / N, known only now:
         millimetres apart at full speed, a jump of the commanded reference.  Solved again from
-        the start moved by the difference, warm-started from result (a few iterations); kept
-        when that is solved.
+        the start moved by the difference, warm-started from the last result (2 iterations
+        each), until the start moves by at most REBASE_TOL (the change of t_f moves it again,
+        by some 3 % of the last move) or REBASE_ROUNDS; the last solved one is kept.
         """
         if result.status is not Status.SOLVED or not result.has_trajectory:
             return result, problem
-        x0 = np.asarray(problem.x0, dtype=float)
-        start = plan.start_for(plan.published_start(x0), result.final_time / problem.n_intervals)
-        if np.max(np.abs(start - x0)) <= REBASE_TOL:
+        published = plan.published_start(np.asarray(problem.x0, dtype=float))
+        first = result
+        for _ in range(REBASE_ROUNDS):
+            x0 = np.asarray(problem.x0, dtype=float)
+            start = plan.start_for(published, result.final_time / problem.n_intervals)
+            if np.max(np.abs(start - x0)) <= REBASE_TOL:
+                break
+            rebased = dataclasses.replace(problem, x0=tuple(float(v) for v in start))
+            again = solve(rebased, options, cancel=cancel, initial_guess=result)
+            if again.status is not Status.SOLVED or not again.has_trajectory:
+                break
+            result, problem = again, rebased
+        if result is first:
             return result, problem
-        rebased = dataclasses.replace(problem, x0=tuple(float(v) for v in start))
-        again = solve(rebased, options, cancel=cancel, initial_guess=result)
-        if again.status is Status.SOLVED and again.has_trajectory:
-            return again, rebased
-        return result, problem
+        # Reported as one solve: every run's iterations and time.
+        return dataclasses.replace(
+            result, iterations=first.iterations + result.iterations,
+            wall_time_s=first.wall_time_s + result.wall_time_s,
+            message=f'{first.message}; from the start set for its step: '
+                    f'{result.message}'), problem
 
     def _publish_plan(self, request, result, problem, config, revision, stamp_s=None,
                       not_before=None):
