@@ -463,7 +463,8 @@ class SolverNode(Node):
             why = f'cannot be compared with the measured state ({exc})'
         if why is not None:
             note = (f'~/plan: the request start {why}; planning from the {start_source} state '
-                    'instead (the start is the measured state, or the rest of a braking stop)')
+                    'instead (the start is the measured state, the rest of a braking stop, or '
+                    'the executing plan ahead)')
             self.get_logger().warning(note)
             self.report(schema.ProgressReport(
                 message=note, level=schema.DiagnosticStatus.WARN, goal_source='~/plan',
