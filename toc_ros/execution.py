@@ -33,8 +33,8 @@ that holds the start with the holding torque until HOLD_LEAD_S before the plan (
 A goal stamped ahead of now (a replan cycle's lead, a goal's goal_lead) also carries the
 previous goal's points from now to its start (``continued``): JTC would otherwise bridge that
 time with one cubic from the state it commanded to the new first point.  A stop without a
-braking plan (an empty trajectory) cancels our goals: JTC rejects an empty
-goal and would go on with the running one.
+braking plan (an empty trajectory) cancels our goals: JTC rejects an empty goal and would go
+on with the running one.
 
 control_msgs is not a wheel: it is imported lazily (``follow_joint_trajectory_action``), and
 without it execution through the action is refused with that reason.
@@ -134,53 +134,57 @@ def classify_result(goal_id, newest_id, goal_status, code, text):
     return Outcome(ABORTED, goal_id, code, text)
 
 
+def _ns(stamp):
+    """Integer nanoseconds of a Time or Duration message."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def _retimed(point, ns, effort=True):
+    """Return a copy of a JointTrajectoryPoint at time_from_start ns (without its efforts)."""
+    from builtin_interfaces.msg import Duration
+    from trajectory_msgs.msg import JointTrajectoryPoint
+    return JointTrajectoryPoint(
+        positions=point.positions, velocities=point.velocities,
+        accelerations=point.accelerations, effort=point.effort if effort else [],
+        time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
+
+
+def _trajectory(like, stamp_ns, points):
+    """Return a JointTrajectory with the joints and frame of like, stamped stamp_ns."""
+    from builtin_interfaces.msg import Time
+    from trajectory_msgs.msg import JointTrajectory
+    msg = JointTrajectory(joint_names=list(like.joint_names), points=points)
+    msg.header.frame_id = like.header.frame_id
+    msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    return msg
+
+
 def held_start(trajectory, effort, hold_s=HOLD_LEAD_S):
     """
     Return a trajectory that holds its first positions, at rest with effort, until it starts.
 
     The copy has a point (the first positions, zero velocities and accelerations where the
     points have them, effort) at time_from_start 0, and the trajectory's points hold_s later;
-    its stamp is hold_s earlier, so that every point of the plan keeps its time.
+    its stamp is hold_s earlier, so that every point of the plan keeps its time (a zero
+    stamp, "on arrival", stays zero).
     """
-    from builtin_interfaces.msg import Duration, Time
-    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+    from trajectory_msgs.msg import JointTrajectoryPoint
     hold_ns = int(round(hold_s * 1e9))
     first = trajectory.points[0]
     n = len(first.positions)
     hold = JointTrajectoryPoint(
         positions=list(first.positions), velocities=[0.0] * n if len(first.velocities) else [],
         accelerations=[0.0] * n if len(first.accelerations) else [],
-        effort=[float(e) for e in effort], time_from_start=Duration())
-
-    def later(point):
-        ns = point.time_from_start.sec * 1_000_000_000 + point.time_from_start.nanosec + hold_ns
-        return JointTrajectoryPoint(
-            positions=point.positions, velocities=point.velocities,
-            accelerations=point.accelerations, effort=point.effort,
-            time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
-    stamp = trajectory.header.stamp
-    msg = JointTrajectory(joint_names=list(trajectory.joint_names),
-                          points=[hold] + [later(p) for p in trajectory.points])
-    msg.header.frame_id = trajectory.header.frame_id
-    start_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-    if start_ns:            # a zero stamp means "on arrival": it stays zero
-        start_ns = max(start_ns - hold_ns, 1)
-        msg.header.stamp = Time(sec=start_ns // 1_000_000_000, nanosec=start_ns % 1_000_000_000)
-    return msg
+        effort=[float(e) for e in effort])
+    start_ns = _ns(trajectory.header.stamp)
+    return _trajectory(trajectory, max(start_ns - hold_ns, 1) if start_ns else 0, [hold] + [
+        _retimed(p, _ns(p.time_from_start) + hold_ns) for p in trajectory.points])
 
 
 def without_effort(trajectory):
     """Return a copy of a JointTrajectory whose points have no efforts."""
-    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
-    return JointTrajectory(header=trajectory.header, joint_names=list(trajectory.joint_names),
-                           points=[JointTrajectoryPoint(
-                               positions=p.positions, velocities=p.velocities,
-                               accelerations=p.accelerations, time_from_start=p.time_from_start)
-                               for p in trajectory.points])
-
-
-def _ns(stamp):
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
+    return _trajectory(trajectory, _ns(trajectory.header.stamp), [
+        _retimed(p, _ns(p.time_from_start), effort=False) for p in trajectory.points])
 
 
 def continued(previous, trajectory, now_ns):
@@ -207,21 +211,10 @@ def continued(previous, trajectory, now_ns):
     kept = [k for k in range(first, len(times)) if times[k] < new_ns]
     if not kept or times[kept[-1]] <= now_ns:
         return trajectory       # previous is over by now (or starts after trajectory)
-    from builtin_interfaces.msg import Duration, Time
-    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
-
-    def at(point, ns):
-        return JointTrajectoryPoint(
-            positions=point.positions, velocities=point.velocities,
-            accelerations=point.accelerations, effort=point.effort,
-            time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
     start = times[kept[0]]
-    points = [at(previous.points[k], times[k] - start) for k in kept]
-    points += [at(p, new_ns + _ns(p.time_from_start) - start) for p in trajectory.points]
-    msg = JointTrajectory(joint_names=list(trajectory.joint_names), points=points)
-    msg.header.frame_id = trajectory.header.frame_id
-    msg.header.stamp = Time(sec=start // 1_000_000_000, nanosec=start % 1_000_000_000)
-    return msg
+    return _trajectory(trajectory, start, [
+        _retimed(previous.points[k], times[k] - start) for k in kept] + [
+        _retimed(p, new_ns + _ns(p.time_from_start) - start) for p in trajectory.points])
 
 
 def goal_trajectory(trajectory, effort, hold_effort=None):
