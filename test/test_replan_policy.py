@@ -246,9 +246,15 @@ def test_a_goal_while_a_plan_moves_the_robot_starts_on_it_ahead(plan):
     start, stamp, rest = policy.goal_start_on_plan(moving, 4, moving.states[90], 11.08, 11.1,
                                                    lead, 0.0)
     assert rest and stamp == pytest.approx(10.0 + T) and np.array_equal(start, moving.states[-1])
-    # Not started yet (stamped ahead, the robot rests at its start): the plan's own node.
-    start, stamp, rest = policy.goal_start_on_plan(moving, 4, X0, 9.9, 9.95, lead, 0.0)
-    assert np.array_equal(start, moving.states[int(np.searchsorted(moving.times, 0.1))])
+    # A robot at rest (the plan not started yet, or not followed) or no measured state: the
+    # measured state is the start, as for any goal.
+    assert policy.goal_start_on_plan(moving, 4, X0, 9.9, 9.95, lead, 0.0) is None
+    assert policy.goal_start_on_plan(moving, 4, None, None, now, lead, 0.0) is None
+    # Within the stitch (replan.stitch -1: GOAL_STITCH for every model) of the plan: the
+    # plan's own state at the node, the commanded reference there.
+    start, stamp, rest = policy.goal_start_on_plan(moving, 4, measured + [0.01, 0, 0, 0],
+                                                   10.3, now, lead, -1.0)
+    assert np.array_equal(start, moving.states[node]) and stamp == 10.0 + moving.times[node]
     # Over, a braking stop, another model, no plan: not this rule.
     assert policy.goal_start_on_plan(moving, 4, X0, 11.3, 11.3, lead, 0.0) is None
     stop = dataclasses.replace(moving, result=None, source='brake')

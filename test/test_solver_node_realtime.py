@@ -34,6 +34,7 @@ import pytest
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from toc_ros.core import Status
+from toc_ros.goal_requests import ON_PLAN
 from trajectory_msgs.msg import JointTrajectory
 
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: I100 (message packages)
@@ -132,7 +133,8 @@ def test_replanning_the_same_goal_while_moving_starts_from_the_plan_remainder(so
         point = plan.points[k]
         t_k = point.time_from_start.sec + 1e-9 * point.time_from_start.nanosec
         received = client.stamped('trajectory', since)[-1][0]
-        time.sleep(max(0.0, received + t_k - time.monotonic()))
+        # The plan applies start_lead (0.03 s) after it is published: t_k from then on.
+        time.sleep(max(0.0, received + 0.03 + t_k - time.monotonic()))
         solver.joint_states.publish(JointState(
             name=['rotation_joint', 'extension_joint'], position=list(point.positions),
             velocity=list(point.velocities)))
@@ -146,7 +148,8 @@ def test_replanning_the_same_goal_while_moving_starts_from_the_plan_remainder(so
           f'{1e3 * second.elapsed_s:.1f} ms (first plan: {first.iteration} iterations, '
           f'{1e3 * first.elapsed_s:.1f} ms)')
     assert second.status is Status.SOLVED, second.message
-    assert second.start_source == 'joint_states'
+    # While the robot moves, on the plan ahead (goal_lead), where the remainder starts.
+    assert second.start_source == ON_PLAN
     # The plan's remaining nodes (same tau) and far fewer iterations than the cold plan.
     assert second.n_intervals < 300
     assert second.iteration < 0.6 * first.iteration

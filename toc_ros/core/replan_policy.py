@@ -369,38 +369,48 @@ def recovery_margin(model, start, rows, margin):
 BRAKE, HOLD, NOTHING = 'brake', 'hold', 'nothing'
 
 
+# [rad or m] a goal that arrives while a plan moves the robot starts on the plan's own state
+# while the robot is within this of it (replan.stitch -1, for every model).
+GOAL_STITCH = ARM_STITCH
+
+
 def goal_start_on_plan(plan, nx, measured, measured_time, now, lead, stitch):
     """
     Return (start state, its time [s, node clock], whether it is the plan's rest) or None.
 
-    A goal that arrives while plan executes cannot start from the measured state: its plan
-    would be stamped when it is published, a solve later, and the robot has moved on along
-    plan meanwhile, so the reference would jump back (a Panda goal solved in 0.33 s jumped it
-    by 0.37 rad).  It starts on plan instead, at its node at or after now + lead, from the
-    plan's state there or the measured state predicted to it (cycle_start_state, as replan
-    cycles do); its plan applies from that node's time, and the robot follows plan until then.
-    When plan ends before now + lead: its final state, at rest from its end; so also when it
-    is over and the newest measured state is from before its end.  None when plan is a braking
-    stop (braking_rest_start), of another model (nx), or over by the measured state (or none
-    is known).
+    A goal that arrives while plan moves the robot cannot start from the measured state: its
+    plan would be stamped when it is published, a solve later, and the robot has moved on
+    along plan meanwhile, so the reference would jump back (a Panda goal solved in 0.33 s
+    jumped it by 0.37 rad).  It starts on plan instead, at its node at or after now + lead,
+    from the plan's state there while the robot is within stitch of plan, else the measured
+    state predicted to it (cycle_start_state; stitch < 0: GOAL_STITCH for every model, as a
+    goal's start should continue the commanded reference); its plan applies from that node's
+    time, and the robot follows plan until then.  When plan ends before now + lead: its final
+    state, at rest from its end; so also when it is over and the newest measured state is
+    from before its end.  None (the measured state is the start) when no measured state is
+    known or it is at rest, and when plan is a braking stop (braking_rest_start), of another
+    model (nx), or over by the measured state.
     """
     if plan is None or plan.braking or plan.states.shape[1] != nx:
         return None
-    known = measured is not None and np.shape(measured) == (nx,) and measured_time is not None
-    measured_at = plan.elapsed(state_time(measured_time, now)) if known else None
+    if measured is None or np.shape(measured) != (nx,) or measured_time is None \
+            or at_rest(plan.model, measured):
+        return None
+    measured_at = plan.elapsed(state_time(measured_time, now))
     elapsed = plan.elapsed(now)
-    if elapsed >= plan.duration and (measured_at is None or measured_at >= plan.duration):
+    if elapsed >= plan.duration and measured_at >= plan.duration:
         return None
     start_at = elapsed + float(lead)
     if start_at >= plan.duration:
         return np.array(plan.states[-1], dtype=float), plan.start + plan.duration, True
     node = int(np.searchsorted(plan.times, max(start_at, 0.0)))
     start_at = float(plan.times[node])
-    if measured_at is None or measured_at < 0.0 or measured_at > start_at:
-        # No state of the robot on this plan yet (it starts ahead, from rest): its own.
+    if measured_at < 0.0 or measured_at > start_at:
+        # Measured before plan started (or stamped oddly): plan's own state there.
         return np.array(plan.states[node], dtype=float), plan.start + start_at, False
     deviation = plan.deviation(measured, measured_at)
-    start = cycle_start_state(plan, measured, measured_at, start_at, deviation, stitch)
+    start = cycle_start_state(plan, measured, measured_at, start_at, deviation,
+                              GOAL_STITCH if stitch < 0.0 else stitch)
     return np.asarray(start, dtype=float), plan.start + start_at, False
 
 
