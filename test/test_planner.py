@@ -192,15 +192,23 @@ def test_a_goal_is_solved_published_at_the_start_lead_and_reported(solved):
     assert plan.start == stamp(msg) and request.path is port.paths[0]
 
 
-def test_an_arm_goal_from_rest_ends_at_rest_and_is_held_until_it_starts():
+PANDA_READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
+
+
+def panda_planner():
+    """Return a Planner and Port for the Panda at rest in its ready pose (N 30, no cycles)."""
     pytest.importorskip('pinocchio')
-    from arm_oracle import ArmOracle, find_panda_urdf, PANDA_JOINTS
+    from arm_oracle import PANDA_JOINTS
+    return planner(config(**{'robot.model': 'panda', 'joint_names': PANDA_JOINTS,
+                             'initial_state': PANDA_READY, 'solver.N': 30,
+                             'replan.rate': 0.0, 'obstacles.rows': []}))
+
+
+def test_an_arm_goal_from_rest_ends_at_rest_and_is_held_until_it_starts():
+    p, port = panda_planner()
+    from arm_oracle import ArmOracle, find_panda_urdf
     import pinocchio as pin
-    ready = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
-    settings = config(**{'robot.model': 'panda', 'joint_names': PANDA_JOINTS,
-                         'initial_state': ready, 'solver.N': 30, 'replan.rate': 0.0,
-                         'obstacles.rows': []})
-    p, port = planner(settings)
+    ready = PANDA_READY
     goal = np.array([0.6, -0.5, 0.2, -2.1, 0.1, 1.7, 0.7])
     finish(p, p.submit(lambda c: c.model.state(goal), 'goal_joints'))
     oracle = ArmOracle(find_panda_urdf().read_text())
@@ -217,14 +225,8 @@ def test_an_arm_goal_from_rest_ends_at_rest_and_is_held_until_it_starts():
 
 def test_an_arm_goal_while_the_arm_moves_continues_the_commanded_motion():
     """Started on the executing Euler plan, set for its own step: no jump of the reference."""
-    pytest.importorskip('pinocchio')
-    from arm_oracle import PANDA_JOINTS
+    p, port = panda_planner()
     from toc_ros.core.plan_reference import cubic_at
-    ready = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
-    settings = config(**{'robot.model': 'panda', 'joint_names': PANDA_JOINTS,
-                         'initial_state': ready, 'solver.N': 30, 'replan.rate': 0.0,
-                         'obstacles.rows': []})
-    p, port = planner(settings)
     first = np.array([0.8, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785])
     finish(p, p.submit(lambda c: c.model.state(first), 'goal_joints'))
     plan, _ = p.plans.current()
