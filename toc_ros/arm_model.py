@@ -221,8 +221,18 @@ class ArmPlanModel(PendingArm):
         return msg
 
     def holding_torque(self, q, robot=None):
-        """Return the torques that hold the arm at q at rest (robot: an ArmRobot, else its own)."""
-        return holding_torque(self.robot if robot is None else robot, q)
+        """
+        Return the torques that hold the arm at q at rest, within its effort limits.
+
+        robot: the ArmRobot to hold (the one planned with, e.g. an estimated payload), else
+        this arm's.
+        """
+        arm = (self.robot if robot is None else robot).arm
+        zero = np.zeros(arm.model.nv)
+        # Its own Data: this runs beside the solver, which uses the arm's.
+        tau = arm.inverse_dynamics(np.asarray(q, dtype=float), zero, zero,
+                                   arm.model.createData())
+        return np.clip(tau, -arm.effort, arm.effort)
 
     def path_msg(self, states, link, frame_id, stamp):
         """Return the nav_msgs/Path of the tip link (position and orientation) along states."""
@@ -270,15 +280,6 @@ class ArmPlanModel(PendingArm):
             if np.all(np.abs(tau) <= self.arm.effort[None, :]):
                 return times, np.hstack([q, dq]), tau
         return None
-
-
-def holding_torque(robot, q):
-    """Return the torques that hold an ArmRobot at positions q at rest, within its limits."""
-    arm = robot.arm
-    zero = np.zeros(arm.model.nv)
-    # Its own Data: this runs beside the solver, which uses the arm's.
-    tau = arm.inverse_dynamics(np.asarray(q, dtype=float), zero, zero, arm.model.createData())
-    return np.clip(tau, -arm.effort, arm.effort)
 
 
 def build_arm(name, description, joints, locked, limits, spheres_path, tip='',

@@ -79,9 +79,14 @@ def time_msg(seconds):
     return Time(sec=sec, nanosec=nanosec)
 
 
+def nanoseconds(msg):
+    """Integer nanoseconds of a builtin_interfaces/Time or Duration."""
+    return msg.sec * 1_000_000_000 + msg.nanosec
+
+
 def duration_seconds(duration):
     """Seconds of a builtin_interfaces/Duration (the double nearest to the nanoseconds)."""
-    return (duration.sec * 1_000_000_000 + duration.nanosec) / 1e9
+    return nanoseconds(duration) / 1e9
 
 
 def as_model(robot):

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 import threading
 from typing import Callable, Optional
 
+from toc_ros.conversions import nanoseconds
+
 # control_msgs/action/FollowJointTrajectory result codes (control_msgs 5.8.0).
 ERROR_NAMES = {0: 'SUCCESSFUL', -1: 'INVALID_GOAL', -2: 'INVALID_JOINTS',
                -3: 'OLD_HEADER_TIMESTAMP', -4: 'PATH_TOLERANCE_VIOLATED',
@@ -134,11 +136,6 @@ def classify_result(goal_id, newest_id, goal_status, code, text):
     return Outcome(ABORTED, goal_id, code, text)
 
 
-def _ns(stamp):
-    """Integer nanoseconds of a Time or Duration message."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
 def _retimed(point, ns, effort=True):
     """Return a copy of a JointTrajectoryPoint at time_from_start ns (without its efforts)."""
     from builtin_interfaces.msg import Duration
@@ -176,15 +173,15 @@ def held_start(trajectory, effort, hold_s=HOLD_LEAD_S):
         positions=list(first.positions), velocities=[0.0] * n if len(first.velocities) else [],
         accelerations=[0.0] * n if len(first.accelerations) else [],
         effort=[float(e) for e in effort])
-    start_ns = _ns(trajectory.header.stamp)
+    start_ns = nanoseconds(trajectory.header.stamp)
     return _trajectory(trajectory, max(start_ns - hold_ns, 1) if start_ns else 0, [hold] + [
-        _retimed(p, _ns(p.time_from_start) + hold_ns) for p in trajectory.points])
+        _retimed(p, nanoseconds(p.time_from_start) + hold_ns) for p in trajectory.points])
 
 
 def without_effort(trajectory):
     """Return a copy of a JointTrajectory whose points have no efforts."""
-    return _trajectory(trajectory, _ns(trajectory.header.stamp), [
-        _retimed(p, _ns(p.time_from_start), effort=False) for p in trajectory.points])
+    return _trajectory(trajectory, nanoseconds(trajectory.header.stamp), [
+        _retimed(p, nanoseconds(p.time_from_start), effort=False) for p in trajectory.points])
 
 
 def continued(previous, trajectory, now_ns):
@@ -203,10 +200,10 @@ def continued(previous, trajectory, now_ns):
     if previous is None or not previous.points or not trajectory.points \
             or list(previous.joint_names) != list(trajectory.joint_names):
         return trajectory
-    old_ns, new_ns = _ns(previous.header.stamp), _ns(trajectory.header.stamp)
+    old_ns, new_ns = nanoseconds(previous.header.stamp), nanoseconds(trajectory.header.stamp)
     if old_ns == 0 or new_ns <= now_ns:
         return trajectory
-    times = [old_ns + _ns(p.time_from_start) for p in previous.points]
+    times = [old_ns + nanoseconds(p.time_from_start) for p in previous.points]
     first = max((k for k, t in enumerate(times) if t <= now_ns), default=0)
     kept = [k for k in range(first, len(times)) if times[k] < new_ns]
     if not kept or times[kept[-1]] <= now_ns:
@@ -214,7 +211,7 @@ def continued(previous, trajectory, now_ns):
     start = times[kept[0]]
     return _trajectory(trajectory, start, [
         _retimed(previous.points[k], times[k] - start) for k in kept] + [
-        _retimed(p, new_ns + _ns(p.time_from_start) - start) for p in trajectory.points])
+        _retimed(p, new_ns + nanoseconds(p.time_from_start) - start) for p in trajectory.points])
 
 
 def goal_trajectory(trajectory, effort, hold_effort=None):

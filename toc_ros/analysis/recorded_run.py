@@ -29,7 +29,7 @@ import numpy as np
 
 from toc_ros import arm_config
 from toc_ros.config import model_from_parameters
-from toc_ros.conversions import as_model
+from toc_ros.conversions import as_model, nanoseconds
 from toc_ros.core import ProblemError
 from toc_ros.progress import progress_from_msg, ProgressReport
 
@@ -123,7 +123,7 @@ class RecordedRun:
 
     def stamp_time(self, stamp) -> Optional[float]:
         """Return a builtin_interfaces/Time on the time base [s] (None for a zero stamp)."""
-        ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        ns = nanoseconds(stamp)
         return None if ns == 0 else (ns + self.clock_offset_ns - self.start_ns) * 1e-9
 
     def node_time(self, seconds) -> float:
@@ -156,7 +156,7 @@ def load_run(recording, params, warn=None) -> RecordedRun:
 
 def stamp_to_ns(stamp) -> int:
     """Return a builtin_interfaces/Time in nanoseconds."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
+    return nanoseconds(stamp)
 
 
 def clock_offset(joint_states, warn=None):

@@ -105,12 +105,11 @@ class ExecutingPlan:
         plan's, which a replan cycle keeps).  Other plans: x.
         """
         x = np.array(x, dtype=float)
-        if not getattr(self.model, 'is_arm', False) or self.integrator != 'euler' \
-                or self.times.shape[0] < 2:
+        own = self._shifted_step()
+        if own is None:
             return x
         n = self.model.n_joints
-        h = float(self.times[1] - self.times[0]) if step is None else float(step)
-        q = x[:n] - 0.5 * h * x[n:2 * n]
+        q = x[:n] - 0.5 * (own if step is None else float(step)) * x[n:2 * n]
         arm = self.model.arm         # never past a position limit the measured state is within
         bounded = ~np.asarray(arm.continuous, dtype=bool)
         x[:n] = np.where(bounded, np.clip(q, np.minimum(arm.lower, x[:n]),
@@ -119,14 +118,19 @@ class ExecutingPlan:
 
     def published_start(self, start):
         """Return (published positions, velocities) of a start this plan's start_for gave."""
-        start = np.asarray(start, dtype=float)
+        published = np.array(start, dtype=float)
+        step = self._shifted_step()
+        if step is not None:
+            n = self.model.n_joints
+            published[:n] += 0.5 * step * published[n:2 * n]
+        return published
+
+    def _shifted_step(self):
+        """Return the step h of an arm's Euler plan (published h dq / 2 ahead), else None."""
         if not getattr(self.model, 'is_arm', False) or self.integrator != 'euler' \
                 or self.times.shape[0] < 2:
-            return start
-        n = self.model.n_joints
-        published = start.copy()
-        published[:n] += 0.5 * float(self.times[1] - self.times[0]) * start[n:2 * n]
-        return published
+            return None
+        return float(self.times[1] - self.times[0])
 
     def reference_positions(self, t):
         """
