@@ -23,11 +23,12 @@ stops a solve, ``~/cancel_goal`` abandons a goal, ``~/ready`` tells when the ker
 The interface and its rules (goal lifecycle, newest goal wins, no plan for stale data, replan
 cycles, braking) are documented in docs/ros_interface.md.
 
-This module only translates messages and wires them: the solves, cycles and stops are
-planner.py (free of rclpy), the worker goal_worker.py, the goals' checks and problems
-goal_requests.py, the executing plan's bookkeeping execution_state.py, the policy (when a
-cycle is due, its lead and grid, braking) core/replan_policy.py; URDF arms are translated by
-the arm_* modules (arm_config, arm_model, arm_goals, arm_inputs, arm_markers).
+This module only translates messages and wires them: the topic inputs are solver_inputs.py,
+the execute.* action client solver_execution.py; the solves, cycles and stops are planner.py
+(free of rclpy), the worker goal_worker.py, the goals' checks and problems goal_requests.py,
+the executing plan's bookkeeping execution_state.py, the policy (when a cycle is due, its lead
+and grid, braking) core/replan_policy.py; URDF arms are translated by the arm_* modules
+(arm_config, arm_model, arm_goals, arm_inputs, arm_markers).
 
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """
@@ -44,13 +45,12 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
-from toc_ros import arm_config, arm_goals, conversions, execution, goal_requests as goals
+from toc_ros import arm_config, arm_goals, conversions, goal_requests as goals
 from toc_ros import progress as schema
 from toc_ros.arm_inputs import ArmInputs
 from toc_ros.arm_markers import arm_markers
@@ -58,6 +58,8 @@ from toc_ros.core.online_estimate import OnlineEstimate
 from toc_ros.kernel_loader import KernelLoader
 from toc_ros.nodes import parameters
 from toc_ros.nodes.common import run_node
+from toc_ros.nodes.solver_execution import ExecutionLink, refused
+from toc_ros.nodes.solver_inputs import SolverInputs
 from toc_ros.nodes.solver_settings import checked, parameter_errors, SolverNodeConfig
 from toc_ros.planner import Planner
 from trajectory_msgs.msg import JointTrajectory
@@ -67,17 +69,8 @@ PARAMETER_NAMES = parameters.SOLVER_NODE_NAMES
 # ~/progress while solving: the heartbeat checks this often for a gap to fill.
 HEARTBEAT_PERIOD_S = 0.05
 MARKER_PERIOD_S = 0.2
-ARM_REDRAW = 1e-3     # [rad, m, rad/s, m/s] state change that redraws the arm marker
 # Queue depth of the services: every request of a burst is kept and answered.
 SERVICE_QOS = QoSProfile(depth=100)
-
-
-def obstacle_count(msg):
-    """Rows of an obstacles message, counted without reading the data (the limit check)."""
-    dims = list(msg.layout.dim)
-    if dims:
-        return int(dims[0].size)
-    return len(msg.data) // 3
 
 
 def ignored_start(start, config, measured_state):
@@ -88,7 +81,7 @@ def ignored_start(start, config, measured_state):
                                measured_state)
 
 
-class SolverNode(Node):
+class SolverNode(SolverInputs, Node):
     """Plans minimum-time trajectories on goals; see the module docstring."""
 
     def __init__(self, **kwargs):
@@ -124,8 +117,8 @@ class SolverNode(Node):
         self._path_pub = self.create_publisher(Path, 'planned_path', 10)
         self._marker_pub = self.create_publisher(MarkerArray, 'markers', latched)
         self._progress_pub = self.create_publisher(schema.DiagnosticStatus, '~/progress', 100)
-        self._executor = None               # FollowJointTrajectory client (execute.*)
-        self._configure_execution(self._config.node)
+        self._execution = ExecutionLink(self, self.report)      # execute.*
+        self._execution.configure(self._config.node)
         inputs = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal_pose, 10,
                                  callback_group=inputs)
@@ -211,9 +204,7 @@ class SolverNode(Node):
     def publish_trajectory(self, msg, hold_effort=None):
         """Send a trajectory (the planner holds its plan lock meanwhile)."""
         self._trajectory_pub.publish(msg)
-        executor = self._executor
-        if executor is not None:
-            executor.send(msg, hold_effort)
+        self._execution.send(msg, hold_effort)
 
     def publish_path(self, msg):
         """Send a planned path."""
@@ -237,56 +228,15 @@ class SolverNode(Node):
             return None, ''
         return self._estimate.model(self._model.joint_model, config.robot.actuator_lag)
 
-    # -- execution through ros2_control ------------------------------------------------------
-
-    def _configure_execution(self, node_settings):
-        """(Re)create the FollowJointTrajectory client of execute.* (none when empty)."""
-        old, self._executor = self._executor, None
-        if old is not None:
-            old.destroy()
-        name = node_settings.execute_action
-        if not name:
-            return
-        action_type, reason = execution.follow_joint_trajectory_action()
-        if action_type is None:
-            self.get_logger().error(f'execute.follow_joint_trajectory {name!r} refused: {reason}; '
-                                    'plans go to the trajectory topic only')
-            self.report(schema.refusal_report(f'execute.follow_joint_trajectory: {reason}'))
-            return
-        tolerances = execution.Tolerances(node_settings.execute_path_tolerance,
-                                          node_settings.execute_goal_tolerance,
-                                          node_settings.execute_goal_time)
-        self._executor = execution.TrajectoryExecutor(
-            self, name, tolerances, self._on_execution, action_type,
-            effort=node_settings.execute_effort)
-        self.get_logger().info(f'executing plans through {name} (FollowJointTrajectory'
-                               + (', with efforts)' if node_settings.execute_effort else ')'))
-        self._executor.watch_server(
-            lambda: self.get_logger().info(f'action server {name} found'))
-
-    def _on_execution(self, outcome):
-        """Report a goal's outcome; a failed execution of the newest plan is an error."""
-        if outcome.kind == execution.ACCEPTED:
-            return      # the plan's own report said it was published: no message per goal
-        level = schema.DiagnosticStatus.ERROR if outcome.failed else schema.DiagnosticStatus.OK
-        self.report(schema.ProgressReport(message=outcome.describe(), level=level,
-                                          event=schema.EVENT_EXECUTION))
-        if outcome.failed:
-            # The controller holds the robot where it is; with replan cycles on, the next
-            # cycle plans on from the measured state (its deviation starts one at once).
-            self.get_logger().warning(outcome.describe())
-
     # -- parameters ---------------------------------------------------------------------------
 
     def _on_set_parameters(self, changed):
         with self._lock:
             flat = parameters.candidate(self._config.flat, changed)
         errors, config = checked(flat)
-        if flat['execute.follow_joint_trajectory'] and any(
-                p.name == 'execute.follow_joint_trajectory' for p in changed):
-            reason = execution.follow_joint_trajectory_action()[1]
-            if reason:
-                errors.append(f'execute.follow_joint_trajectory: {reason}')
+        refusal = refused(flat, changed)
+        if refusal:
+            errors.append(refusal)
         self._accepted = config       # built once: _after_set_parameters takes it
         result = parameters.result(errors)
         if not result.successful:
@@ -309,146 +259,11 @@ class SolverNode(Node):
             self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed
         if any(p.name.startswith('execute.') for p in changed):
-            self._configure_execution(config.node)
+            self._execution.configure(config.node)
         if any(p.name.startswith('robot.') or p.name == 'robot_description' for p in changed) \
                 and self._kernels.switch(config.model):
             self.get_logger().info(f'robot model changed: loading the kernels of {config.model!r}')
         self._planner.data_changed(config)
-
-    # -- inputs -------------------------------------------------------------------------------
-
-    def _on_joint_states(self, msg):
-        with self._lock:
-            config = self._config
-        names = config.frames.joint_names
-        try:
-            state = conversions.joint_state_to_state(msg, names)
-            # The applied efforts are the actuator states of a model with actuator lag.
-            effort = (conversions.joint_state_efforts(msg, names)
-                      if config.robot.actuator_lag > 0.0 else None)
-        except conversions.ConversionError as exc:
-            self.get_logger().warning(f'ignoring joint_states: {exc}', throttle_duration_sec=5.0)
-            return
-        received = time.monotonic()
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        state_time = stamp if stamp > 0.0 else self.now()
-        with self._lock:
-            self._measured = state
-            self._measured_effort = effort
-            self._measured_time = state_time
-            # Redraw the arm when it moved visibly, not for every message of a resting robot.
-            if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
-                self._arm_dirty = True
-        if config.node.replan_estimate:
-            self._estimate_from(msg, config, state, state_time)
-        self._planner.maybe_replan(config, self._model_state(state, effort), state_time,
-                                   received)
-
-    def _model_state(self, joints, effort=None):
-        """
-        Return the current model's state from a measured joint state and its efforts.
-
-        A model with actuator states (robot.actuator_lag) takes the efforts as the applied ones
-        (without them: the torques that hold the joints' velocities); others the joint state.
-        self._model follows the robot parameters (KernelLoader.switch): no model is built here,
-        on the joint_states path.
-        """
-        try:
-            return self._model.full_state(joints, effort)
-        except ValueError:          # e.g. efforts for another joint count: the joint state
-            return np.array(joints, dtype=float)
-
-    def _estimate_from(self, msg, config, state, state_time):
-        """Feed the online estimator (replan.estimate) with one joint_states sample."""
-        try:
-            effort = conversions.joint_state_efforts(msg, config.frames.joint_names)
-        except conversions.ConversionError as exc:
-            effort, why = None, str(exc)
-        else:
-            why = 'joint_states carry no effort'
-        if effort is None:
-            self.get_logger().warning(f'replan.estimate: {why}; nothing estimated',
-                                      throttle_duration_sec=5.0)
-            return
-        # The joints' model; the efforts are the applied ones, after any actuator lag.
-        self._estimate.add(self._model.joint_model, config.node.replan_estimate,
-                           config.node.replan_estimate_window, state_time, state, effort)
-
-    def _pose_goal(self, msg, config):
-        """Joint goal of a hand pose by the model's IK, seeded by the start (ConversionError)."""
-        start = goals.goal_start(config, self.snapshot()[1], self._planner.plans.current()[0],
-                                 self.now(), self.measured_time())[0]
-        if config.is_arm:
-            return arm_goals.pose_goal(msg, config, start)
-        return conversions.pose_to_joint_goal(
-            msg, config.frames.base_frame, config.model, tuple(config.node.extension_limits),
-            config.node.ik_branch, seed=config.model.positions(start))
-
-    def _on_goal_pose(self, msg):
-        self._planner.submit(lambda config: self._pose_goal(msg, config), 'goal_pose')
-
-    def _on_goal_joints(self, msg):
-        self._planner.submit(lambda config: arm_goals.joint_goal(msg, config) if config.is_arm
-                             else conversions.joint_state_to_state(
-                                 msg, config.frames.joint_names), 'goal_joints')
-
-    def _take_topic_value(self, source, translate):
-        """Apply a topic's flat value (arm_inputs) like a parameter change, or refuse it."""
-        with self._lock:
-            config = self._config
-        try:
-            update = translate(config)
-        except conversions.ConversionError as exc:
-            self._planner.refuse(source, str(exc))
-            return
-        if update is None:
-            return
-        key, value = update
-        errors, config = checked(dict(config.flat, **{key: value}))
-        if errors:
-            self._planner.refuse(source, '; '.join(errors))
-            return
-        with self._lock:
-            self._config = config
-            self._arm_dirty = True
-        if self._kernels.switch(config.model):
-            self.get_logger().info(f'{source}: loading the new robot model')
-        self.get_logger().info(f'{source}: ' + (f'{len(value)} obstacle sphere(s)'
-                                                if key == arm_config.SPHERES else 'new URDF'))
-        self._planner.data_changed(config)
-
-    def _on_obstacle_markers(self, msg):
-        self._take_topic_value('obstacle_markers',
-                               lambda config: self._arm_inputs.from_markers(msg, config))
-
-    def _on_robot_description(self, msg):
-        self._take_topic_value('robot_description',
-                               lambda config: self._arm_inputs.from_description(msg, config))
-
-    def _on_obstacles(self, msg):
-        with self._lock:
-            limit, arm = self._config.node.max_count, self._config.is_arm
-        if arm:     # rows (x, y, z, r)
-            self._take_topic_value('obstacles',
-                                   lambda config: self._arm_inputs.from_array(msg, config))
-            return
-        count = obstacle_count(msg)
-        if count > limit:    # refused before any per-obstacle work
-            self._planner.refuse('obstacles',
-                                 f'{count} obstacles exceed obstacles.max_count = {limit}')
-            return
-        try:
-            rows = conversions.obstacle_rows_from_msg(msg)
-        except conversions.ConversionError as exc:
-            self._planner.refuse('obstacles', str(exc))
-            return
-        outcome = self.set_parameters_atomically([
-            Parameter(f'obstacles.{key}', Parameter.Type.DOUBLE_ARRAY, [row[i] for row in rows])
-            for i, key in enumerate(('x', 'y', 'radius'))])
-        if not outcome.successful:
-            self._planner.refuse('obstacles', outcome.reason)
-        else:
-            self.get_logger().info(f'obstacles replaced: {len(rows)} circle(s)')
 
     async def _on_plan(self, request, response):
         config, measured = self.snapshot()
