@@ -138,8 +138,13 @@ class SolverInputs:
             self._arm_dirty = True
         if self._kernels.switch(config.model):
             self.get_logger().info(f'{source}: loading the new robot model')
-        self.get_logger().info(f'{source}: ' + (f'{len(value)} obstacle sphere(s)'
-                                                if key == arm_config.SPHERES else 'new URDF'))
+        if key == arm_config.SPHERES:
+            what = f'{len(value)} obstacle sphere(s)'
+        elif config.flat['robot.model'] == 'urdf':
+            what = 'new URDF'
+        else:       # kept: checked and used once robot.model is set to urdf
+            what = f"new URDF kept (robot.model {config.flat['robot.model']!r} does not use it)"
+        self.get_logger().info(f'{source}: {what}')
         self._planner.data_changed(config)
 
     def _on_obstacle_markers(self, msg):
