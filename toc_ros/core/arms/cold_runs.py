@@ -19,8 +19,9 @@ The line start when it clears the obstacles; around them the free optimum (solve
 bent clear in up to FREE_BENDS ways (each first run warm from the free run's multipliers when
 it keeps about the free optimum's time), LINE_DETOURS bent lines and the colliding line itself
 (start_points), each run within its budget, a settled run above the best abandoned, the
-search ended at the free optimum's time (cold_runs).  run_ipm: one run with the curvature model 'auto' (cheap, then
-exact where the cheap one stalls), also for solve_arm's warm starts.
+search ended at the free optimum's time (cold_runs).  run_ipm: one run with the curvature
+model 'auto' (cheap, then exact where the cheap one stalls), also for solve_arm's warm
+starts.
 """
 
 import numpy as np
