@@ -625,6 +625,18 @@ def test_the_bent_free_optimum_is_run_warm_first_without_changing_the_optimum(
     _independent_check('panda', result, sets[obstacle_set], start, goal)
 
 
+def test_no_warm_bend_in_a_search_refined_on_a_finer_grid():
+    # N = 200 with a sphere: the search runs on 50 intervals and is refined on 200
+    # (coarse_grid.py); a warm bend's multipliers made that refinement longer (22 iterations
+    # with exact curvature against 8), so the coarse search runs its bends cold.
+    from benchmarks.bench_arm_fast import SCENARIOS as BENCH
+    start, goal, sets = BENCH['panda']
+    result = solve(_problem('panda', 200, x0=start, x_goal=goal, obstacles=sets['1 sphere']))
+    assert result.status is Status.SOLVED, result.message
+    assert 'refined from 50 intervals' in result.message
+    assert 'free optimum bent: converged' in result.message and 'warm' not in result.message
+
+
 def test_detours_keep_the_joint_limits_and_clear_the_sphere():
     # A goal 0.05 rad inside joint 4's lower limit with a sphere where the hand passes halfway:
     # bending the line towards that limit is not allowed, the detours bend the other joints.

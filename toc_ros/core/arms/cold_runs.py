@@ -258,8 +258,17 @@ def _warm_bend(evaluator, x0, xg, start, free_run, hessian, should_stop):
     return run, ipm.linalg_time
 
 
-def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
-    """(best run, iterations, Riccati time) from the cold starts; runs gets a line per run."""
+def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs,
+              warm_bends=True):
+    """
+    (best run, iterations, Riccati time) from the cold starts; runs gets a line per run.
+
+    warm_bends: run the bends of the free optimum warm first (WARM_BEND_*); not for a search
+    whose result is refined on a finer grid (coarse_grid.py): the warm run's multipliers are
+    those of the free run, not of a barrier path, and the refining run from them took longer
+    (the Panda past a sphere at N = 200 from 50: 22 iterations, the last with exact curvature,
+    against 8).
+    """
     # Around obstacles a cold solve finds the local optimum of its start's way around them:
     # every start of start_points is solved and the best converged run kept (the search
     # ends early at the free optimum's time: the obstacles then cost nothing).  When none
@@ -284,7 +293,7 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
         if run is not None and iterations >= budget:
             break
         start = make()
-        if (start_name.startswith('free optimum')
+        if (warm_bends and start_name.startswith('free optimum')
                 and start[2] <= WARM_BEND_SLOWDOWN * free_run.t):
             run, warm_linalg = _warm_bend(evaluator, x0, xg, start, free_run, hessian,
                                           should_stop)
