@@ -15,13 +15,17 @@
 """
 The Panda: solver_node plans for it, plant_node simulates it on MuJoCo, recorder_node records.
 
-    ros2 launch toc_ros panda.launch.py [execute:=action] [namespace:=ns] [record:=false]
-        [output:=runs/x] [params_file:=my_panda.yaml]
+    ros2 launch toc_ros panda.launch.py [execute:=action] [command_interface:=position]
+        [namespace:=ns] [record:=false] [output:=runs/x] [params_file:=my_panda.yaml]
 
 robot_description is example-robot-data's Panda URDF (both nodes get it as a parameter).
 execute:=action sends every plan through the plant's FollowJointTrajectory server, as to a
 ros2_control JointTrajectoryController (needs control_msgs); the solver's trajectory topic is
-then remapped to planned_trajectory so that the plant hears each plan once.  Send a goal with
+then remapped to planned_trajectory so that the plant hears each plan once.
+command_interface:=position makes the plant a position-controlled arm (its drives track the
+commanded positions with gravity compensation, no torque feed-forward, and its controller
+refuses goals with efforts, as JointTrajectoryController does): the solver then sends goals
+without efforts (execute.effort false).  Send a goal with
     ros2 topic pub --once -w 2 --keep-alive 1 goal_joints sensor_msgs/msg/JointState "{name: [
         panda_joint1, panda_joint2, panda_joint3, panda_joint4, panda_joint5, panda_joint6,
         panda_joint7],
@@ -57,6 +61,7 @@ def generate_launch_description():
     output = LaunchConfiguration('output')
     execute = LaunchConfiguration('execute')
     through_action = EqualsSubstitution(execute, 'action')
+    command_interface = LaunchConfiguration('command_interface')
 
     arguments = [
         DeclareLaunchArgument(
@@ -66,6 +71,11 @@ def generate_launch_description():
             'execute', default_value='topic', choices=['topic', 'action'],
             description='topic: the plant follows the trajectory topic; action: every plan '
                         "goes through the plant's FollowJointTrajectory server"),
+        DeclareLaunchArgument(
+            'command_interface', default_value='effort', choices=['effort', 'position'],
+            description="the plant's drives (plant_node command_interface): effort (torques, "
+                        'the plan fed forward) or position (a position-controlled arm; goals '
+                        'then carry no efforts)'),
         DeclareLaunchArgument(
             'namespace', default_value='',
             description='Namespace of all nodes and their (relative) topics'),
@@ -91,12 +101,14 @@ def generate_launch_description():
         parameters=[params_file, description,
                     {'execute.follow_joint_trajectory': ParameterValue(action_of_plant,
                                                                        value_type=str),
-                     # plant_node's server is an effort-commanding controller.
-                     'execute.effort': True}],
+                     # Efforts only for a controller with an effort command interface.
+                     'execute.effort': ParameterValue(
+                         EqualsSubstitution(command_interface, 'effort'), value_type=bool)}],
         remappings=[('trajectory', 'planned_trajectory')],
         condition=IfCondition(through_action), **common)
     plant = Node(executable='plant_node', name='plant_node',
-                 parameters=[params_file, description], **common)
+                 parameters=[params_file, description,
+                             {'command_interface': command_interface}], **common)
     recorder_to_output = Node(
         executable='recorder_node', name='recorder_node',
         parameters=[{'output': ParameterValue(output, value_type=str)}],

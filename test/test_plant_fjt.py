@@ -414,3 +414,26 @@ def test_solver_node_executes_its_plan_through_the_action(plant, tmp_path):
                                    err_msg=solver.tail(20))
     finally:
         solver.stop()
+
+
+@needs_control_msgs
+def test_a_position_interface_refuses_goals_with_efforts(plant):
+    """command_interface position: JTC's refusal of efforts; a goal without them succeeds."""
+    from toc_ros.plant.jtc_trajectory import EFFORT_REFUSED
+    results = plant.client.set_parameters('plant_node', {'command_interface': 'position'})
+    assert all(r.successful for r in results), [r.reason for r in results]
+    try:
+        q0 = _current(plant)
+        target = q0 + np.array([0.1, 0.05])
+        with_effort = _trajectory([(1.0, target, [0.0, 0.0])])
+        with_effort.points[0].effort = [0.0, 0.0]
+        result = _wait(plant, _send(plant, with_effort))
+        assert result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
+        assert result.error_string == EFFORT_REFUSED
+        result = _wait(plant, _send(plant, _trajectory([(1.0, target, [0.0, 0.0])])))
+        assert result.error_code == FollowJointTrajectory.Result.SUCCESSFUL, result.error_string
+        np.testing.assert_allclose(_current(plant), target, atol=0.01,
+                                   err_msg=plant.node.tail(20))
+    finally:
+        results = plant.client.set_parameters('plant_node', {'command_interface': 'effort'})
+        assert all(r.successful for r in results), [r.reason for r in results]

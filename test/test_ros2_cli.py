@@ -343,9 +343,15 @@ def test_launch_arguments_apply(ws, tmp_path):
 PANDA_GOAL = (0.8, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785)
 
 
-@pytest.mark.parametrize('execute', ['topic', 'action'])
-def test_launch_panda_plans_and_the_mujoco_plant_arrives(ws, tmp_path, execute):
-    """panda.launch.py: a joint goal is planned, executed (topic or action) and reached."""
+@pytest.mark.parametrize('execute, interface', [('topic', 'effort'), ('action', 'effort'),
+                                                ('action', 'position')])
+def test_launch_panda_plans_and_the_mujoco_plant_arrives(ws, tmp_path, execute, interface):
+    """
+    panda.launch.py: a joint goal is planned, executed (topic or action) and reached.
+
+    command_interface:=position: the plant is a position-controlled arm whose controller
+    refuses goals with efforts; the launch file has the solver send them without.
+    """
     if execute == 'action':
         probe = ws.run("python3 -c 'import control_msgs.action'", timeout=60)
         if probe.returncode != 0:
@@ -368,6 +374,8 @@ def test_launch_panda_plans_and_the_mujoco_plant_arrives(ws, tmp_path, execute):
             # The solver's trajectory topic is remapped away: only the action reaches the plant.
             assert re.search(r'action server \S*follow_joint_trajectory found', _read(log)), \
                 _read(log)
+            assert ('FollowJointTrajectory, with efforts)' in _read(log)) is (
+                interface == 'effort'), _read(log)
 
         def arrived():      # the plant rests at the goal: its joint_states, by the ROS CLI
             echo = ws.run('ros2 topic echo --once --no-daemon --field position joint_states',
@@ -377,7 +385,7 @@ def test_launch_panda_plans_and_the_mujoco_plant_arrives(ws, tmp_path, execute):
                 abs(v - g) for v, g in zip(values, PANDA_GOAL)) < 1e-3
         assert _wait_until(arrived, 60.0, interval=1.0), _read(log)
 
-    _launch(ws, log, f'record:=false execute:={execute}',
+    _launch(ws, log, f'record:=false execute:={execute} command_interface:={interface}',
             ['/solver_node', '/plant_node'], check, launch_file='panda.launch.py')
 
 

@@ -176,6 +176,12 @@ class PlantSettings:
         0.0, 'pure delay of the commanded control in the simulated plant, rounded to the '
         'integration step (model mismatch); 0: off', unit='s', low=0.0, high=MAX_CONTROL_DELAY_S)
     publish_clock: bool = setting(False, 'publish the simulated time on /clock')
+    command_interface: str = setting(
+        'effort', 'what the simulated drives take, as the command interface of a '
+        "JointTrajectoryController: effort (PD + the trajectory's efforts fed forward) or "
+        'position (a position-controlled arm: PD on the commanded position with gravity '
+        'compensation, no feed-forward; FollowJointTrajectory goals with efforts are refused, '
+        'as JTC refuses them)', choices=('effort', 'position'))
     engine: str = setting(
         'builtin', "the plant's dynamics: builtin (the planner's model, robot.*), or mujoco (the "
         'URDF in robot_description simulated by MuJoCo: joint_names planned, the others '

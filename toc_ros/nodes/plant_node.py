@@ -95,13 +95,16 @@ goal_time 0), the result's error_code, feedback (desired, actual, error) every
 FEEDBACK_PERIOD_S.  A goal starts at the next integration step from the reference being
 followed then (JTC's ``interpolate_from_desired_state``: no jump in the commanded reference
 when a replan preempts a goal).  The command is u_ff (the sampled effort) + PD on the sampled
-position and velocity, as above.  Either path replaces the other, the newest wins: a valid
-goal aborts the active goal (INVALID_GOAL, "Current goal preempted by new incoming action.",
-as JTC) and drops a topic trajectory (active or pending); a topic trajectory aborts the active
-goal (INVALID_GOAL, "preempted by a trajectory on the trajectory topic") when it starts, so
-that the client learns that its goal no longer runs.  Invalid goals are accepted and at once
-aborted with their code (JTC rejects them, but a rejection carries no error code in ROS 2).
-control_msgs is imported lazily: without it the node runs without the action and says why.
+position and velocity, as above; with ``command_interface`` position (a position-controlled
+arm) u_ff is the torque that holds the sampled position against gravity, for goals and topic
+trajectories alike, and goals with efforts are refused (INVALID_GOAL, JTC's text).  Either path
+replaces the other, the newest wins: a valid goal aborts the active goal (INVALID_GOAL,
+"Current goal preempted by new incoming action.", as JTC) and drops a topic trajectory (active
+or pending); a topic trajectory aborts the active goal (INVALID_GOAL, "preempted by a
+trajectory on the trajectory topic") when it starts, so that the client learns that its goal no
+longer runs.  Invalid goals are accepted and at once aborted with their code (JTC rejects them,
+but a rejection carries no error code in ROS 2).  control_msgs is imported lazily: without it
+the node runs without the action and says why.
 
 The simulation itself (stepping, drives, scheduling, tracking) is ROS-free:
 toc_ros.plant.simulator, with the dynamics of toc_ros.plant.model; this node translates.
@@ -251,7 +254,7 @@ class PlantNode(Node):
         params = self._params
         return self._sim.configure(plant_model(params), params['kp'], params['kd'],
                                    params['integration_rate'], params['actuator_lag'],
-                                   params['control_delay'])
+                                   params['control_delay'], params['command_interface'])
 
     def _on_set_parameters(self, changed):
         result = parameters.result(parameter_errors(parameters.candidate(self._params,
@@ -408,8 +411,9 @@ class PlantNode(Node):
         request = goal_handle.request
         names = list(self._params['joint_names'])
         try:
-            trajectory = fjt.validate(request.trajectory, names,
-                                      self._sim.sim_ns + self._offset_ns)
+            trajectory = fjt.validate(
+                request.trajectory, names, self._sim.sim_ns + self._offset_ns,
+                effort_interface=self._params['command_interface'] == 'effort')
         except fjt.GoalError as exc:
             self.get_logger().error(f'goal refused, error_code {exc.code}: {exc.text}')
             goal_handle.abort()

@@ -56,6 +56,9 @@ GOAL_TOLERANCE_VIOLATED = -5
 CANCELED = None
 NS = 1_000_000_000
 FLOAT32_EPSILON = float(np.finfo(np.float32).eps)
+# What a JTC without an effort command interface logs when it rejects a goal with efforts.
+EFFORT_REFUSED = ('Trajectories with effort fields are only supported for controllers using the '
+                  "'effort' command interface.")
 
 
 class GoalError(ValueError):
@@ -82,13 +85,16 @@ def nanoseconds(duration):
     return int(duration.sec) * NS + int(duration.nanosec)
 
 
-def validate(msg, joint_names, now_ns, allow_nonzero_velocity_at_end=False):
+def validate(msg, joint_names, now_ns, allow_nonzero_velocity_at_end=False,
+             effort_interface=True):
     """
     Return the Trajectory of a JointTrajectory-like msg, or raise GoalError.
 
     joint_names: the controller's joints (the order of the returned arrays).  now_ns: the
     current time in the stamps' time base.  msg needs joint_names, header.stamp (sec,
     nanosec) and points with positions, velocities, accelerations, effort, time_from_start.
+    effort_interface: the controller commands efforts; without, points with efforts are
+    refused (JTC's validate_trajectory_msg).
     """
     names = [str(n) for n in msg.joint_names]
     expected = list(joint_names)
@@ -136,6 +142,8 @@ def validate(msg, joint_names, now_ns, allow_nonzero_velocity_at_end=False):
             raise GoalError(INVALID_GOAL, f'non-finite {what} at point #{i}')
         return array
 
+    if not effort_interface and any(len(p.effort) for p in points):
+        raise GoalError(INVALID_GOAL, EFFORT_REFUSED)
     converted = [Point(field(p.positions, 'positions', i, True),
                        field(p.velocities, 'velocities', i, False),
                        field(p.accelerations, 'accelerations', i, False),

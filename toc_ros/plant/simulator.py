@@ -18,11 +18,12 @@ The simulated robot of plant_node without ROS: state, drives, trajectories, acti
 A ``PlantSimulator`` advances the plant by whole integration steps of simulated time (integer
 nanoseconds).  Every step it takes the reference of what it follows (a topic trajectory, a
 FollowJointTrajectory goal through ``follow_joint_trajectory.TrajectoryFollower``, or a hold),
-commands u = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq)), passes the command through the
-drives (a delay of whole steps, then a first-order lag discretised exactly) and integrates the
-applied u (``model.Stepper``).  Topic trajectories are scheduled by their start: one in the
-future is pending until its first step, the newest wins, one that ended before now is refused.
-plant_node translates messages into these calls and publishes what it reads back.
+commands u = sat(u_ff + kp (q_ref - q) + kd (dq_ref - dq)) (u_ff: the trajectory's effort, or
+with a position command interface the torque that holds q_ref against gravity), passes it
+through the drives (a delay of whole steps, then a first-order lag discretised exactly) and
+integrates the applied u (``model.Stepper``).  Topic trajectories are scheduled by their start:
+one in the future is pending until its first step, the newest wins, one that ended before now
+is refused.  plant_node translates messages into these calls and publishes what it reads back.
 """
 
 from collections import deque
@@ -76,12 +77,17 @@ class PlantSimulator:
         self.u = None                   # the u applied over the last step
         self.u_lag = None               # the lag's output (None: no state yet)
         self._delay = deque()
+        self.feed_forward = True        # False: a position command interface (command())
 
     # -- set-up -------------------------------------------------------------------------------
 
-    def configure(self, model, kp, kd, integration_rate, actuator_lag, control_delay):
+    def configure(self, model, kp, kd, integration_rate, actuator_lag, control_delay,
+                  command_interface='effort'):
         """
         Take a model, gains and drive settings; return True when the state must be reset.
+
+        command_interface 'position': the drives track the commanded position without the
+        trajectory's efforts (command()); goals with efforts are the follower's to refuse.
 
         The step is 1 / integration_rate rounded to whole nanoseconds.  A longer delay repeats
         the oldest buffered command, a shorter one drops the oldest commands.  A model of
@@ -89,6 +95,7 @@ class PlantSimulator:
         """
         self.model = model
         self.n = model.n_joints
+        self.feed_forward = command_interface == 'effort'
         self.u_max = np.asarray(model.u_max, dtype=float)
         self.kp = np.asarray(kp, dtype=float)
         self.kd = np.asarray(kd, dtype=float)
@@ -229,7 +236,11 @@ class PlantSimulator:
         else:
             q_ref, dq_ref, u_ff = self.target(self.sim_ns)
         holding = getattr(self.model, 'holding_torque', None)
-        if holding is not None and self.holding():
+        if not self.feed_forward:
+            # A position-controlled drive: its own loop on the commanded position with gravity
+            # compensation (where the model has gravity), no torque from the trajectory.
+            u_ff = holding(q_ref) if holding is not None else np.zeros(self.n)
+        elif holding is not None and self.holding():
             # An arm under gravity rests on its holding torque, as its own gravity
             # compensation does; PD alone would sag by g / kp (centimetres at the shoulder).
             u_ff = holding(q_ref)
