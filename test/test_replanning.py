@@ -455,7 +455,10 @@ def test_cancel_goal_brakes_to_rest_and_ends_the_cycles(loop):
     assert np.max(np.abs(recent[:, 2:])) < 1e-3
     assert np.max(np.ptp(recent[:, :2], axis=0)) < 1e-4
     assert np.max(np.abs(recent[-1, :2] - np.array(end.positions))) < 5e-3
-    assert abs(recent[-1, 0] - GOAL_Q[0]) > 0.05, 'the robot went on to the goal'
+    # Short of the goal: farther than 5x the 1e-3 the plant settles to at a goal.  (How far
+    # short depends on when the cancel lands in the motion: under load as late as 0.03 rad
+    # before the goal, braking from full speed.)
+    assert abs(recent[-1, 0] - GOAL_Q[0]) > 5e-3, 'the robot went on to the goal'
     assert len(moving) and abs(moving[-1][0] - GOAL_Q[0]) > 0.05
     # A second cancel finds no active goal.
     again = ctx.client.call(cancel_goal, Trigger.Request())
