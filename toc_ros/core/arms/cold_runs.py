@@ -293,6 +293,7 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
         if run is not None and iterations >= budget:
             break
         start = make()
+        warm = None
         if (warm_bends and start_name.startswith('free optimum')
                 and start[2] <= WARM_BEND_SLOWDOWN * free_run.t):
             run, warm_linalg = _warm_bend(evaluator, x0, xg, start, free_run, hessian,
@@ -301,36 +302,33 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
             linalg_time += warm_linalg
             runs.append(f'{start_name}, warm: {run_summary(run)}')
             if run.status in ('converged', 'acceptable', 'stopped'):
-                run.start_name = f'{start_name}, warm'
-                if run.status != 'stopped' and (best is None or run.t < best.t):
-                    best = run
-                if run.status == 'stopped' or best.t <= free[2] * (1.0 + FREE_REACHED):
-                    break
-                continue
-            if iterations >= budget:
+                warm = run
+                warm.start_name = f'{start_name}, warm'
+            elif iterations >= budget:
                 break
-        ipm = ArmInteriorPoint(evaluator, x0, xg)
-        ipm.start(*start)
-        allowed = budget - iterations
-        if not last or best is not None:
-            allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
-        abandon = _abandon_above(ipm, best, should_stop, ends)
-        run = run_ipm(ipm, allowed, abandon, hessian)
-        run.start_name = start_name
-        iterations += run.iterations
-        linalg_time += ipm.linalg_time
-        if abandon.fired:
-            why = ("repeats an earlier start's run after the first barrier problem"
-                   if abandon.repeat else "settled on the best start's way around"
-                   if abandon.duplicate else 'settled above the best start')
-            runs.append(f'{start_name}: abandoned after {run.iterations} iterations at t_f = '
-                        f'{run.t:.6f} s ({why})')
-            if abandon.first is not None and not abandon.repeat:
+        if warm is None:        # the start's run from MU_INIT
+            ipm = ArmInteriorPoint(evaluator, x0, xg)
+            ipm.start(*start)
+            allowed = budget - iterations
+            if not last or best is not None:
+                allowed = min(allowed, START_BUDGET)  # (a converged run exists: no long tail)
+            abandon = _abandon_above(ipm, best, should_stop, ends)
+            run = run_ipm(ipm, allowed, abandon, hessian)
+            run.start_name = start_name
+            iterations += run.iterations
+            linalg_time += ipm.linalg_time
+            if abandon.fired:
+                why = ("repeats an earlier start's run after the first barrier problem"
+                       if abandon.repeat else "settled on the best start's way around"
+                       if abandon.duplicate else 'settled above the best start')
+                runs.append(f'{start_name}: abandoned after {run.iterations} iterations at '
+                            f't_f = {run.t:.6f} s ({why})')
+                if abandon.first is not None and not abandon.repeat:
+                    ends.append(abandon.first)
+                continue
+            runs.append(f'{start_name}: {run_summary(run)}')
+            if run.status in ('converged', 'acceptable') and abandon.first is not None:
                 ends.append(abandon.first)
-            continue
-        runs.append(f'{start_name}: {run_summary(run)}')
-        if run.status in ('converged', 'acceptable') and abandon.first is not None:
-            ends.append(abandon.first)
         if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
             best = run
         free_reached = (best is not None and free is not None
