@@ -32,14 +32,14 @@ from typing import List
 
 import numpy as np
 
-from toc_ros.conversions import ConversionError, obstacle_rows_from_msg
+from toc_ros.conversions import ConversionError, nanoseconds, obstacle_rows_from_msg
 from toc_ros.core.obstacles import scheduled_clearance
 from toc_ros.progress import (EVENT_REPLACED, EVENT_REPLAN_KEPT, EVENT_REPLANNED, EVENT_STOPPED,
                               progress_from_msg)
 
 from .closed_loop import execution_metrics, PlanSpan
 from .recorded_plans import joint_samples, Plan, STAMP_MATCH_S
-from .recorded_run import as_float, stamp_to_ns
+from .recorded_run import as_float
 
 
 # Plans whose goals differ by at most this belong to one closed-loop execution [rad or m].
@@ -125,8 +125,8 @@ def obstacle_clearance(model, times, positions, schedule):
 
 def _by_stamp(items):
     """Return (stamps, log times): header.stamp [s, node clock] sorted, log time [s]."""
-    pairs = sorted((stamp_to_ns(m.header.stamp) * 1e-9, t) for t, m in items
-                   if stamp_to_ns(m.header.stamp) > 0)
+    pairs = sorted((nanoseconds(m.header.stamp) * 1e-9, t) for t, m in items
+                   if nanoseconds(m.header.stamp) > 0)
     return [k for k, _ in pairs], [t for _, t in pairs]
 
 

@@ -35,12 +35,12 @@ import numpy as np
 
 from toc_ros.config import obstacle_rows
 from toc_ros.conversions import (as_model, ConversionError, joint_state_arrays,
-                                 joint_state_to_state, obstacle_rows_from_msg,
+                                 joint_state_to_state, nanoseconds, obstacle_rows_from_msg,
                                  pose_to_joint_goal, trajectory_arrays)
 from toc_ros.core import Status
 from toc_ros.progress import EVENT_REPLAN_KEPT, EVENT_REPLANNED
 
-from .recorded_run import as_float, finite_vector, latest_before, run_model, Solve,     stamp_to_ns
+from .recorded_run import as_float, finite_vector, latest_before, run_model, Solve
 
 
 # A plan and the final progress of its solve are published within this time [s].
@@ -224,7 +224,7 @@ def build_plans(run, solves, warn) -> List[Plan]:
                                   arrays.positions[:, 1], arrays.velocities[:, 1]])
         rows, source, margin, margin_source = _obstacles_for(run, time, previous, warn)
         goal, goal_source = _goal_for(run, time, previous, model, names, states[-1])
-        stamp_ns = stamp_to_ns(msg.header.stamp)
+        stamp_ns = nanoseconds(msg.header.stamp)
         plan = Plan(index=len(plans), time=time, joint_names=names, times=arrays.times,
                     states=states, efforts=arrays.efforts, obstacles=rows,
                     obstacles_source=source, margin=margin, margin_source=margin_source,

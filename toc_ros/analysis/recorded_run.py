@@ -154,11 +154,6 @@ def load_run(recording, params, warn=None) -> RecordedRun:
     return run
 
 
-def stamp_to_ns(stamp) -> int:
-    """Return a builtin_interfaces/Time in nanoseconds."""
-    return nanoseconds(stamp)
-
-
 def clock_offset(joint_states, warn=None):
     """
     Return (offset [ns], source): the median of log time - header.stamp of joint_states.
@@ -166,8 +161,8 @@ def clock_offset(joint_states, warn=None):
     joint_states: [(log time [ns], message)]. Without stamped joint_states the offset is 0
     (the node clock is taken to be the recorder's log clock).
     """
-    gaps = np.array([t - stamp_to_ns(m.header.stamp) for t, m in joint_states
-                     if stamp_to_ns(m.header.stamp) > 0], dtype=float)
+    gaps = np.array([t - nanoseconds(m.header.stamp) for t, m in joint_states
+                     if nanoseconds(m.header.stamp) > 0], dtype=float)
     if not gaps.size:
         return 0, 'none (no stamped joint_states): node clock = log clock'
     offset = int(round(float(np.median(gaps))))

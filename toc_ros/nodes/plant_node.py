@@ -196,11 +196,6 @@ def parameter_errors(params):
     return errors
 
 
-def stamp_ns(stamp):
-    """Integer nanoseconds of a builtin_interfaces/Time."""
-    return int(stamp.sec) * NS + int(stamp.nanosec)
-
-
 def time_of_ns(total):
     """builtin_interfaces/Time of integer nanoseconds (>= 0)."""
     return Time(sec=total // NS, nanosec=total % NS)
@@ -328,7 +323,7 @@ class PlantNode(Node):
             return
         reference = Reference.of(arrays)
         now = sim.sim_ns
-        received = stamp_ns(msg.header.stamp)
+        received = conversions.nanoseconds(msg.header.stamp)
         start = now if received == 0 else received - self._offset_ns
         ago = sim.ended_ago_ns(reference, start)
         if ago is not None:
