@@ -37,9 +37,8 @@ def refused(flat, changed):
 class ExecutionLink:
     """The FollowJointTrajectory client of execute.* (none while the action name is empty)."""
 
-    def __init__(self, node, report):
-        self._node = node
-        self._report = report           # node.report: one ~/progress message
+    def __init__(self, node):
+        self._node = node               # its report(): one ~/progress message
         self._executor = None
 
     def configure(self, node_settings):
@@ -55,7 +54,7 @@ class ExecutionLink:
         if action_type is None:
             logger.error(f'execute.follow_joint_trajectory {name!r} refused: {reason}; '
                          'plans go to the trajectory topic only')
-            self._report(schema.refusal_report(f'execute.follow_joint_trajectory: {reason}'))
+            self._node.report(schema.refusal_report(f'execute.follow_joint_trajectory: {reason}'))
             return
         tolerances = execution.Tolerances(node_settings.execute_path_tolerance,
                                           node_settings.execute_goal_tolerance,
@@ -78,8 +77,8 @@ class ExecutionLink:
         if outcome.kind == execution.ACCEPTED:
             return      # the plan's own report said it was published: no message per goal
         level = schema.DiagnosticStatus.ERROR if outcome.failed else schema.DiagnosticStatus.OK
-        self._report(schema.ProgressReport(message=outcome.describe(), level=level,
-                                           event=schema.EVENT_EXECUTION))
+        self._node.report(schema.ProgressReport(message=outcome.describe(), level=level,
+                                                event=schema.EVENT_EXECUTION))
         if outcome.failed:
             # The controller holds the robot where it is; with replan cycles on, the next
             # cycle plans on from the measured state (its deviation starts one at once).

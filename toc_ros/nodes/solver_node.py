@@ -117,7 +117,7 @@ class SolverNode(SolverInputs, Node):
         self._path_pub = self.create_publisher(Path, 'planned_path', 10)
         self._marker_pub = self.create_publisher(MarkerArray, 'markers', latched)
         self._progress_pub = self.create_publisher(schema.DiagnosticStatus, '~/progress', 100)
-        self._execution = ExecutionLink(self, self.report)      # execute.*
+        self._execution = ExecutionLink(self)      # execute.*
         self._execution.configure(self._config.node)
         inputs = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal_pose, 10,
