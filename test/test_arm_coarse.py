@@ -106,7 +106,7 @@ def test_cancel_during_the_coarse_search_returns_the_n_grid(monkeypatch):
     cold = coarse_grid.cold_runs
 
     def cancelled_on_the_way(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop,
-                             runs, **options):
+                             runs):
         assert n_int == 50
 
         def stop():
@@ -115,7 +115,7 @@ def test_cancel_during_the_coarse_search_returns_the_n_grid(monkeypatch):
                 cancel.set()
             return should_stop()
         calls = []
-        return cold(robot, evaluator, x0, xg, n_int, hessian, budget, stop, runs, **options)
+        return cold(robot, evaluator, x0, xg, n_int, hessian, budget, stop, runs)
     monkeypatch.setattr(coarse_grid, 'cold_runs', cancelled_on_the_way)
     result = solve(_problem('panda', 200), cancel=cancel)
     assert result.status is Status.CANCELED, result.message

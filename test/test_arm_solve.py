@@ -595,48 +595,6 @@ def test_starts_that_repeat_an_earlier_run_are_abandoned_without_changing_the_op
     _independent_check('ur5', result, sets['1 sphere'], start, goal)
 
 
-@pytest.mark.parametrize('obstacle_set, n_int, warm',
-                         [('1 sphere', 50, True), ('3 spheres', 100, False)])
-def test_the_bent_free_optimum_is_run_warm_first_without_changing_the_optimum(
-        monkeypatch, obstacle_set, n_int, warm):
-    # The Panda benchmark motion (bench_arm_fast.py): the free optimum passes through the
-    # sphere, but a bend of it clear of the spheres reaches the same t_f (the joints that do
-    # not set the time are free to move).  Run warm from the free run's last barrier parameter
-    # with its bounds' multipliers (cold_runs.WARM_BEND_*) the bend converges there in a few
-    # iterations; where that run does not converge (three spheres at N = 100: its violation
-    # rises), the bend's run from MU_INIT follows and ends where it ends without the warm run.
-    from benchmarks.bench_arm_fast import SCENARIOS as BENCH
-    from toc_ros.core.arms import cold_runs
-    start, goal, sets = BENCH['panda']
-    problem = _problem('panda', n_int, x0=start, x_goal=goal, obstacles=sets[obstacle_set])
-    result = solve(problem)
-    assert result.status is Status.SOLVED, result.message
-    assert ('bent, warm: converged' in result.message) is warm, result.message
-    assert ('bent, warm: not converging' in result.message) is not warm, result.message
-    monkeypatch.setattr(cold_runs, 'WARM_BEND_SLOWDOWN', 0.0)
-    cold = solve(problem)
-    assert cold.status is Status.SOLVED, cold.message
-    assert 'warm' not in cold.message
-    assert result.final_time == pytest.approx(cold.final_time, rel=1e-9, abs=0.0)
-    if warm:
-        assert result.iterations + 5 <= cold.iterations
-    else:
-        assert cold.iterations < result.iterations < cold.iterations + cold_runs.WARM_BEND_BUDGET
-    _independent_check('panda', result, sets[obstacle_set], start, goal)
-
-
-def test_no_warm_bend_in_a_search_refined_on_a_finer_grid():
-    # N = 200 with a sphere: the search runs on 50 intervals and is refined on 200
-    # (coarse_grid.py); a warm bend's multipliers made that refinement longer (22 iterations
-    # with exact curvature against 8), so the coarse search runs its bends cold.
-    from benchmarks.bench_arm_fast import SCENARIOS as BENCH
-    start, goal, sets = BENCH['panda']
-    result = solve(_problem('panda', 200, x0=start, x_goal=goal, obstacles=sets['1 sphere']))
-    assert result.status is Status.SOLVED, result.message
-    assert 'refined from 50 intervals' in result.message
-    assert 'free optimum bent: converged' in result.message and 'warm' not in result.message
-
-
 def test_detours_keep_the_joint_limits_and_clear_the_sphere():
     # A goal 0.05 rad inside joint 4's lower limit with a sphere where the hand passes halfway:
     # bending the line towards that limit is not allowed, the detours bend the other joints.

@@ -86,6 +86,26 @@ def test_remainder_with_multipliers_reaches_the_cold_optimum_in_few_iterations(p
     _check(replan, warm)
 
 
+def test_a_replan_1e3_off_the_plan_past_a_sphere_at_100_intervals_takes_few_iterations():
+    # The warm-replan row (the Panda past a sphere, N = 100, from 30 %).  A plan whose
+    # joints that do not set the time are off the barrier path's centre (a bend of the free
+    # optimum run warm from its multipliers, tried and reverted) made this replan's first
+    # Newton step move them by up to 0.26 rad toward it: 36 iterations instead of 2.
+    problem = _problem('panda', 100)
+    plan = solve(problem)
+    assert plan.status is Status.SOLVED, plan.message
+    rest = plan.remainder(0.3 * plan.final_time)
+    state = rest.states[0].copy()
+    state[:7] += 1e-3
+    state[7:] *= 1.0 - 1e-3
+    replan = _from(problem, state, rest.controls.shape[0])
+    warm = solve(replan, initial_guess=rest)
+    assert warm.status is Status.SOLVED, warm.message
+    assert warm.iterations <= 3, warm.message
+    assert warm.final_time == pytest.approx(solve(replan).final_time, rel=1e-9)
+    _check(replan, warm)
+
+
 def _drifted_replan(panda_plan, drift):
     problem, plan = panda_plan
     rest = plan.remainder(0.3 * plan.final_time)

@@ -105,12 +105,6 @@ PROX_MAX = 1e8
 # fails with 1 too; the slowed line then converges).
 TERMINAL_CURVATURE_RK4 = 1.0
 ACCEPT_ITERATIONS = 10
-# A warm start with multipliers begins at the optimum of a neighbouring problem: its acceptable
-# level needs this many iterations in a row, not the cold start's 10.  Where the last digits of
-# the dual infeasibility are out of reach (the docstring: degenerate problems), the cold count
-# cost Panda replans at N = 60 eight more iterations at the same t_f (benchmarks/RESULTS.md,
-# "Arms: a payload ...").
-WARM_ACCEPT_ITERATIONS = 3
 # How far (relative to the bound, at least absolute) a start point is pushed inside its bounds:
 # a cold start needs room to move; a warm start keeps its active bounds nearly active.
 COLD_PUSH = 1e-2

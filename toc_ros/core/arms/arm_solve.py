@@ -41,8 +41,7 @@ from typing import Optional
 import numpy as np
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import (ArmInteriorPoint, MU_INIT, PROX_GUARDED, T_HIGH, T_LOW,
-                      WARM_ACCEPT_ITERATIONS)
+from .arm_ipm import ArmInteriorPoint, MU_INIT, PROX_GUARDED, T_HIGH, T_LOW
 from .arm_paper import solve_arm_paper
 from .arm_warm import rollout, UnusableGuess, warm_point
 from .clearances import (check_obstacles, obstacle_clearance, self_clearance,
@@ -91,6 +90,12 @@ WARM_PUSH = 1e-6
 # strictly inside: its bounds' slacks are ~ mu / z, and a push of WARM_PUSH on a joint at its
 # velocity limit would open Euler defects of 2e-6 that cost two iterations to close.
 WARM_PUSH_EXACT = 1e-12
+# A warm start with multipliers begins at the optimum of a neighbouring problem: its acceptable
+# level (arm_ipm.py) needs this many iterations in a row, not the cold start's 10.  Where the
+# last digits of the dual infeasibility are out of reach (arm_ipm's docstring: degenerate
+# problems), the cold count cost Panda replans at N = 60 eight more iterations at the same
+# t_f (benchmarks/RESULTS.md, "Arms: a payload ...").
+WARM_ACCEPT_ITERATIONS = 3
 # ... and it switches to the exact curvature (hessian='auto', cold_runs.py) after WARM_CHEAP cheap
 # iterations, within its WARM_BUDGET (with the cold CHEAP_ITERATIONS it never did: a UR5 replan
 # 1e-3 off its plan at N = 60 spent the 60 warm iterations, then 63 cold ones).

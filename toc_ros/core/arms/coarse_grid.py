@@ -95,8 +95,7 @@ def cold_solve(robot, evaluator, coarse_evaluator, x0, xg, hessian, budget, shou
     m = coarse_evaluator.n_int
     searched = []
     coarse, iterations, linalg_time = cold_runs(robot, coarse_evaluator, x0, xg, m, hessian,
-                                                budget, should_stop, searched,
-                                                warm_bends=False)
+                                                budget, should_stop, searched)
     runs.extend(f'{line} ({m} intervals)' for line in searched)
     if coarse.status == 'stopped' or iterations >= budget:
         return _carried(robot, evaluator, x0, xg, coarse, m), iterations, linalg_time

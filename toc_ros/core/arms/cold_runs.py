@@ -16,18 +16,16 @@
 The cold start of an arm solve: its starts, tried in turn, and the best converged run kept.
 
 The line start when it clears the obstacles; around them the free optimum (solved first)
-bent clear in up to FREE_BENDS ways (each first run warm from the free run's multipliers when
-it keeps about the free optimum's time), LINE_DETOURS bent lines and the colliding line itself
-(start_points), each run within its budget, a settled run above the best abandoned, the
-search ended at the free optimum's time (cold_runs).  run_ipm: one run with the curvature
-model 'auto' (cheap, then exact where the cheap one stalls), also for solve_arm's warm
-starts.
+bent clear in up to FREE_BENDS ways, LINE_DETOURS bent lines and the colliding line itself
+(start_points), each run within its budget, a settled run above the best abandoned, the search
+ended at the free optimum's time (cold_runs).  run_ipm: one run with the curvature model 'auto'
+(cheap, then exact where the cheap one stalls), also for solve_arm's warm starts.
 """
 
 import numpy as np
 
 from .arm_eval import ArmEvaluator
-from .arm_ipm import ArmInteriorPoint, MU_INIT_RETRY, WARM_ACCEPT_ITERATIONS
+from .arm_ipm import ArmInteriorPoint, MU_INIT_RETRY
 from .arm_start import (bent_states, cold_start, cubic_path, detour_offsets,
                         line_detour_makers, line_detours, line_time, path_torques, timed_start)
 
@@ -100,23 +98,6 @@ FREE_REACHED = 1e-7
 FREE_TOL = 1e-6
 FREE_CONSTR_TOL = 1e-7
 FREE_MU_MIN = 1e-9          # (the last barrier parameter of a run at the default tolerance)
-# The free optimum (bent clear of the obstacles, or as it is) is first run warm: from the free
-# run's last barrier parameter, with its bounds' multipliers (not its costates: the bend moved
-# the path they belong to; nor sphere rows' ones, which it has none of), when the bend is timed
-# (arm_start.timed_start) within WARM_BEND_SLOWDOWN of the free optimum's t_f: where the
-# obstacles cost no time (the minimum-time problem is degenerate in the joints that do not set
-# the time, and a bend of them can keep t_f) such a run converges in 4-6 iterations where a run
-# from MU_INIT takes 10-20.  It ends after WARM_BEND_BUDGET iterations, at a step shorter than
-# WARM_BEND_ALPHA or at the second rise of the constraint violation in a row (a warm run that
-# is not converging), and the bend then starts a run from MU_INIT as before.  A bend that needs
-# more time is far from the free run's point: no warm run (benchmarks/RESULTS.md, "Arms: the
-# bent free optimum run warm first").
-WARM_BEND_SLOWDOWN = 1.15
-WARM_BEND_BUDGET = 10
-WARM_BEND_ALPHA = 0.1
-WARM_BEND_RISES = 2
-WARM_BEND_PUSH = 1e-6
-WARM_BEND_DUALS = ('zlx', 'zux', 'zlv', 'zuv', 'zlt', 'zut', 'prox')
 
 
 def slowed(arm, x0, x_goal, n_int, t_f):
@@ -211,7 +192,7 @@ def _stall_watch(ipm, should_stop):
 
 def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
     """
-    (converged run or None, iterations, Riccati time): solved without obstacles.
+    ((states, torques, t_f) or None, iterations, Riccati time): solved without obstacles.
 
     From line; its Pinocchio calls and time are added to evaluator's counters (the solve's
     time split covers every run).
@@ -227,48 +208,11 @@ def _free_optimum(robot, evaluator, x0, xg, line, hessian, budget, should_stop):
     evaluator.pin_time += free.pin_time
     if run.status not in ('converged', 'acceptable'):
         return None, run.iterations, ipm.linalg_time
-    return run, run.iterations, ipm.linalg_time
+    return (run.x, run.v * robot.arm.effort, run.t), run.iterations, ipm.linalg_time
 
 
-def _warm_bend(evaluator, x0, xg, start, free_run, hessian, should_stop):
-    """
-    (run, Riccati time) from start, the free optimum bent, with free_run's multipliers.
-
-    WARM_BEND_* above; a run ended for a short step or a rising violation has the status
-    'not converging'.
-    """
-    ipm = ArmInteriorPoint(evaluator, x0, xg, mu_init=free_run.mu)
-    ipm.accept_iterations = WARM_ACCEPT_ITERATIONS
-    ipm.start(*start, duals={name: free_run.duals[name] for name in WARM_BEND_DUALS},
-              push=WARM_BEND_PUSH)
-
-    def stop():
-        if should_stop is not None and should_stop():
-            return True
-        rose = stop.primal is not None and ipm.primal > stop.primal
-        stop.rises = stop.rises + 1 if rose else 0
-        stop.primal = ipm.primal
-        stop.fired = ((ipm.last_alpha is not None and ipm.last_alpha < WARM_BEND_ALPHA)
-                      or stop.rises >= WARM_BEND_RISES)
-        return stop.fired
-    stop.fired, stop.rises, stop.primal = False, 0, None
-    run = run_ipm(ipm, WARM_BEND_BUDGET, stop, hessian)
-    if stop.fired and run.status == 'stopped':
-        run.status = 'not converging'
-    return run, ipm.linalg_time
-
-
-def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs,
-              warm_bends=True):
-    """
-    (best run, iterations, Riccati time) from the cold starts; runs gets a line per run.
-
-    warm_bends: run the bends of the free optimum warm first (WARM_BEND_*); not for a search
-    whose result is refined on a finer grid (coarse_grid.py): the warm run's multipliers are
-    those of the free run, not of a barrier path, and the refining run from them took longer
-    (the Panda past a sphere at N = 200 from 50: 22 iterations, the last with exact curvature,
-    against 8).
-    """
+def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, runs):
+    """(best run, iterations, Riccati time) from the cold starts; runs gets a line per run."""
     # Around obstacles a cold solve finds the local optimum of its start's way around them:
     # every start of start_points is solved and the best converged run kept (the search
     # ends early at the free optimum's time: the obstacles then cost nothing).  When none
@@ -276,59 +220,42 @@ def cold_runs(robot, evaluator, x0, xg, n_int, hessian, budget, should_stop, run
     # down by RETRY_SLOWDOWN (IPOPT's second recipe in the reference multi-start: further
     # inside the torque limits) with IPOPT's default first barrier parameter (0.1).
     iterations, linalg_time = 0, 0.0
-    free = free_run = None
+    free = None
     line = cold_start(robot.arm, x0, xg, n_int)
     if evaluator.n_obstacle_rows and evaluator.clearances(line[0][:, :robot.arm.n]).min() < 0.0:
-        free_run, used, free_linalg = _free_optimum(robot, evaluator, x0, xg, line, hessian,
-                                                    min(budget, FREE_BUDGET), should_stop)
+        free, used, free_linalg = _free_optimum(robot, evaluator, x0, xg, line, hessian,
+                                                min(budget, FREE_BUDGET), should_stop)
         iterations += used
         linalg_time += free_linalg
-        runs.append(f'without the obstacles: {"converged" if free_run else "no optimum"} after '
+        runs.append(f'without the obstacles: {"converged" if free else "no optimum"} after '
                     f'{used} iterations')
-        if free_run is not None:
-            free = (free_run.x, free_run.v * robot.arm.effort, free_run.t)
     best = run = None
     ends = []           # (t_f, joint path) of the ended runs after their first barrier problem
     for start_name, make, last in start_points(robot, evaluator, x0, xg, n_int, line, free):
         if run is not None and iterations >= budget:
             break
-        start = make()
-        warm = None
-        if (warm_bends and start_name.startswith('free optimum')
-                and start[2] <= WARM_BEND_SLOWDOWN * free_run.t):
-            run, warm_linalg = _warm_bend(evaluator, x0, xg, start, free_run, hessian,
-                                          should_stop)
-            iterations += run.iterations
-            linalg_time += warm_linalg
-            runs.append(f'{start_name}, warm: {run_summary(run)}')
-            if run.status in ('converged', 'acceptable', 'stopped'):
-                warm = run
-                warm.start_name = f'{start_name}, warm'
-            elif iterations >= budget:
-                break
-        if warm is None:        # the start's run from MU_INIT
-            ipm = ArmInteriorPoint(evaluator, x0, xg)
-            ipm.start(*start)
-            allowed = budget - iterations
-            if not last or best is not None:
-                allowed = min(allowed, START_BUDGET)  # (a converged run exists: no long tail)
-            abandon = _abandon_above(ipm, best, should_stop, ends)
-            run = run_ipm(ipm, allowed, abandon, hessian)
-            run.start_name = start_name
-            iterations += run.iterations
-            linalg_time += ipm.linalg_time
-            if abandon.fired:
-                why = ("repeats an earlier start's run after the first barrier problem"
-                       if abandon.repeat else "settled on the best start's way around"
-                       if abandon.duplicate else 'settled above the best start')
-                runs.append(f'{start_name}: abandoned after {run.iterations} iterations at '
-                            f't_f = {run.t:.6f} s ({why})')
-                if abandon.first is not None and not abandon.repeat:
-                    ends.append(abandon.first)
-                continue
-            runs.append(f'{start_name}: {run_summary(run)}')
-            if run.status in ('converged', 'acceptable') and abandon.first is not None:
+        ipm = ArmInteriorPoint(evaluator, x0, xg)
+        ipm.start(*make())
+        allowed = budget - iterations
+        if not last or best is not None:
+            allowed = min(allowed, START_BUDGET)      # (a converged run exists: no long tail)
+        abandon = _abandon_above(ipm, best, should_stop, ends)
+        run = run_ipm(ipm, allowed, abandon, hessian)
+        run.start_name = start_name
+        iterations += run.iterations
+        linalg_time += ipm.linalg_time
+        if abandon.fired:
+            why = ("repeats an earlier start's run after the first barrier problem"
+                   if abandon.repeat else "settled on the best start's way around"
+                   if abandon.duplicate else 'settled above the best start')
+            runs.append(f'{start_name}: abandoned after {run.iterations} iterations at t_f = '
+                        f'{run.t:.6f} s ({why})')
+            if abandon.first is not None and not abandon.repeat:
                 ends.append(abandon.first)
+            continue
+        runs.append(f'{start_name}: {run_summary(run)}')
+        if run.status in ('converged', 'acceptable') and abandon.first is not None:
+            ends.append(abandon.first)
         if run.status in ('converged', 'acceptable') and (best is None or run.t < best.t):
             best = run
         free_reached = (best is not None and free is not None
