@@ -229,3 +229,13 @@ def test_time_and_duration_round_the_total_not_the_fraction():
         assert (msg.sec, msg.nanosec) == (16, 0)
         msg = convert(2.5)
         assert (msg.sec, msg.nanosec) == (2, 500_000_000)
+
+
+def test_time_and_duration_of_nanoseconds_round_trip():
+    for total in (0, 999_999_999, 1_000_000_000, 1_765_000_000_123_456_789):
+        for convert in (conversions.time_of_ns, conversions.duration_of_ns):
+            msg = convert(total)
+            assert 0 <= msg.nanosec < 1_000_000_000
+            assert conversions.nanoseconds(msg) == total
+    assert type(conversions.time_of_ns(5)).__name__ == 'Time'
+    assert type(conversions.duration_of_ns(5)).__name__ == 'Duration'

@@ -84,6 +84,16 @@ def nanoseconds(msg):
     return msg.sec * 1_000_000_000 + msg.nanosec
 
 
+def time_of_ns(total):
+    """builtin_interfaces/Time of integer nanoseconds (>= 0)."""
+    return Time(sec=total // 1_000_000_000, nanosec=total % 1_000_000_000)
+
+
+def duration_of_ns(total):
+    """builtin_interfaces/Duration of integer nanoseconds (>= 0)."""
+    return Duration(sec=total // 1_000_000_000, nanosec=total % 1_000_000_000)
+
+
 def duration_seconds(duration):
     """Seconds of a builtin_interfaces/Duration (the double nearest to the nanoseconds)."""
     return nanoseconds(duration) / 1e9

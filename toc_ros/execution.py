@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import threading
 from typing import Callable, Optional
 
-from toc_ros.conversions import nanoseconds
+from toc_ros.conversions import duration_of_ns, nanoseconds, time_of_ns
 
 # control_msgs/action/FollowJointTrajectory result codes (control_msgs 5.8.0).
 ERROR_NAMES = {0: 'SUCCESSFUL', -1: 'INVALID_GOAL', -2: 'INVALID_JOINTS',
@@ -138,21 +138,19 @@ def classify_result(goal_id, newest_id, goal_status, code, text):
 
 def _retimed(point, ns, effort=True):
     """Return a copy of a JointTrajectoryPoint at time_from_start ns (without its efforts)."""
-    from builtin_interfaces.msg import Duration
     from trajectory_msgs.msg import JointTrajectoryPoint
     return JointTrajectoryPoint(
         positions=point.positions, velocities=point.velocities,
         accelerations=point.accelerations, effort=point.effort if effort else [],
-        time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
+        time_from_start=duration_of_ns(ns))
 
 
 def _trajectory(like, stamp_ns, points):
     """Return a JointTrajectory with the joints and frame of like, stamped stamp_ns."""
-    from builtin_interfaces.msg import Time
     from trajectory_msgs.msg import JointTrajectory
     msg = JointTrajectory(joint_names=list(like.joint_names), points=points)
     msg.header.frame_id = like.header.frame_id
-    msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    msg.header.stamp = time_of_ns(stamp_ns)
     return msg
 
 
@@ -230,7 +228,6 @@ def goal_trajectory(trajectory, effort, hold_effort=None):
 
 def build_goal(action_type, trajectory, tolerances: Tolerances):
     """Return the FollowJointTrajectory goal of a trajectory_msgs/JointTrajectory message."""
-    from builtin_interfaces.msg import Duration
     from control_msgs.msg import JointTolerance
     joint_names = list(trajectory.joint_names)
     goal = action_type.Goal()
@@ -242,7 +239,7 @@ def build_goal(action_type, trajectory, tolerances: Tolerances):
         goal.goal_tolerance = [JointTolerance(name=name, position=tolerances.goal_position)
                                for name in joint_names]
     ns = int(round(tolerances.goal_time * 1e9))
-    goal.goal_time_tolerance = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    goal.goal_time_tolerance = duration_of_ns(ns)
     return goal
 
 

@@ -116,7 +116,6 @@ import math
 import sys
 import time
 
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -194,11 +193,6 @@ def parameter_errors(params):
         errors.append(f"integration_rate ({params['integration_rate']} Hz) must be >= rate "
                       f"({params['rate']} Hz)")
     return errors
-
-
-def time_of_ns(total):
-    """builtin_interfaces/Time of integer nanoseconds (>= 0)."""
-    return Time(sec=total // NS, nanosec=total % NS)
 
 
 class PlantNode(Node):
@@ -294,7 +288,7 @@ class PlantNode(Node):
 
     def _stamp(self):
         """Stamp of the current simulated time."""
-        return time_of_ns(self._sim.sim_ns + self._offset_ns)
+        return conversions.time_of_ns(self._sim.sim_ns + self._offset_ns)
 
     # -- state and trajectory -----------------------------------------------------------------
 
@@ -458,7 +452,7 @@ class PlantNode(Node):
         if goal is None or feedback is None or not sim.following:
             return
         msg = self._action_type.Feedback()
-        msg.header.stamp = time_of_ns(feedback.time_ns + self._offset_ns)
+        msg.header.stamp = conversions.time_of_ns(feedback.time_ns + self._offset_ns)
         msg.joint_names = list(sim.follower.joint_names)
         desired = feedback.desired
         msg.desired = trajectory_point(desired.positions, desired.velocities,
