@@ -770,10 +770,47 @@ def test_rk4_step_derivatives_match_finite_differences(name):
     np.testing.assert_allclose(terms['c'][0], jac[:, -1], atol=1e-7 * scale)
 
 
+@pytest.mark.parametrize('name', ['panda', 'ur5'])
+def test_rk4_step_curvature_matches_second_differences_of_the_steps(name):
+    # hessian='exact' on RK4 steps: the Hessian of lam . step over (x_k, T, v_k), against
+    # central second differences of that scalar (the steps' values only), two intervals.
+    robot = _robot(name)
+    arm = robot.arm
+    n, nx = arm.n, 2 * arm.n
+    rng = np.random.default_rng(12)
+    ev = ArmEvaluator(arm, robot.spheres, (), MARGIN, 2, integrator='rk4')
+    q = np.clip(rng.uniform(-1.0, 1.0, (3, n)), arm.lower, arm.upper)
+    x = np.hstack([q, rng.uniform(-1, 1, (3, n))])
+    v = rng.uniform(-0.8, 0.8, (2, n))
+    t_f = 0.1
+    lam = rng.uniform(-1, 1, (3, nx))
+    terms = ev.stage_terms(x, v, t_f, lam, hessian='exact')
+
+    def weighted(k, z):
+        xs, vs = x.copy(), v.copy()
+        xs[k], vs[k] = z[:nx], z[nx + 1:]
+        return float(lam[k + 1] @ (ev.defects(xs, vs, z[nx]) + xs[1:])[k])
+
+    eps = 1e-4
+    for k in range(2):
+        z0 = np.concatenate([x[k], [t_f], v[k]])
+        basis = np.eye(z0.size) * eps
+        hess = np.array([[(weighted(k, z0 + a + b) - weighted(k, z0 + a - b)
+                           - weighted(k, z0 - a + b) + weighted(k, z0 - a - b)) / (4 * eps ** 2)
+                          for b in basis] for a in basis])
+        # (forward differences of the derivatives: ~1e-4 relative on the largest entries)
+        scale = max(1.0, np.abs(hess).max())
+        for got, want in ((terms['hxx'][k], hess[:nx + 1, :nx + 1]),
+                          (terms['hux'][k], hess[nx + 1:, :nx + 1]),
+                          (terms['huu'][k], hess[nx + 1:, nx + 1:])):
+            np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-5 * scale)
+        # Not affine in the torques: the control block is there to be checked.
+        assert np.abs(hess[nx + 1:, nx + 1:]).max() > 1e-3 * scale
+
+
 @pytest.mark.slow
 def test_rk4_arm_solve_matches_ipopt_on_the_rk4_transcription():
-    # N = 10: RK4 arm solves run without the dynamics' curvature (about 1000 iterations here)
-    # and IPOPT on the RK4 transcription takes seconds; IPOPT is started from fast mode's
+    # N = 10: IPOPT on the RK4 transcription takes seconds; it is started from fast mode's
     # solution (a better optimum nearby would show).
     pytest.importorskip('casadi')
     from toc_ros.bench.arm_problem import ArmProblem

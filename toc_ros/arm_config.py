@@ -246,7 +246,7 @@ def arm_errors(params, model):
     if str(params.get('solver.integrator', 'euler')) != 'euler':
         errors.append(f"solver.integrator {params['solver.integrator']!r} is not implemented "
                       "for URDF arms in solver_node: use 'euler' (solve() and toc-solve have "
-                      'RK4 for arms, without the curvature that speeds up Euler solves)')
+                      'RK4 for arms, at several times the cost of an Euler solve)')
     if float(params.get('robot.actuator_lag', 0.0)) != 0.0:
         errors.append('robot.actuator_lag: actuator lag is not modelled for URDF arms (give 0)')
     if params.get('robot.model_parameters'):

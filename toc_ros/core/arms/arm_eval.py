@@ -49,7 +49,7 @@ import pinocchio as pin
 from . import kernels
 from .clearances import reachable_obstacles
 from .ipm_kernels import euler_terms
-from .rk4_steps import rk4_defects, rk4_terms
+from .rk4_steps import rk4_curvature, rk4_defects, rk4_second_derivatives, rk4_terms
 
 FD_STEP = 1e-6
 # The second derivatives of ABA (2 n derivative calls per interval) are recomputed every
@@ -174,11 +174,19 @@ class ArmEvaluator:
         c (N, 2n) (d step / d T), and the blocks hxx (N, 2n + 1, 2n + 1), hux (N, n, 2n + 1)
         of lam_{k+1} . step_k's curvature over (x_k, T, v_k) (huu = 0: ABA is affine in the
         torques): zero with hessian 'none', the final time's rows and columns with 'cross',
-        all of it with 'exact' (module docstring).
+        all of it with 'exact' (module docstring).  RK4 steps with 'exact' also have huu
+        (N, n, n) (rk4_steps.py); their 'cross' is 'none'.
         """
         n, nx, n_int = self.n, 2 * self.n, self.n_int
         if self.integrator == 'rk4':
-            return rk4_terms(self, x, v, t_f)
+            out = rk4_terms(self, x, v, t_f)
+            if hessian == 'exact':      # ('cross' has no cheap form here: like 'none')
+                if self._tensor is None or self._tensor_age >= TENSOR_REUSE:
+                    self._tensor = rk4_second_derivatives(self, x, v, t_f, FD_STEP)
+                    self._tensor_age = 0
+                self._tensor_age += 1
+                rk4_curvature(self._tensor, lam, out)
+            return out
         h = t_f / n_int
         tau = v * self.effort[None, :]
         acc, d_q, d_v, minv = self._kept_derivatives(x, v)

@@ -47,7 +47,8 @@ and the bound/slack barrier terms but no curvature of the dynamics (a Gauss-Newt
 one Pinocchio derivative call per interval); 'cross' adds the exact curvature between the
 final time and the states and controls (the steps are h f, h = T / N: lam . df / N, from the
 same call); 'exact' adds the dynamics' curvature by forward differences of Pinocchio's
-analytical derivatives (2 n + 1 calls per interval, see arm_eval.py).  The cheap models
+analytical derivatives (2 n + 1 calls per interval, see arm_eval.py; RK4 steps:
+rk4_steps.py, which have no 'cross' and start with 'none').  The cheap models
 converge on most problems in 10-30 iterations at a fraction of the cost; where the
 dynamics' curvature matters they wander without converging, and solve_arm then switches the
 same run to 'exact' (cold_runs.run_ipm, which starts with 'cross'; the attribute hessian is
@@ -87,8 +88,9 @@ ACCEPT_TOL = 1e-6
 # The first proximal weight: small from a cold start, whose first steps from the line start
 # are mostly full ones (1.0 cost every Euler cold solve the iterations that lowered it;
 # benchmarks/RESULTS.md, "Arms: a smaller first proximal weight") ... but PROX_GUARDED on
-# RK4 steps, which never get the dynamics' curvature (rk4_steps.py: the proximal term is all
-# the curvature their first steps have; from 1e-4 a UR5 RK4 solve failed its line search),
+# RK4 steps, whose cheap model has no curvature of the dynamics (rk4_steps.py: the proximal
+# term is all the curvature their first steps have; from 1e-4 a UR5 RK4 solve failed its
+# line search),
 # and from a primal guess without multipliers (start(prox=...)), which it keeps from
 # wandering off while the multipliers form (6 iterations on the plan, 14 from 1e-4).
 PROX_INIT = 1e-4
@@ -100,8 +102,8 @@ PROX_MAX = 1e8
 # TERMINAL_CURVATURE_RK4 |dx_N|^2 / 2 on the goal, which never changes a step (dx_N = 0 is
 # imposed) but enters the stage-by-stage inertia test of the last intervals; a large value
 # makes that the null space's test (Euler steps ran with 1e4 until they eliminated the goal:
-# benchmarks/RESULTS.md, "The goal's curvature"), but RK4 steps (no curvature of the
-# dynamics, linear convergence) keep 1: the UR5 at N = 10 stalled with 10-1e4 (its line start
+# benchmarks/RESULTS.md, "The goal's curvature"), but RK4 steps (measured while they had no
+# curvature of the dynamics) keep 1: the UR5 at N = 10 stalled with 10-1e4 (its line start
 # fails with 1 too; the slowed line then converges).
 TERMINAL_CURVATURE_RK4 = 1.0
 ACCEPT_ITERATIONS = 10
@@ -274,6 +276,8 @@ class ArmInteriorPoint(FilterLineSearch):
             # The proximal term (a trust region in Levenberg-Marquardt form) bounds the steps
             # where the model has little curvature; it vanishes as full steps are accepted.
             ipm_kernels.regularised(hxx, huu_diag, self.prox, delta, hxx_reg, huu)
+            if 'huu' in terms:
+                huu += terms['huu']     # (RK4 steps' exact curvature: not affine in torques)
             if self.euler_step:
                 code, d_t = riccati_euler.riccati_solve_euler(
                     terms['a'], terms['b'], terms['c'], terms['defect'], hxx_reg, hux, huu,

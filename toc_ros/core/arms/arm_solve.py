@@ -18,9 +18,10 @@ solve(Problem(model=ArmRobot(arm, spheres), ...)) for URDF arms: checks, fast mo
 For an arm the Problem's fields mean: x0 / x_goal the states (q_1..q_n, dq_1..dq_n), positions
 first (n values: velocities 0); obstacles rows (cx, cy, cz, R) [m] in the base frame; margin
 [m] added to every sphere pair's radii; n_intervals N; integrator 'euler' or 'rk4' (RK4
-without the dynamics' curvature: rk4_steps.py); t_f0 only for paper mode, which starts from it
-as the paper does (fast mode's cold start times its own path).  Paper mode runs the section-3
-heuristic in joint accelerations (arm_paper.py), explicit Euler only (PAPER_RK4_REFUSAL).
+steps cost 4 derivative calls an interval, their curvature 4 (3n + 1): rk4_steps.py); t_f0
+only for paper mode, which starts from it as the paper does (fast mode's cold start times its
+own path).  Paper mode runs the section-3 heuristic in joint accelerations (arm_paper.py),
+explicit Euler only (PAPER_RK4_REFUSAL).
 
 Self-collision between the spheres' self_pairs (non-adjacent links, no margin) is
 constrained at every node when ArmRobot.self_collision is True (start and goal are then

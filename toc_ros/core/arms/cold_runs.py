@@ -152,12 +152,11 @@ def start_points(robot, evaluator, x0, x_goal, n_int, line, free=None):
 
 def run_ipm(ipm, budget, should_stop, hessian, cheap=CHEAP_ITERATIONS):
     """Run ipm within budget iterations with the curvature hessian ('auto': see above)."""
-    if ipm.ev.integrator == 'rk4':
-        hessian = 'none'            # no curvature of the RK4 steps (rk4_steps.py)
     if hessian != 'auto':
         ipm.hessian = hessian
         return ipm.run(budget, should_stop)
-    ipm.hessian = CHEAP_MODEL
+    # (RK4 steps have no cheap cross curvature: rk4_steps.py)
+    ipm.hessian = CHEAP_MODEL if ipm.ev.integrator == 'euler' else 'none'
     watch = _stall_watch(ipm, should_stop)
     run = ipm.run(min(budget, cheap), watch)
     if (not (watch.stalled or run.status in ('max_iterations', 'line_search_failed'))

@@ -20,7 +20,14 @@ One step over h = t_f / N with the torques constant on the interval:
     step = x + h/6 (k1 + 2 k2 + 2 k3 + k4),    f(x) = (dq, ABA(q, dq, effort v)).
 Its derivatives by the chain rule through the stages, each stage's Jacobian from one
 pinocchio.computeABADerivatives call per interval (4 N calls), the matrix products batched
-over the intervals.  The dynamics' curvature is not used (hessian 'none' only).
+over the intervals.
+
+The curvature (hessian 'exact'): forward differences of these derivatives along each
+coordinate of z_k = (x_k, T, v_k), every interval shifted at once (a step depends on its own
+x_k, v_k and on T only): 3 n + 1 evaluations of rk4_terms, 4 N (3 n + 1) derivative calls,
+kept (arm_eval.TENSOR_REUSE) and contracted with the current multipliers.  Unlike an Euler
+step, an RK4 step is not affine in the torques (the later stages' states move with them): the
+control block huu is part of it.
 """
 
 import numpy as np
@@ -83,3 +90,46 @@ def rk4_terms(evaluator, x, v, t_f):
             'c': slope / (6.0 * n_int) + (h / 6.0) * (2.0 * d2t + 2.0 * d3t + d4t),
             'hxx': np.zeros((n_int, nx + 1, nx + 1)),
             'hux': np.zeros((n_int, v.shape[1], nx + 1))}
+
+
+def rk4_jacobian(evaluator, x, v, t_f):
+    """Return [a | c | b] of the RK4 steps, (N, 2n, 3n + 1): columns over (x_k, T, v_k)."""
+    terms = rk4_terms(evaluator, x, v, t_f)
+    return np.concatenate([terms['a'], terms['c'][:, :, None], terms['b']], axis=2)
+
+
+def rk4_second_derivatives(evaluator, x, v, t_f, step):
+    """
+    (N, 3n + 1, 2n, 3n + 1): d/dz_i of rk4_jacobian, z = (x_k, T, v_k), forward differences.
+
+    Each direction shifts every interval at once (its step depends on its own x_k and v_k,
+    and on T): one rk4_jacobian per direction.
+    """
+    base = rk4_jacobian(evaluator, x, v, t_f)
+    nx, n = x.shape[1], v.shape[1]
+    out = np.empty((base.shape[0], nx + 1 + n, nx, nx + 1 + n))
+    for i in range(nx):
+        shifted = x.copy()
+        shifted[:-1, i] += step
+        out[:, i] = (rk4_jacobian(evaluator, shifted, v, t_f) - base) / step
+    out[:, nx] = (rk4_jacobian(evaluator, x, v, t_f + step) - base) / step
+    for j in range(n):
+        shifted = v.copy()
+        shifted[:, j] += step
+        out[:, nx + 1 + j] = (rk4_jacobian(evaluator, x, shifted, t_f) - base) / step
+    return out
+
+
+def rk4_curvature(tensor, lam, out):
+    """
+    Fill out's hxx, hux and huu with the Hessian of lam_{k+1} . step_k over (x_k, T, v_k).
+
+    tensor: rk4_second_derivatives (possibly of an earlier iterate); the rows' difference
+    quotients are contracted with the multipliers, then symmetrised.
+    """
+    nx = tensor.shape[2]
+    hess = np.einsum('kr,kirj->kij', lam[1:], tensor)
+    hess = 0.5 * (hess + hess.transpose(0, 2, 1))
+    out['hxx'][:] = hess[:, :nx + 1, :nx + 1]
+    out['hux'][:] = hess[:, nx + 1:, :nx + 1]
+    out['huu'] = np.ascontiguousarray(hess[:, nx + 1:, nx + 1:])
