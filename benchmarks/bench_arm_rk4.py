@@ -115,7 +115,7 @@ def main(argv=None):
                 print(f'| {name} | {obstacle_set} | {n_int} | {_cell(*out["none"])} | '
                       f'{_cell(*out["auto"])} | {change:+.2e} | {new_s / old_s:.2f} |',
                       flush=True)
-    solved = {model: 0 for model in MODELS}
+    solved = dict.fromkeys(MODELS, 0)
     for out in results:
         for model in MODELS:
             solved[model] += out[model][0].status is Status.SOLVED
