@@ -734,13 +734,17 @@ def test_the_colliding_line_start_finds_its_way_out_of_the_sphere(monkeypatch):
     assert best.final_time <= 0.358978 * (1 + 1e-3), best.final_time
 
 
-@pytest.mark.parametrize('name', ['panda', 'ur5'])
-def test_rk4_step_derivatives_match_finite_differences(name):
+def _rk4_evaluator(name, n_int, seed):
+    """(arm, n, 2n, a random generator, an RK4 ArmEvaluator of n_int intervals) of an arm."""
     robot = _robot(name)
     arm = robot.arm
-    n, nx = arm.n, 2 * arm.n
-    rng = np.random.default_rng(11)
-    ev = ArmEvaluator(arm, robot.spheres, (), MARGIN, 1, integrator='rk4')
+    return (arm, arm.n, 2 * arm.n, np.random.default_rng(seed),
+            ArmEvaluator(arm, robot.spheres, (), MARGIN, n_int, integrator='rk4'))
+
+
+@pytest.mark.parametrize('name', ['panda', 'ur5'])
+def test_rk4_step_derivatives_match_finite_differences(name):
+    arm, n, nx, rng, ev = _rk4_evaluator(name, 1, 11)
     q = np.clip(rng.uniform(-1.0, 1.0, n), arm.lower, arm.upper)
     x = np.vstack([np.concatenate([q, rng.uniform(-1, 1, n)]), rng.uniform(-1, 1, nx)])
     v = rng.uniform(-0.8, 0.8, (1, n))
@@ -774,11 +778,7 @@ def test_rk4_step_derivatives_match_finite_differences(name):
 def test_rk4_step_curvature_matches_second_differences_of_the_steps(name):
     # hessian='exact' on RK4 steps: the Hessian of lam . step over (x_k, T, v_k), against
     # central second differences of that scalar (the steps' values only), two intervals.
-    robot = _robot(name)
-    arm = robot.arm
-    n, nx = arm.n, 2 * arm.n
-    rng = np.random.default_rng(12)
-    ev = ArmEvaluator(arm, robot.spheres, (), MARGIN, 2, integrator='rk4')
+    arm, n, nx, rng, ev = _rk4_evaluator(name, 2, 12)
     q = np.clip(rng.uniform(-1.0, 1.0, (3, n)), arm.lower, arm.upper)
     x = np.hstack([q, rng.uniform(-1, 1, (3, n))])
     v = rng.uniform(-0.8, 0.8, (2, n))
