@@ -43,7 +43,7 @@ from toc_ros.core import Problem, solve, Status  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
 from toc_ros.core.arms.clearances import obstacle_clearance, sphere_kinematics_batch  # noqa: E402
-from toc_ros.core.plan_reference import reference_positions  # noqa: E402
+from toc_ros.core.plan_reference import hermite, reference_positions  # noqa: E402
 
 
 def min_clearance(robot, obstacles, margin, configurations):
@@ -62,9 +62,10 @@ def clearances(robot, result, obstacles, margin, samples):
     h = times[1] - times[0]
     points = reference_positions(q, dq, times, 'euler')
     fractions = np.arange(1, samples + 1) / (samples + 1)
-    # The published motion over a segment: through points[k] with the velocity going linearly
-    # from dq_k to dq_k+1 (plan_reference's docstring).
-    between = [points[:-1] + dq[:-1] * (s * h) + (dq[1:] - dq[:-1]) * (s * s * h / 2.0)
+    # The published motion over a segment: a controller's cubic through the points with the
+    # nodes' velocities (plan_reference.hermite), every segment at once.
+    t0, t1 = times[:-1, None], times[1:, None]
+    between = [hermite(t0, t1, points[:-1], dq[:-1], points[1:], dq[1:], t0 + s * (t1 - t0))[0]
                for s in fractions]
     chords = [q[:-1] + (q[1:] - q[:-1]) * s for s in fractions]
     return (min_clearance(robot, obstacles, margin, q),

@@ -32,7 +32,6 @@ from benchmarks.bench_arm_suite import MARGIN  # noqa: E402
 from toc_ros.core import Problem, solve, Status  # noqa: E402
 from toc_ros.core.arms import load_arm, load_spheres  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
-from toc_ros.core.plan_reference import hermite  # noqa: E402
 
 SPHERES = os.path.join(arm_between_nodes.HERE, 'data', 'arm_spheres_panda.yaml')
 
@@ -54,15 +53,15 @@ def test_clearances_of_a_plan_match_the_oracle_on_the_cubic_a_controller_follows
     samples = 3
     measured = arm_between_nodes.clearances(robot, result, obstacles, MARGIN, samples)
     # Independently: the published points are the nodes half a step along their velocity,
-    # and between two points a controller's cubic (Hermite through the points with the
-    # nodes' velocities) is the motion measured; clearances by the oracle's own kinematics.
+    # and between two points the motion is the one they stand for (plan_reference.py): from
+    # the point on, its velocity going linearly from dq_k to dq_k+1 (which the controller's
+    # cubic reproduces); clearances by the oracle's own kinematics.
     n = robot.arm.n
     q, dq, times = result.states[:, :n], result.states[:, n:], result.time_grid
     h = times[1] - times[0]
     points = q + 0.5 * h * dq
     fractions = np.arange(1, samples + 1) / (samples + 1)
-    cubic = [hermite(times[k], times[k + 1], points[k], dq[k], points[k + 1], dq[k + 1],
-                     times[k] + s * h)[0]
+    cubic = [points[k] + dq[k] * (s * h) + (dq[k + 1] - dq[k]) * (s * s * h / 2.0)
              for k in range(len(q) - 1) for s in fractions]
     chords = [q[k] + s * (q[k + 1] - q[k]) for k in range(len(q) - 1) for s in fractions]
 

@@ -181,11 +181,8 @@ class ArmEvaluator:
         if self.integrator == 'rk4':
             out = rk4_terms(self, x, v, t_f)
             if hessian == 'exact':      # ('cross' has no cheap form here: like 'none')
-                if self._tensor is None or self._tensor_age >= TENSOR_REUSE:
-                    self._tensor = rk4_second_derivatives(self, x, v, t_f, FD_STEP)
-                    self._tensor_age = 0
-                self._tensor_age += 1
-                rk4_curvature(self._tensor, lam, out)
+                rk4_curvature(self._kept_tensor(
+                    lambda: rk4_second_derivatives(self, x, v, t_f, FD_STEP)), lam, out)
             return out
         h = t_f / n_int
         tau = v * self.effort[None, :]
@@ -211,15 +208,20 @@ class ArmEvaluator:
         """Drop the kept second derivatives (a run from another start point begins)."""
         self._tensor = None
 
+    def _kept_tensor(self, second_derivatives):
+        """Return the kept second derivatives, made again by the call every TENSOR_REUSE uses."""
+        if self._tensor is None or self._tensor_age >= TENSOR_REUSE:
+            self._tensor = second_derivatives()
+            self._tensor_age = 0
+        self._tensor_age += 1
+        return self._tensor
+
     def _exact_curvature(self, x, tau, lam, d_q, d_v, minv, h, out):
         """Fill out's hxx/hux (x, tau blocks) with h times the Hessian of lam_v . ABA."""
         n, nx = self.n, 2 * self.n
-        if self._tensor is None or self._tensor_age >= TENSOR_REUSE:
-            self._tensor = self._second_derivatives(x, tau, d_q, d_v, minv)
-            self._tensor_age = 0
-        self._tensor_age += 1
+        tensor = self._kept_tensor(lambda: self._second_derivatives(x, tau, d_q, d_v, minv))
         # Rows i of the Hessian over (q, v, tau): lam_v . d/dz_i of (da/dq, da/dv, M^-1).
-        hess = np.einsum('kj,kijl->kil', lam[1:, n:], self._tensor)
+        hess = np.einsum('kj,kijl->kil', lam[1:, n:], tensor)
         square = hess[:, :, :nx]
         out['hxx'][:, :nx, :nx] = 0.5 * h * (square + square.transpose(0, 2, 1))
         # The tau rows by symmetry: d2 a / dtau dq from the q rows, d2 a / dtau dv = 0 and
