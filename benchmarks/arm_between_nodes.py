@@ -59,7 +59,6 @@ def clearances(robot, result, obstacles, margin, samples):
     n = robot.arm.n
     q, dq = result.states[:, :n], result.states[:, n:]
     times = result.time_grid
-    h = times[1] - times[0]
     points = reference_positions(q, dq, times, 'euler')
     fractions = np.arange(1, samples + 1) / (samples + 1)
     # The published motion over a segment: a controller's cubic through the points with the
