@@ -9,6 +9,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'benchmarks']),
+    # The C++ source toc-build-native compiles (core/arms/pin_batch.py).
+    package_data={'toc_ros.core.arms': ['pin_batch.cpp']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -22,7 +24,9 @@ setup(
     install_requires=['setuptools', 'numpy', 'numba', 'mcap', 'pyyaml', 'matplotlib',
                       'sympy', 'dask[distributed]', 'pyarrow',
                       # URDF arms: dynamics and derivatives, the shipped Panda/UR5, the plant.
-                      'pin', 'example-robot-data', 'mujoco'],
+                      'pin', 'example-robot-data', 'mujoco',
+                      # The headers toc-build-native compiles the batched Pinocchio calls with.
+                      'cmeel-eigen'],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         'test': ['pytest', 'pytest-randomly', 'psutil', 'mcap-ros2-support', 'rosbags',
@@ -48,6 +52,7 @@ setup(
             'toc-analyze = toc_ros.analysis.cli:main',
             'toc-sweep = toc_ros.sweep.cli:main',
             'toc-bag = toc_ros.recording.bag_tool:main',
+            'toc-build-native = toc_ros.core.arms.pin_batch:main',
         ],
     },
 )

@@ -84,6 +84,17 @@ def test_position_only_goal_and_start_seed_first():
     assert np.abs(q - home).max() < 0.5
 
 
+@pytest.mark.parametrize('orientation', [False, True])
+def test_one_planned_joint_reaches_its_pose(orientation):
+    # Pinocchio returns a one-joint model's 6 x 1 Jacobians as vectors (was an IndexError).
+    arm = load_arm('panda', joints=['panda_joint1'])
+    goal = oracle_pose(arm, np.array([0.7]), 'panda_hand_tcp')
+    quaternion = quaternion_xyzw(goal[:3, :3]) if orientation else None
+    q = solve_ik(arm, 'panda_hand_tcp', goal[:3, 3], quaternion, q_start=np.zeros(1))
+    assert q.shape == (1,) and abs(q[0] - 0.7) < 1e-6
+    assert arm.frame_jacobian(q, 'panda_hand_tcp').shape == (6, 1)
+
+
 def test_answers_are_deterministic():
     arm = load_arm('ur5')
     goal = oracle_pose(arm, np.array([0.3, -1.2, 1.4, -0.5, 1.0, 0.2]), 'tool0')

@@ -165,6 +165,20 @@ def test_reduced_dynamics_equal_the_full_model_with_locked_joints_still():
                                        atol=1e-12)
 
 
+def test_a_locked_mimic_joint_follows_its_joint():
+    # panda_finger_joint2 <mimic joint="panda_finger_joint1"/>: given finger 1 only, finger 2
+    # follows (it stayed at 0 before); a mimic of a planned joint is refused.
+    arm = load_arm('panda', locked={'panda_finger_joint1': 0.03})
+    assert arm.locked == {'panda_finger_joint1': 0.03, 'panda_finger_joint2': 0.03}
+    values = dict(arm.locked, **dict(zip(arm.joint_names, np.zeros(7))))
+    poses = UrdfOracle(arm.urdf).link_poses(values)
+    for link in ('panda_leftfinger', 'panda_rightfinger'):
+        np.testing.assert_allclose(arm.frame_pose(np.zeros(7), link).homogeneous, poses[link],
+                                   atol=1e-12)
+    with pytest.raises(ArmError, match='mimics the planned joint'):
+        load_arm('panda', joints=PANDA_JOINTS + ('panda_finger_joint1',))
+
+
 def test_default_lock_is_zero_clamped_into_the_limits():
     arm = load_arm('panda', joints=PANDA_JOINTS[:3] + PANDA_JOINTS[4:])
     # panda_joint4 lies in [-3.0718, -0.0698]: 0 clamps to its upper limit.

@@ -1060,3 +1060,29 @@ def test_controls_whose_integration_diverges_are_not_reported_solved():
     assert result.status is Status.STALLED, result.message
     assert 'diverge' in result.message
     assert np.all(np.isfinite(result.states))
+
+
+@pytest.mark.parametrize('side', ['upper', 'lower'])
+def test_a_start_at_rest_on_a_position_limit_is_solved_within_the_limits(side):
+    # At rest on a limit, an Euler step's first node is the start itself: that bound has no
+    # interior until arm_ipm.relaxed_bounds moves it out by 1e-12 (before: MAX_ITERATIONS).
+    arm = load_arm('panda')
+    start = np.array(SCENARIOS['panda'][0], dtype=float)
+    start[3] = arm.upper[3] if side == 'upper' else arm.lower[3]
+    goal = start.copy()
+    goal[0] += 1.0
+    goal[3] += -0.5 if side == 'upper' else 0.5
+    problem = _problem('panda', 30, with_obstacles=False, x0=tuple(start), x_goal=tuple(goal))
+    result = solve(problem)
+    assert result.status is Status.SOLVED, result.message
+    assert result.states[0, 3] == start[3] and result.states[1, 3] == start[3]
+    _independent_check('panda', result, (), tuple(start), tuple(goal))
+
+
+def test_only_the_bounds_a_start_sits_on_are_relaxed():
+    from toc_ros.core.arms.arm_ipm import BOUND_RELAX, relaxed_bounds
+    lower, upper = np.array([-2.0, -0.5, -np.inf]), np.array([2.0, 0.5, np.inf])
+    low, high = relaxed_bounds(lower, upper, np.array([-2.0, 0.5 - 1e-14, 0.3]))
+    assert low[0] == -2.0 - 2.0 * BOUND_RELAX and high[1] == 0.5 + BOUND_RELAX
+    assert (low[1], low[2], high[0], high[2]) == (-0.5, -np.inf, 2.0, np.inf)
+    assert lower[0] == -2.0         # the arm's own limits are not changed

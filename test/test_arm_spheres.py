@@ -334,6 +334,25 @@ def test_spheres_held_together_in_collision_by_locks_are_refused():
         load_spheres(doc, arm)
     ok = load_spheres(dict(doc, ignore_pairs=[['panda_link3', 'panda_link5']]), arm)
     assert ok.self_pairs.size == 0
+    # Without self-collision the overlap is no concern: only obstacles are checked.
+    assert len(load_spheres(doc, arm, self_collision=False).radii) == 2
+
+
+def test_one_planned_joint_with_the_shipped_spheres_plans_past_an_obstacle():
+    # The Panda's others locked at 0 (joint 4 clamped to -0.0698) hold link5 and a finger
+    # 0.023 m into each other: refused before, whatever self-collision was.
+    from toc_ros.core import Problem, solve, Status
+    from toc_ros.core.arms.arm_solve import ArmRobot
+    arm = load_arm('panda', joints=('panda_joint1',))
+    robot = ArmRobot(arm, load_spheres(shipped_spheres_path('panda'), arm,
+                                       self_collision=False))
+    obstacle = (0.5, 0.3, 0.5, 0.05)
+    result = solve(Problem(x0=(0.0, 0.0), x_goal=(1.0, 0.0), model=robot,
+                           obstacles=(obstacle,), n_intervals=20))
+    assert result.status is Status.SOLVED, result.message
+    centres = np.array([sphere_centres(arm, robot.spheres, q) for q in result.states[:, :1]])
+    gaps = np.linalg.norm(centres - np.array(obstacle[:3]), axis=-1) - robot.spheres.radii
+    assert gaps.min() >= obstacle[3] - 1e-6
 
 
 @pytest.mark.parametrize('obstacles, reason', [

@@ -170,6 +170,9 @@ class SolverNode(SolverInputs, Node):
         self.get_logger().info(
             f'ready: {len(config.problem.obstacles)} obstacle(s), mode '
             f'{config.options.mode}, N = {config.problem.n_intervals}')
+        if config.is_arm:
+            from toc_ros.core.arms import pin_batch     # imports Pinocchio: arms only
+            self.get_logger().info(pin_batch.status())
 
     def ready(self):
         """Tell whether the kernels are loaded (goals before that are queued)."""

@@ -15,10 +15,10 @@
 """
 Model evaluations of the arm interior point: Euler steps, their derivatives, sphere clearances.
 
-Pinocchio cannot be called from compiled code, and its Python bindings have no batched
-derivative call, so every interval's dynamics derivatives are one
-pinocchio.computeABADerivatives call from Python (its outputs copied from views of the
-data's buffers, the Euler blocks then assembled in one compiled call, ipm_kernels.py); a
+Every interval's dynamics derivatives are one pinocchio.computeABADerivatives call: all
+intervals in one call of the C++ loop of pin_batch.py when it is built, else from Python (its
+outputs copied from views of the data's buffers), the same bits either way; the Euler blocks
+are then assembled in one compiled call (ipm_kernels.py); a
 line search's first trial point takes its accelerations from these calls and keeps the
 derivatives for the next iteration (the trial is usually taken: the Panda past a sphere -8 %
 time, the same bits), later trials one batched pinocchio.abaInParallel call on one thread; the
@@ -46,7 +46,7 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from . import kernels
+from . import kernels, pin_batch
 from .clearances import reachable_obstacles
 from .ipm_kernels import euler_terms
 from .rk4_steps import rk4_curvature, rk4_defects, rk4_second_derivatives, rk4_terms
@@ -71,6 +71,7 @@ class ArmEvaluator:
         self.model = arm.model
         self.data = arm.model.createData()
         self.pool = pin.ModelPool(arm.model, 1)
+        self.batch = pin_batch.workspace(arm.model)
         self.n = arm.n
         self.n_int = n_intervals
         self.effort = arm.effort.copy()
@@ -151,17 +152,20 @@ class ArmEvaluator:
         d_q = np.empty((count, n, n))
         d_v = np.empty((count, n, n))
         minv = np.empty((count, n, n))
-        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
-        # data's ddq, ddq_dq, ddq_dv and Minv are numpy views of Pinocchio's own buffers:
-        # copying them from the views skips the tuple of fresh arrays each call returns.
-        out_a, out_q, out_v, out_m = data.ddq, data.ddq_dq, data.ddq_dv, data.Minv
         started = time.perf_counter()
-        for k in range(count):
-            derivatives(model, data, states[k, :n], states[k, n:], tau[k])
-            acc[k] = out_a
-            d_q[k] = out_q
-            d_v[k] = out_v
-            minv[k] = out_m
+        if self.batch is not None:
+            self.batch.aba_derivatives(states, tau, acc, d_q, d_v, minv)
+        else:
+            model, data, derivatives = self.model, self.data, pin.computeABADerivatives
+            # data's ddq, ddq_dq, ddq_dv and Minv are numpy views of Pinocchio's own buffers:
+            # copying them from the views skips the tuple of fresh arrays each call returns.
+            out_a, out_q, out_v, out_m = data.ddq, data.ddq_dq, data.ddq_dv, data.Minv
+            for k in range(count):
+                derivatives(model, data, states[k, :n], states[k, n:], tau[k])
+                acc[k] = out_a
+                d_q[k] = out_q
+                d_v[k] = out_v
+                minv[k] = out_m
         self.pin_time += time.perf_counter() - started
         self.pin_calls += count
         return acc, d_q, d_v, minv
@@ -233,26 +237,14 @@ class ArmEvaluator:
     def _second_derivatives(self, x, tau, d_q, d_v, minv):
         """(N, 2n, n, 3n): d/dz_i of (da/dq, da/dv, M^-1) at every interval, z = (q, v)."""
         n, nx, n_int = self.n, 2 * self.n, self.n_int
-        # Every interval's state shifted by FD_STEP along each of its 2n coordinates; the
-        # derivatives there are copied out of Pinocchio's buffers (the Python loop does the
-        # Pinocchio calls only) and differenced in one call.
+        # Every interval's state shifted by FD_STEP along each of its 2n coordinates: one
+        # derivatives_at call for all of them, differenced in one call.
         shifted = np.repeat(x[:-1, None, :], nx, axis=1)
         shifted[:, np.arange(nx), np.arange(nx)] += FD_STEP
-        shifted_derivatives = np.empty((n_int, nx, n, 3 * n))
-        model, data, derivatives = self.model, self.data, pin.computeABADerivatives
-        out_q, out_v, out_m = data.ddq_dq, data.ddq_dv, data.Minv
-        started = time.perf_counter()
-        for k in range(n_int):
-            tau_k = tau[k]
-            for i in range(nx):
-                point = shifted[k, i]
-                derivatives(model, data, point[:n], point[n:], tau_k)
-                block = shifted_derivatives[k, i]
-                block[:, :n] = out_q
-                block[:, n:nx] = out_v
-                block[:, nx:] = out_m
-        self.pin_time += time.perf_counter() - started
-        self.pin_calls += nx * n_int
+        _, s_q, s_v, s_m = self.derivatives_at(
+            shifted.reshape(n_int * nx, nx), np.repeat(tau, nx, axis=0))
+        shifted_derivatives = np.concatenate([s_q, s_v, s_m], axis=2).reshape(
+            n_int, nx, n, 3 * n)
         base = np.concatenate([d_q, d_v, minv], axis=2)[:, None]
         return (shifted_derivatives - base) / FD_STEP
 

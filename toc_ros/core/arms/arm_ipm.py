@@ -113,6 +113,26 @@ COLD_PUSH = 1e-2
 # The multipliers a warm start takes over; every array's first axis is the plan's node or
 # interval (sliced alike by SolveResult.remainder).
 DUAL_NAMES = ('lam', 'z', 'zlx', 'zux', 'zlv', 'zuv', 'zlt', 'zut')
+# A start on a position limit pins the first node there (an Euler step's positions are
+# q0 + h v0: at rest, q0), which leaves that bound no interior: the barrier cannot start (the
+# Z1 from its home pose, joint 2 on its limit: 2000 iterations, MAX_ITERATIONS). Such a bound
+# is moved out by BOUND_RELAX (relative to max(1, |bound|)), as IPOPT's bound_relax_factor
+# moves every bound: far below arm_solve.BOUND_TOL, which still judges the result against the
+# URDF's limit.
+BOUND_RELAX = 1e-12
+
+
+def relaxed_bounds(lower, upper, start):
+    """(lower, upper) with the bounds that start sits on (within BOUND_RELAX) moved out."""
+    lower, upper = np.array(lower, dtype=float), np.array(upper, dtype=float)
+    with np.errstate(invalid='ignore'):
+        low_relax = BOUND_RELAX * np.maximum(1.0, np.abs(lower))
+        high_relax = BOUND_RELAX * np.maximum(1.0, np.abs(upper))
+        on_lower = start - lower < low_relax
+        on_upper = upper - start < high_relax
+    lower[on_lower] -= low_relax[on_lower]
+    upper[on_upper] += high_relax[on_upper]
+    return lower, upper
 
 
 class ArmIpmResult:
@@ -133,8 +153,9 @@ class ArmInteriorPoint(FilterLineSearch):
         self.n, self.nx, self.n_int = n, 2 * n, evaluator.n_int
         self.x0 = np.asarray(x0, dtype=float)
         self.x_goal = np.asarray(x_goal, dtype=float)
-        self.lx = np.concatenate([arm.lower, -arm.velocity])
-        self.ux = np.concatenate([arm.upper, arm.velocity])
+        lower, upper = relaxed_bounds(arm.lower, arm.upper, self.x0[:n])
+        self.lx = np.concatenate([lower, -arm.velocity])
+        self.ux = np.concatenate([upper, arm.velocity])
         self.has_l = np.isfinite(self.lx)
         self.has_u = np.isfinite(self.ux)
         self.tol = tol

@@ -229,6 +229,13 @@ def check_arm_problem(problem, options):
 
 def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator='euler'):
     """(states (N + 1, 2n) re-integrated with pinocchio.aba, ArmViolations)."""
+    # A diverged rollout (an open-loop unstable motion) is measured as what it is: inf / NaN
+    # violations, without numpy's overflow warnings on the way.
+    with np.errstate(over='ignore', invalid='ignore'):
+        return _measure(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator)
+
+
+def _measure(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator):
     arm = robot.arm
     n = arm.n
     controls = np.asarray(controls, dtype=float)
@@ -247,8 +254,7 @@ def measure_arm(robot, x0, x_goal, controls, t_f, obstacles, margin, integrator=
         if len(pairs):
             node_pairs = (pairs[None] + n_spheres * np.arange(count)[:, None, None])
             self_clear = float(np.min(self_clearance(stacked, radii, node_pairs.reshape(-1, 2))))
-    with np.errstate(invalid='ignore'):
-        pos = max(float(np.max(q - arm.upper)), float(np.max(arm.lower - q)), 0.0)
+    pos = max(float(np.max(q - arm.upper)), float(np.max(arm.lower - q)), 0.0)
     return states, ArmViolations(
         max_control_excess=max(float(np.max(np.abs(controls) - arm.effort)), 0.0),
         terminal_error=float(np.linalg.norm(states[-1] - x_goal)),

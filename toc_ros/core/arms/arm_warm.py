@@ -30,6 +30,7 @@ import math
 import numpy as np
 import pinocchio as pin
 
+from . import pin_batch
 from .arm_ipm import DUAL_NAMES
 from .model import ArmError
 from ..result import SolveResult
@@ -46,6 +47,10 @@ def rollout(arm, x0, controls, t_f, integrator='euler'):
     controls = np.asarray(controls, dtype=float)
     n_int = controls.shape[0]
     h = t_f / n_int
+    batch = pin_batch.workspace(arm.model) if integrator != 'rk4' else None
+    if batch is not None:
+        # The same Euler steps in one call of the C++ loop (pin_batch.py): the same bits.
+        return batch.rollout_euler(x0, controls, h)
     data = arm.model.createData()
     states = np.empty((n_int + 1, 2 * n))
     states[0] = x0

@@ -92,13 +92,15 @@ class _Residual:
 
     def jacobian(self, q):
         model, data = self.arm.model, self.arm.data
+        # (reshaped: a one-joint model's 6 x 1 Jacobian comes back from Pinocchio as a vector)
         if self.with_orientation:
-            jac = pin.computeFrameJacobian(model, data, q, self.frame, pin.LOCAL)
+            jac = np.reshape(pin.computeFrameJacobian(model, data, q, self.frame, pin.LOCAL),
+                             (6, model.nv))
             pose = pin.updateFramePlacement(model, data, self.frame)
             # d log6(pose^-1 target)/dq = -Jlog6((pose^-1 target)^-1) J_local
             return -pin.Jlog6(self.target.actInv(pose)) @ jac
-        return pin.computeFrameJacobian(model, data, q, self.frame,
-                                        pin.LOCAL_WORLD_ALIGNED)[:3]
+        return np.reshape(pin.computeFrameJacobian(model, data, q, self.frame,
+                                                   pin.LOCAL_WORLD_ALIGNED), (6, model.nv))[:3]
 
 
 def _levenberg_marquardt(arm, residual, q, tolerance, max_iterations):

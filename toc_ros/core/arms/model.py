@@ -156,8 +156,10 @@ class ArmModel:
 
     def frame_jacobian(self, q, link, reference=pin.LOCAL_WORLD_ALIGNED, data=None):
         """Frame Jacobian (6, n): linear rows first, then angular (reference frame given)."""
-        return pin.computeFrameJacobian(self.model, data or self.data, q,
-                                        self.frame_id(link), reference).copy()
+        # (reshaped: a one-joint model's 6 x 1 Jacobian comes back from Pinocchio as a vector)
+        return np.reshape(pin.computeFrameJacobian(self.model, data or self.data, q,
+                                                   self.frame_id(link), reference),
+                          (6, self.model.nv)).copy()
 
 
 def _reduced(full, lock_ids, q_ref):
@@ -219,6 +221,46 @@ def _select_joints(joints, requested, defaults, full):
     return tuple(requested)
 
 
+def _lock_values(full, urdf_joints, planned, locked, overrides):
+    """
+    {joint: value} of the joints not planned: given, else 0 clamped into the joint's limits.
+
+    A mimic joint without a value follows its joint (multiplier * value + offset, the URDF's
+    <mimic>): a gripper's second finger moves with the first.  A mimic of a planned joint
+    cannot follow it in the reduced model and is refused.
+    """
+    values = {}
+    pending = [name for name in full.names[1:] if name not in planned]
+    movable = set(pending)
+    for _ in range(len(pending) + 1):
+        waiting = []
+        for name in pending:
+            joint = urdf_joints[name]
+            if joint.mimic in planned:
+                raise ArmError(f'joint {name!r} mimics the planned joint {joint.mimic!r}: a '
+                               'mimic joint cannot follow a planned one (plan without it)')
+            if joint.mimic in movable and joint.mimic not in values:
+                waiting.append(name)        # after the joint it follows
+                continue
+            _, _, lower, upper, _ = joint_limits(joint, overrides.get(name, {}), planned=False)
+            follows = None if joint.mimic not in values else \
+                joint.mimic_multiplier * values[joint.mimic] + joint.mimic_offset
+            if name in locked:
+                value = number(locked[name], f'locked value of joint {name!r}')
+            elif follows is not None:
+                value = follows
+            else:
+                value = min(max(0.0, lower), upper)
+            if not math.isfinite(value) or not lower <= value <= upper:
+                raise ArmError(f'locked value {value} of joint {name!r} is outside its limits '
+                               f'[{lower}, {upper}]')
+            values[name] = value
+        if not waiting:
+            return values
+        pending = waiting
+    raise ArmError(f'the <mimic> joints {", ".join(pending)} follow each other in a cycle')
+
+
 def load_arm(source, joints=None, locked=None, limits=None):
     """
     Return the ArmModel of a URDF arm with the planned joints free, the others locked.
@@ -252,20 +294,7 @@ def load_arm(source, joints=None, locked=None, limits=None):
             raise ArmError(f'locked names unknown or fixed joint {name!r}')
         if name in planned:
             raise ArmError(f'joint {name!r} is both planned and locked')
-    lock_values = {}
-    for name in full.names[1:]:
-        if name in planned:
-            continue
-        _, _, lower, upper, _ = joint_limits(urdf_joints[name], overrides.get(name, {}),
-                                             planned=False)
-        if name in locked:
-            value = number(locked[name], f'locked value of joint {name!r}')
-            if not math.isfinite(value) or not lower <= value <= upper:
-                raise ArmError(f'locked value {value} of joint {name!r} is outside its limits '
-                               f'[{lower}, {upper}]')
-        else:
-            value = min(max(0.0, lower), upper)
-        lock_values[name] = value
+    lock_values = _lock_values(full, urdf_joints, planned, locked, overrides)
 
     rows = []
     for name in planned:

@@ -35,7 +35,8 @@ Self-collision is checked between spheres of links that are not adjacent: two li
 adjacent when they are parent and child in the URDF tree, counting links joined by fixed
 joints as one link (so the Panda's hand is adjacent to link7 and to both fingers).  Pairs of
 links that the reduced model keeps rigidly together (e.g. across a locked joint) are skipped
-too, as their distance cannot change; load_spheres refuses them if they overlap.  Further
+too, as their distance cannot change; load_spheres refuses them if they overlap (with
+self-collision on).  Further
 pairs to skip come from the file's ignore_pairs and the ignore_pairs argument (the shipped
 files list the SRDF's disable_collisions: pairs MoveIt found adjacent or never colliding).
 """
@@ -271,7 +272,9 @@ def load_spheres(path_or_mapping, arm, ignore_pairs=None, self_collision=True):
                       ignore_pairs=frozenset(ignored), self_pairs=np.zeros((0, 2), dtype=int),
                       source=path, chain=kinematic_chain(model))
     pairs, rigid = _self_pairs(arm, spheres)
-    if len(rigid):
+    # Overlapping rigid pairs matter only to self-collision (without it, e.g. one planned
+    # joint of the Panda with the others locked at 0 is a valid arm to plan around obstacles).
+    if self_collision and len(rigid):
         centres = sphere_centres(arm, spheres, pin.neutral(model))
         depth = -self_clearance(centres, spheres.radii, rigid)
         if depth.max() > 0:

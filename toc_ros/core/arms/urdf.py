@@ -160,7 +160,9 @@ class UrdfJoint:
     parent: str
     child: str
     limits: Dict[str, float]        # the attributes present in <limit>
-    mimic: Optional[str]
+    mimic: Optional[str]            # <mimic joint>: value = multiplier * that joint's + offset
+    mimic_multiplier: float = 1.0
+    mimic_offset: float = 0.0
 
 
 def parse_urdf(urdf):
@@ -190,8 +192,15 @@ def parse_urdf(urdf):
                         raise ArmError(f'joint {name!r} <limit {key}> must be finite, got '
                                        f'{limits[key]}')
         mimic = element.find('mimic')
+        coupling = {}
+        if mimic is not None:
+            for key, default in (('multiplier', 1.0), ('offset', 0.0)):
+                value = number(mimic.get(key, default), f'joint {name!r} <mimic {key}>')
+                if not math.isfinite(value):
+                    raise ArmError(f'joint {name!r} <mimic {key}> must be finite')
+                coupling[f'mimic_{key}'] = value
         joints[name] = UrdfJoint(name, kind, parent.get('link'), child.get('link'), limits,
-                                 None if mimic is None else mimic.get('joint'))
+                                 None if mimic is None else mimic.get('joint'), **coupling)
         _check_joint_geometry(element, name, kind)
     parents = {}
     for joint in joints.values():
