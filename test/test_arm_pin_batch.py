@@ -119,6 +119,12 @@ def test_wrong_shapes_are_refused_before_the_cpp_loop_runs(lib):
         work.rollout_euler(np.zeros(5), tau, 0.1)
 
 
+def test_a_model_the_loop_cannot_take_gets_the_python_loop(lib):
+    # A free-flyer's configuration (a quaternion) is not its velocity space: no workspace.
+    assert pin_batch.workspace(pin.buildSampleModelHumanoidRandom()) is None
+    assert pin_batch.workspace(load_arm('ur5').model) is not None
+
+
 def test_solves_have_the_same_bits_with_and_without_the_cpp_loop(lib, monkeypatch):
     # A cold solve past a sphere (cheap model, then the exact curvature: every path of
     # derivatives_at) and a warm replan off its remainder, RK4 steps too.

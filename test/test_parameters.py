@@ -185,3 +185,18 @@ def test_solver_node_settings_are_built_once_as_typed_objects():
     assert 'obstacles.max_count' not in changed.planning_data()
     assert parameter_errors(dict(flat, **{'replan.estimate': ['no_such']}))
     assert parameter_errors(dict(flat, base_frame='/')) == ['base_frame must not be empty']
+
+
+def test_arm_settings_refuse_more_intervals_than_arms_take_and_track_their_joints():
+    # solver.N's declared range is every model's; arms are planned on at most 100000
+    # intervals: refused when set, not at every goal. joint_names pick an arm's model, so they
+    # are planning data (a change stops the plan of the old joints).
+    from toc_ros.nodes.solver_settings import parameter_errors, planning_data
+    flat = {name: parameters.default(name) for name in parameters.SOLVER_NODE_NAMES}
+    flat.update({'robot.model': 'panda', 'joint_names': [f'panda_joint{i}' for i in range(1, 8)],
+                 'initial_state': [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]})
+    assert parameter_errors(flat) == []
+    assert any('exceeds the 100000 intervals' in e
+               for e in parameter_errors(dict(flat, **{'solver.N': 200000})))
+    assert planning_data(flat)['joint_names'] == tuple(flat['joint_names'])
+    assert 'joint_names' not in planning_data(dict(flat, **{'robot.model': 'cylindrical'}))

@@ -421,3 +421,40 @@ def test_cancel_goal_brakes_from_the_measured_state(own_panda):
         assert np.allclose(uj, tau, atol=1e-6)
     assert np.all(np.abs(effort) <= panda.oracle.effort + 1e-9)
     assert np.all(bq >= panda.oracle.lower) and np.all(bq <= panda.oracle.upper)
+
+
+def test_a_new_joint_set_under_an_executing_plan_stops_it_on_its_own_joints(own_panda):
+    # joint_names changed to six of the Panda's joints while a plan of seven executes: the
+    # stop addresses the plan's seven joints (it had the new six names and seven positions),
+    # and joint_states keep coming without crashing the node (a ValueError in the callback
+    # ended the process).
+    panda = own_panda
+    since = time.monotonic()
+    panda.goal_joints.publish(JointState(name=PANDA_JOINTS, position=Q_FAR))
+    plan = plan_after(panda, since, Q_FAR)
+    _, q, dq, _ = panda.oracle.arrays(plan)
+    k = len(q) // 2
+    states = panda.client.node.create_publisher(JointState, panda.client.name('joint_states'), 10)
+    panda.client.wait_for(lambda: states.get_subscription_count() > 0, 30.0, 'joint_states')
+
+    def measured(count=5):
+        for _ in range(count):
+            states.publish(JointState(name=PANDA_JOINTS, position=q[k].tolist(),
+                                      velocity=dq[k].tolist()))
+            time.sleep(0.05)
+    measured(6)         # the arm is drawn at this state; the plan (1.1 s) still executes
+    since = time.monotonic()
+    results = panda.client.set_parameters('solver_node', {'joint_names': PANDA_JOINTS[:6]})
+    assert all(r.successful for r in results), [r.reason for r in results]
+    stop = panda.client.wait_for(lambda: panda.client.messages('trajectory', since), 30.0,
+                                 'the stop')[0]
+    assert list(stop.joint_names) == PANDA_JOINTS
+    assert all(len(p.positions) == len(PANDA_JOINTS) for p in stop.points)
+    measured(10)
+    assert panda.node.alive(), panda.node.log()
+    assert panda.client.call(panda.ready, Trigger.Request()).success
+    # Goals for the six joints start from the newest joint_states, read with the new names.
+    since = time.monotonic()
+    panda.goal_joints.publish(JointState(name=PANDA_JOINTS[:6], position=Q_FAR[:6]))
+    result = final(panda, since, 'goal_joints')
+    assert result.status is Status.SOLVED, result.message

@@ -266,6 +266,10 @@ def arm_errors(params, model):
             errors.append(f'replan.estimate: {exc}')
     if not str(params['base_frame']).strip('/'):
         errors.append('base_frame must not be empty')
+    from toc_ros.core.arms.arm_solve import MAX_INTERVALS     # Pinocchio: arms only
+    if finite_number(params.get('solver.N')) and int(params['solver.N']) > MAX_INTERVALS:
+        errors.append(f"solver.N = {params['solver.N']} exceeds the {MAX_INTERVALS} intervals "
+                      'URDF arms are planned on')
     count, limit = len(params.get(SPHERES, ())), int(params['obstacles.max_count'])
     if count > limit:
         errors.append(f'{count} obstacles exceed obstacles.max_count = {limit}')

@@ -171,7 +171,8 @@ def braking_plan(plan, measured, now, dt):
     times, states, controls = stop
     return ExecutingPlan(start=float(now), times=times, states=states, controls=controls,
                          goal=plan.goal, source='brake', model=model, result=None,
-                         path_states=plan.path_states, goal_active=plan.goal_active)
+                         path_states=plan.path_states, goal_active=plan.goal_active,
+                         joint_names=plan.joint_names)
 
 
 def ignored_start(start_msg, config, measured_state):

@@ -226,7 +226,9 @@ class Planner(ReplanCycles):
         now = port.now()
         # From where the robot is now: it follows plan until the stop reaches it.
         measured = policy.state_now(plan, port.snapshot()[1], port.measured_time(), now)
-        names = config.frames.joint_names
+        # The stop addresses the joints of the plan it stops, which may not be the settings'
+        # any more (joint_names or robot.model changed under it).
+        names = plan.joint_names or config.frames.joint_names
         if getattr(plan.model, 'is_arm', False):
             braking = arm_goals.braking_plan(plan, measured, now, policy.BRAKE_STEP_S)
         else:
@@ -443,6 +445,7 @@ class Planner(ReplanCycles):
             start = max(start, float(not_before))
         stamp = trajectory.header.stamp = conversions.time_msg(start)
         plan = plan_from_result(result, start, request.goal, request.source, model)
+        plan.joint_names = tuple(names)
         with plans.lock:
             if not self.worker.current(request):
                 return False            # its goal was canceled (~/cancel_goal)

@@ -25,7 +25,7 @@ braking stop that replaces a plan (``braking_plan``).
 """
 
 import dataclasses
-from typing import Any, Optional
+from typing import Any, Optional, Tuple
 
 import numpy as np
 
@@ -53,6 +53,7 @@ class ExecutingPlan:
     result: Any = None           # the SolveResult (None: a braking stop)
     path_states: Optional[np.ndarray] = None    # the path drawn for it
     goal_active: bool = True     # False once its goal was canceled: nothing drives to it
+    joint_names: Tuple[str, ...] = ()   # the names it was published with (its stop's names)
 
     @property
     def duration(self):
@@ -191,7 +192,8 @@ def braking_plan(plan, measured, now, dt):
     times, states, controls = brake(model, np.asarray(measured, dtype=float), dt)
     return ExecutingPlan(start=float(now), times=times, states=states, controls=controls,
                          goal=plan.goal, source='brake', model=model, result=None,
-                         path_states=plan.path_states, goal_active=plan.goal_active)
+                         path_states=plan.path_states, goal_active=plan.goal_active,
+                         joint_names=plan.joint_names)
 
 
 def nearest_node(model, states, x):

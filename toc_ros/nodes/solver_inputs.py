@@ -58,11 +58,17 @@ class SolverInputs:
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         state_time = stamp if stamp > 0.0 else self.now()
         with self._lock:
+            if self._config is not config:
+                # Converted for the joints of settings that changed meanwhile (joint_names of
+                # another size): the next message is read with the new ones.
+                return
             self._measured = state
             self._measured_effort = effort
             self._measured_time = state_time
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
-            if self._arm_drawn is None or np.max(np.abs(state - self._arm_drawn)) > ARM_REDRAW:
+            drawn = self._arm_drawn
+            if drawn is None or np.shape(drawn) != np.shape(state) \
+                    or np.max(np.abs(state - drawn)) > ARM_REDRAW:
                 self._arm_dirty = True
         if config.node.replan_estimate:
             self._estimate_from(msg, config, state, state_time)

@@ -259,13 +259,19 @@ class SolverNode(SolverInputs, Node):
         if config is None or config.flat != flat:
             config = SolverNodeConfig.from_flat(flat)
         with self._lock:
+            if tuple(config.frames.joint_names) != tuple(self._config.frames.joint_names):
+                # A state of other joints is no start of this robot: goals wait for the next
+                # joint_states (read with the new joint_names).
+                self._measured = self._measured_effort = self._measured_time = None
             self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed
         if any(p.name.startswith('execute.') for p in changed):
             self._execution.configure(config.node)
-        if any(p.name.startswith('robot.') or p.name == 'robot_description' for p in changed) \
+        if any(p.name.startswith('robot.') or p.name in ('robot_description', 'joint_names')
+               for p in changed) \
                 and self._kernels.switch(config.model):
-            self.get_logger().info(f'robot model changed: loading the kernels of {config.model!r}')
+            self.get_logger().info('robot model changed: loading the kernels of '
+                                   f'{getattr(config.model, "name", config.model)!r}')
         self._planner.data_changed(config)
 
     async def _on_plan(self, request, response):

@@ -110,8 +110,9 @@ def planning_data(params):
     """Return the flat values a plan depends on beyond its goal (one revision's data)."""
     data = {k: v for k, v in params.items()
             if k.startswith(PLANNING_PREFIXES) and k != 'obstacles.max_count'}
-    if arm_config.is_arm(params):       # the URDF an arm model is built from
+    if arm_config.is_arm(params):       # the URDF an arm model is built from, its joints
         data['robot_description'] = arm_config.effective_description(params)
+        data['joint_names'] = tuple(params.get('joint_names', ()))
     return data
 
 

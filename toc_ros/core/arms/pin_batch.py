@@ -172,6 +172,9 @@ class _Model:
     """A C++ copy of a pinocchio.Model, and the Python copy it was made from."""
 
     def __init__(self, lib, model):
+        if model.nq != model.nv:
+            raise RuntimeError('the C++ loop takes models whose configuration is their '
+                               f'velocity space (nq {model.nq} != nv {model.nv})')
         self.copy = model.copy()
         stream = pin.serialization.StreamBuffer()
         model.saveToBinary(stream)
@@ -244,7 +247,12 @@ def _check(*pairs):
 def workspace(model):
     """Return a Workspace for model (None without the library: the Python loop)."""
     lib = library()[0]
-    return None if lib is None else Workspace(lib, model)
+    if lib is None:
+        return None
+    try:
+        return Workspace(lib, model)
+    except RuntimeError:
+        return None         # a model the loop does not take: the Python loop serves it
 
 
 def main(argv=None):
