@@ -27,9 +27,7 @@ the same bits (they must: the same calls, compiled).
 
 import argparse
 import dataclasses
-import datetime
 import os
-import platform
 import statistics
 import sys
 import time
@@ -41,6 +39,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
+import results_md  # noqa: E402
 from toc_ros.core import Problem, solve, Status  # noqa: E402, I100
 from toc_ros.core.arms import load_arm, load_spheres, pin_batch  # noqa: E402
 from toc_ros.core.arms.arm_solve import ArmRobot  # noqa: E402
@@ -152,13 +151,9 @@ def main(argv=None):
     text = table(rows)
     print(text)
     if args.write:
-        load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
-        with open(os.path.join(HERE, 'RESULTS.md'), 'a') as stream:
-            stream.write(f"\n\n### Arms: Pinocchio's calls looped in C++ against Python\n\n"
-                         f'`python benchmarks/bench_arm_pin_batch.py --repeats {args.repeats}`, '
-                         f'{datetime.datetime.utcnow():%Y-%m-%d %H:%M} UTC, Python '
-                         f'{platform.python_version()}, load average {load:.1f} on the shared '
-                         f'2-core machine.\n\n{text}\n')
+        results_md.append("### Arms: Pinocchio's calls looped in C++ against Python",
+                          f'python benchmarks/bench_arm_pin_batch.py --repeats {args.repeats}',
+                          text)
     return 0 if all(r['solved'] and r['same_bits'] for r in rows) else 1
 
 

@@ -30,9 +30,7 @@ compared with the cold solve's.
 
 import argparse
 import dataclasses
-import datetime
 import os
-import platform
 import statistics
 import sys
 import time
@@ -44,6 +42,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_arm_fast import MARGIN, SCENARIOS  # noqa: E402, I100
+import results_md  # noqa: E402
 from toc_ros.bench.arm_check import check_trajectory, example_robot_urdf  # noqa: E402, I100
 from toc_ros.bench.arm_problem import ArmProblem, ArmSpec  # noqa: E402
 from toc_ros.bench.arm_reference import ArmTranscription  # noqa: E402
@@ -158,13 +157,8 @@ def main(argv=None):
     text = table(rows)
     print(text)
     if args.write:
-        load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
-        with open(os.path.join(HERE, 'RESULTS.md'), 'a') as stream:
-            stream.write(f'\n\n## Arms: warm replanning from {args.fraction:g} of the plan\n\n'
-                         f'`python benchmarks/bench_arm_warm.py --repeats {args.repeats}`, '
-                         f'{datetime.datetime.utcnow():%Y-%m-%d %H:%M} UTC, Python '
-                         f'{platform.python_version()}, load average {load:.1f} on the shared '
-                         f'2-core machine.\n\n{text}\n')
+        results_md.append(f'## Arms: warm replanning from {args.fraction:g} of the plan',
+                          f'python benchmarks/bench_arm_warm.py --repeats {args.repeats}', text)
     return 0 if all(r['solved'] for r in rows) else 1
 
 

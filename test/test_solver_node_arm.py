@@ -393,8 +393,8 @@ def test_obstacle_change_during_a_solve_restarts_it(panda):
     clear_obstacles(panda)
 
 
-def test_cancel_goal_brakes_from_the_measured_state(own_panda):
-    panda = own_panda
+def _moving_half_way(panda):
+    """Plan to Q_FAR; return (q, dq, k, publish(count)): joint_states of node k, half-way."""
     since = time.monotonic()
     panda.goal_joints.publish(JointState(name=PANDA_JOINTS, position=Q_FAR))
     plan = plan_after(panda, since, Q_FAR)
@@ -402,10 +402,19 @@ def test_cancel_goal_brakes_from_the_measured_state(own_panda):
     k = len(q) // 2     # the robot is half-way, moving
     states = panda.client.node.create_publisher(JointState, panda.client.name('joint_states'), 10)
     panda.client.wait_for(lambda: states.get_subscription_count() > 0, 30.0, 'joint_states')
-    for _ in range(5):
-        states.publish(JointState(name=PANDA_JOINTS, position=q[k].tolist(),
-                                  velocity=dq[k].tolist()))
-        time.sleep(0.05)
+
+    def publish(count=5):
+        for _ in range(count):
+            states.publish(JointState(name=PANDA_JOINTS, position=q[k].tolist(),
+                                      velocity=dq[k].tolist()))
+            time.sleep(0.05)
+    return q, dq, k, publish
+
+
+def test_cancel_goal_brakes_from_the_measured_state(own_panda):
+    panda = own_panda
+    q, dq, k, measured = _moving_half_way(panda)
+    measured()
     cancel = panda.client.node.create_client(Trigger, panda.client.name('solver_node/cancel_goal'))
     since = time.monotonic()
     answer = panda.client.call(cancel, Trigger.Request())
@@ -429,19 +438,7 @@ def test_a_new_joint_set_under_an_executing_plan_stops_it_on_its_own_joints(own_
     # and joint_states keep coming without crashing the node (a ValueError in the callback
     # ended the process).
     panda = own_panda
-    since = time.monotonic()
-    panda.goal_joints.publish(JointState(name=PANDA_JOINTS, position=Q_FAR))
-    plan = plan_after(panda, since, Q_FAR)
-    _, q, dq, _ = panda.oracle.arrays(plan)
-    k = len(q) // 2
-    states = panda.client.node.create_publisher(JointState, panda.client.name('joint_states'), 10)
-    panda.client.wait_for(lambda: states.get_subscription_count() > 0, 30.0, 'joint_states')
-
-    def measured(count=5):
-        for _ in range(count):
-            states.publish(JointState(name=PANDA_JOINTS, position=q[k].tolist(),
-                                      velocity=dq[k].tolist()))
-            time.sleep(0.05)
+    _, _, _, measured = _moving_half_way(panda)
     measured(6)         # the arm is drawn at this state; the plan (1.1 s) still executes
     since = time.monotonic()
     results = panda.client.set_parameters('solver_node', {'joint_names': PANDA_JOINTS[:6]})
