@@ -444,8 +444,7 @@ class Planner(ReplanCycles):
         if not_before is not None:
             start = max(start, float(not_before))
         stamp = trajectory.header.stamp = conversions.time_msg(start)
-        plan = plan_from_result(result, start, request.goal, request.source, model)
-        plan.joint_names = tuple(names)
+        plan = plan_from_result(result, start, request.goal, request.source, model, names)
         with plans.lock:
             if not self.worker.current(request):
                 return False            # its goal was canceled (~/cancel_goal)

@@ -169,13 +169,14 @@ class Seed:
     model: Any
 
 
-def plan_from_result(result, start, goal, source, model):
-    """Return the ExecutingPlan of a published solver result."""
+def plan_from_result(result, start, goal, source, model, joint_names=()):
+    """Return the ExecutingPlan of a solver result published for joint_names."""
     return ExecutingPlan(
         start=float(start), times=np.asarray(result.time_grid, dtype=float),
         states=np.asarray(result.states, dtype=float),
         controls=np.asarray(result.controls, dtype=float), goal=np.array(goal, dtype=float),
-        source=source, model=model, result=result, path_states=result.states)
+        source=source, model=model, result=result, path_states=result.states,
+        joint_names=tuple(joint_names))
 
 
 def braking_plan(plan, measured, now, dt):

@@ -18,6 +18,7 @@
 // instantiations: the results are bit for bit those of the Python loop.
 
 #include <cstring>
+#include <memory>
 #include <ostream>
 
 #include <boost/asio/streambuf.hpp>
@@ -44,14 +45,9 @@ void * toc_model_new(const char * bytes, long size)
   try {
     boost::asio::streambuf buffer;
     std::ostream(&buffer).write(bytes, size);
-    pinocchio::Model * model = new pinocchio::Model();
-    try {
-      model->loadFromBinary(buffer);
-    } catch (...) {
-      delete model;
-      return nullptr;
-    }
-    return model;
+    std::unique_ptr<pinocchio::Model> model(new pinocchio::Model());
+    model->loadFromBinary(buffer);
+    return model.release();
   } catch (...) {
     return nullptr;
   }

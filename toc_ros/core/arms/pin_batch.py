@@ -15,8 +15,8 @@
 """
 Pinocchio's per-node calls for many nodes in one compiled call (optional, same bits).
 
-The arm solver calls pinocchio.computeABADerivatives once per interval, and from Python most
-of each call is the binding's overhead.  pin_batch.cpp loops those calls in C++ against the
+The arm solver calls pinocchio.computeABADerivatives once per interval, and from Python about
+40 % of each call is the binding's overhead.  pin_batch.cpp loops those calls in C++ against the
 headers of the installed Pinocchio and links its own library, so each call is the compiled
 code the binding runs: the results are bit for bit the Python loop's (test_arm_pin_batch).
 
@@ -179,7 +179,6 @@ class _Model:
         stream = pin.serialization.StreamBuffer()
         model.saveToBinary(stream)
         data = stream.tobytes()
-        self.lib = lib
         self.handle = lib.toc_model_new(data, len(data))
         if not self.handle or lib.toc_model_nv(self.handle) != model.nv:
             raise RuntimeError('the compiled library did not load the model')
