@@ -45,8 +45,10 @@ PAPER_GOAL = (5.0 * math.pi / 12.0, 0.0, 1.0, 0.0)
 # A goal away from the paper's obstacle: a real plan that solves quicker than the paper's.
 NEAR_GOAL = (-0.5, 0.0, 1.0, 0.0)
 # Parameters of the nodes under test: small N for speed, a generous wall-clock limit because
-# test machines are shared.
-TEST_PARAMS = {'solver.N': 100, 'solver.timeout': 300.0}
+# test machines are shared, and joint_states valid for an hour: the tests publish a start a
+# few times (a robot at rest, no plant) and send goals for a while after it
+# (test_node_robustness checks the default limit's refusals).
+TEST_PARAMS = {'solver.N': 100, 'solver.timeout': 300.0, 'max_state_age': 3600.0}
 SOLVE_TIMEOUT = 300.0
 A = 1.1
 U_MAX = (600.0, 500.0)

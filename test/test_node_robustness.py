@@ -175,6 +175,37 @@ def test_bad_inputs_get_clear_refusals_and_the_node_keeps_serving(solver):
     print(f'{len(refused)} bad inputs refused')
 
 
+def test_goals_after_the_joint_states_stopped_are_refused_until_they_come_again(solver):
+    client = solver.client
+    assert all(r.successful for r in client.set_parameters('solver_node',
+                                                           {'max_state_age': 0.5}))
+    try:
+        set_start(solver, PAPER_X0)
+        time.sleep(1.0)             # the state publisher stopped half a second ago at least
+        since = time.monotonic()
+        solver.goal_joints.publish(state_msg(NEAR_GOAL))
+        reply = client.wait_for(lambda: finals(solver, since), 10.0, 'a stale start')[0]
+        assert level_name(reply) == 'ERROR' and 'no recent joint_states' in reply.message, \
+            reply.message
+        since = time.monotonic()
+        response = client.call(solver.plan, GetPlan.Request(goal=pose_of(NEAR_GOAL)), 10.0)
+        assert len(response.plan.poses) == 0
+        assert 'no recent joint_states' in client.wait_for(
+            lambda: finals(solver, since), 10.0, 'a stale start (~/plan)')[0].message
+        # The state comes again: the same request is planned from it.
+        set_start(solver, PAPER_X0)
+        since = time.monotonic()
+        response = client.call(solver.plan, GetPlan.Request(goal=pose_of(NEAR_GOAL)),
+                               SOLVE_TIMEOUT)
+        solved = client.wait_for(lambda: finals(solver, since), 10.0, 'the plan')[0]
+        assert report(solved).status is Status.SOLVED, solved.message
+        # (N + 1 poses, or fewer: the rest of another test's plan to it that still executes)
+        assert len(response.plan.poses) > 1, solved.message
+    finally:
+        assert all(r.successful for r in client.set_parameters('solver_node',
+                                                               {'max_state_age': 3600.0}))
+
+
 def test_200_goals_back_to_back(solver, record_property):
     """Plans (mostly instant ones to the current state), bursts that preempt; RSS bounded."""
     client = solver.client

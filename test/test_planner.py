@@ -81,6 +81,7 @@ class Port:
     def __init__(self, settings, measured=None):
         self.config, self.measured, self.clock = settings, measured, 100.0
         self.measured_at = None      # node-clock time of measured (None: unknown)
+        self.received_at = None      # node-clock time it arrived (None: nothing received)
         self.trajectories, self.paths, self.reports = [], [], []
         self.holds = []              # each trajectory's hold_effort
         self.markers, self.arm = 0, 0
@@ -95,6 +96,9 @@ class Port:
 
     def measured_time(self):
         return self.measured_at
+
+    def measured_received(self):
+        return self.received_at
 
     def now(self):
         return self.clock
@@ -281,6 +285,37 @@ def test_refused_goals_are_reported_with_the_reason_and_never_queued():
     assert p.submit(lambda _c: inside, 'goal_pose') is None
     assert 'start state from initial_state' in port.reports[-1].message
     assert not p.worker.busy() and port.trajectories == []
+
+
+def test_a_goal_is_refused_while_the_newest_joint_states_is_stale():
+    p, port = planner(config(max_state_age=0.5), measured=np.array(X0, dtype=float))
+    port.received_at = port.clock - 0.8
+    assert p.submit(lambda _c: NEAR_GOAL, 'goal_joints') is None
+    assert 'no recent joint_states' in port.reports[-1].message
+    assert '0.8 s ago' in port.reports[-1].message
+    assert port.reports[-1].status is Status.INVALID_INPUT
+    # Fresh again (a new joint_states): planned and published.
+    port.received_at = port.clock - 0.1
+    request = p.submit(lambda _c: NEAR_GOAL, 'goal_joints')
+    finish(p, request)
+    assert len(port.trajectories) == 1
+    p.worker.stop()
+
+
+def test_a_queued_goal_whose_joint_states_went_stale_meanwhile_is_refused_when_its_turn_comes():
+    ready = threading.Event()           # the kernels still loading: the goal waits
+    settings = config(max_state_age=0.5)
+    port = Port(settings, np.array(X0, dtype=float))
+    port.received_at = port.clock
+    p = Planner(port, settings.planning_data(), ready)
+    request = p.submit(lambda _c: NEAR_GOAL, 'goal_joints')
+    assert request is not None and port.reports[-1].event == schema.EVENT_QUEUED
+    port.clock += 2.0                   # the plant stopped publishing meanwhile
+    ready.set()
+    finish(p, request)
+    assert port.trajectories == []
+    assert 'no recent joint_states' in port.reports[-1].message
+    p.worker.stop()
 
 
 def test_an_obstacle_on_the_rest_of_the_plan_stops_it_and_the_goal_is_planned_again():

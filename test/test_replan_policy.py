@@ -519,3 +519,14 @@ def test_a_cycle_plans_with_the_replan_integrator_and_goals_keep_theirs():
     rk4_problem = dataclasses.replace(problem, integrator='rk4')
     assert policy.cycle_problem(source, unnamed, rk4_problem, 300, options, 1.0)[0] \
         .integrator == 'rk4'
+
+
+def test_a_measured_state_is_stale_when_older_than_the_limit_or_from_a_clock_gone_back():
+    assert policy.stale_state(None, 100.0, 1.0) is None          # none: initial_state
+    assert policy.stale_state(99.5, 100.0, 1.0) is None
+    assert policy.stale_state(99.0, 100.0, 1.0) is None          # exactly the limit
+    old = policy.stale_state(98.75, 100.0, 1.0)
+    assert old is not None and '1.25 s ago' in old and 'max_state_age = 1 s' in old
+    back = policy.stale_state(130.0, 100.0, 1.0)                  # a simulation reset
+    assert back is not None and 'went back' in back
+    assert policy.stale_state(100.0, 100.0, 0.01) is None

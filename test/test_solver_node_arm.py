@@ -50,8 +50,10 @@ Q2 = [1.0, -0.3, 0.2, -1.8, 0.0, 1.5, 0.8]
 # A long motion (joint 1 over 2.4 rad): executing long enough to change obstacles meanwhile.
 Q_FAR = [2.4, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]
 MARGIN = 0.01
+# (max_state_age: the tests publish a few joint_states, then send goals: node_harness.py)
 PARAMS = {'robot.model': 'panda', 'joint_names': PANDA_JOINTS, 'initial_state': Q0,
-          'solver.N': 40, 'solver.timeout': 300.0, 'obstacles.margin': MARGIN}
+          'solver.N': 40, 'solver.timeout': 300.0, 'obstacles.margin': MARGIN,
+          'max_state_age': 3600.0}
 TIMEOUT = 300.0
 
 

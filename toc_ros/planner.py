@@ -25,7 +25,8 @@ itself: the node gives it a *port*, an object with
 
 - ``snapshot()``: (settings, measured state of their model or None); ``settings()``: the
   settings only (cheap, called under the plan lock); ``measured_time()``: the node-clock time
-  [s] of that measured state (None: none);
+  [s] of that measured state (None: none); ``measured_received()``: the node-clock time [s]
+  when it arrived (None: none; a goal is refused while it is stale, policy.stale_state);
 - ``now()``: the node clock [s]; ``estimated_model(settings)``: (model, text) of the online
   estimate (replan.estimate);
 - ``publish_trajectory(msg, hold_effort=None)`` (hold_effort: an arm plan from rest's
@@ -81,6 +82,10 @@ class Planner(ReplanCycles):
         start, start_source, _ = goals.goal_start(
             config, measured, self.plans.current()[0], self._port.now(),
             self._port.measured_time())
+        why = self._stale_start(config, measured)
+        if why is not None:
+            self.refuse(source, why)
+            return None
         try:
             goal = make_goal(config)
         except conversions.ConversionError as exc:
@@ -100,6 +105,13 @@ class Planner(ReplanCycles):
                 message=note, goal_source=source, goal=tuple(goal), event=schema.EVENT_QUEUED))
         self.worker.submit(request)
         return request
+
+    def _stale_start(self, config, measured):
+        """Return why the measured state may not start a goal (too old), or None."""
+        if measured is None:
+            return None
+        return policy.stale_state(self._port.measured_received(), self._port.now(),
+                                  config.node.max_state_age)
 
     def refuse(self, source, reason):
         """Report refused input (log and ~/progress)."""
@@ -289,6 +301,10 @@ class Planner(ReplanCycles):
             return
         port = self._port
         config, measured = port.snapshot()
+        why = self._stale_start(config, measured)
+        if why is not None:         # (e.g. queued while the kernels loaded, the plant gone)
+            self.refuse(request.source, why)
+            return
         executing, revision = self.plans.current()
         start, start_source, not_before = goals.goal_start(
             config, measured, executing, port.now(), port.measured_time(), request.lead_scale)

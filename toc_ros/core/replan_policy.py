@@ -30,7 +30,8 @@ forward by a lead (the time the solve and the transport need).  This module deci
 - the obstacle margin of the replan out of a braking stop that ended inside the margin
   (``recovery_margin``);
 - what abandoning a goal does to the executing plan (``cancel_goal_action``);
-- where a goal solved while the robot brakes starts (``braking_rest_start``).
+- where a goal solved while the robot brakes starts (``braking_rest_start``);
+- whether a measured state is too old to start a goal from (``stale_state``).
 """
 
 import dataclasses
@@ -123,6 +124,26 @@ def state_now(plan, measured, measured_time, now):
     if t0 < 0.0 or not t1 > t0:
         return measured
     return predict(model, measured, plan.times, plan.controls, t0, t1)
+
+
+def stale_state(received, now, max_age):
+    """
+    Return why a measured state received at node-clock time received [s] is stale, or None.
+
+    Stale: received more than max_age [s] before now, or after now (the clock went back, a
+    simulation reset: the state is from before it).  None also when nothing was received
+    (received None: goals then start from initial_state).
+    """
+    if received is None:
+        return None
+    age = now - received
+    if 0.0 <= age <= max_age:
+        return None
+    when = (f'{age:.3g} s ago' if age > 0.0
+            else f'{-age:.3g} s after now (the node clock went back)')
+    return (f'no recent joint_states: the newest was received {when} (max_state_age = '
+            f'{max_age:g} s), so the robot may not be where it was; planning from it could start '
+            'a motion from the wrong state')
 
 
 def at_rest(model, x):

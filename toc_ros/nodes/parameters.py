@@ -104,6 +104,11 @@ class SolverNodeSettings:
         'so that the controller has it before its first point applies (the robot holds its '
         'rest meanwhile; a plan stamped now would start partway, its first motion lost); '
         'plans from a moving state start at once', unit='s', low=0.0, high=1.0)
+    max_state_age: float = setting(
+        1.0, 'a goal is refused while the newest joint_states is older than this (node clock '
+        'since its receipt; a clock that jumps back makes it stale too): its start would be '
+        'where the robot was, not where it is. Without any joint_states goals start from '
+        'initial_state', unit='s', low=0.01, high=3600.0)
     replan_estimate: Tuple[str, ...] = setting(
         (), 'model parameters (e.g. hand_mass, inertia; m_p) that the replan cycles estimate '
         'online from joint_states (position, velocity and effort = the applied u) and plan '

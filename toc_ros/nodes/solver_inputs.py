@@ -55,8 +55,9 @@ class SolverInputs:
             self.get_logger().warning(f'ignoring joint_states: {exc}', throttle_duration_sec=5.0)
             return
         received = time.monotonic()
+        now = self.now()
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        state_time = stamp if stamp > 0.0 else self.now()
+        state_time = stamp if stamp > 0.0 else now
         with self._lock:
             if self._config is not config:
                 # Converted for the joints of settings that changed meanwhile (joint_names of
@@ -65,6 +66,7 @@ class SolverInputs:
             self._measured = state
             self._measured_effort = effort
             self._measured_time = state_time
+            self._measured_received = now
             # Redraw the arm when it moved visibly, not for every message of a resting robot.
             drawn = self._arm_drawn
             if drawn is None or np.shape(drawn) != np.shape(state) \

@@ -100,6 +100,7 @@ class SolverNode(SolverInputs, Node):
         self._measured = None               # latest joint state from joint_states
         self._measured_effort = None        # and its efforts (None: not given or not used)
         self._measured_time = None          # and its time [s, node clock]
+        self._measured_received = None      # and when it arrived [s, node clock]
         self._arm_dirty = True
         self._arm_drawn = None              # state drawn by the last markers
         self._publish_lock = threading.Lock()
@@ -200,6 +201,11 @@ class SolverNode(SolverInputs, Node):
         with self._lock:
             return self._measured_time
 
+    def measured_received(self):
+        """Return the node-clock time [s] when the measured state arrived (None: none yet)."""
+        with self._lock:
+            return self._measured_received
+
     def now(self):
         """Return the node clock's time [s] (simulated time under use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
@@ -263,6 +269,7 @@ class SolverNode(SolverInputs, Node):
                 # A state of other joints is no start of this robot: goals wait for the next
                 # joint_states (read with the new joint_names).
                 self._measured = self._measured_effort = self._measured_time = None
+                self._measured_received = None
             self._config = config
             self._arm_dirty = True   # obstacles or frames may have changed
         if any(p.name.startswith('execute.') for p in changed):
