@@ -362,6 +362,20 @@ def test_bad_arm_input_is_invalid_input_with_the_reason(changes, reason):
     assert reason in result.message
 
 
+def test_a_goal_on_a_position_limit_moving_out_of_it_is_refused():
+    upper = float(load_arm('panda').upper[0])
+    q = (upper, 0.2, 0.0, -2.0, 0.0, 2.2, 0.8)
+    out = q + (1.0,) + (0.0,) * 6
+    result = solve(_problem('panda', x_goal=out))
+    assert result.status is Status.INVALID_INPUT
+    assert 'on its upper limit' in result.message and 'velocity 1 out of it' in result.message
+    # Into the limits (or at rest there) is a goal like any other: not refused for it.
+    for velocity in (-1.0, 0.0):
+        result = solve(_problem('panda', x_goal=q + (velocity,) + (0.0,) * 6, n_intervals=20),
+                       SolverOptions(max_iterations=1))
+        assert result.status is not Status.INVALID_INPUT, result.message
+
+
 def test_paper_mode_with_rk4_and_spheres_missing_are_refused():
     result = solve(_problem('panda', integrator='rk4'), SolverOptions(mode='paper'))
     assert result.status is Status.INVALID_INPUT and 'explicit Euler' in result.message

@@ -52,7 +52,7 @@ from .cold_runs import CHEAP_ITERATIONS, run_ipm, run_summary
 from .model import ArmError, ArmModel
 from .polish import polish
 from .spheres import check_spheres_fit, default_spheres, Spheres
-from .validate import check_holdable, check_state
+from .validate import check_holdable, check_not_leaving, check_state
 from ..problem import finite_number
 from ..result import CLEARANCE_TOL, Progress, SolveResult, Status, TERMINAL_TOL, Violations
 
@@ -224,6 +224,7 @@ def check_arm_problem(problem, options):
                     robot.spheres if len(obstacles) or robot.self_collision else None,
                     obstacles, margin, self_collision=robot.self_collision,
                     velocity_slack=slack)
+    check_not_leaving(arm, xg[:arm.n], xg[arm.n:])
     return robot, x0, xg, obstacles
 
 

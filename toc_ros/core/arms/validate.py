@@ -23,6 +23,9 @@ from .model import ArmError
 # Mass matrices whose smallest eigenvalue is below this fraction of the largest are refused
 # as singular (a joint moving no mass); real arms sit near 1e-3 (Panda's wrist vs shoulder).
 MASS_CONDITION = 1e-10
+# [rad/s, m/s] a goal on a position limit may move out of it this fast at most (a solved plan's
+# terminal velocity residual; anything faster leaves the limits right after the goal).
+OUTWARD_SPEED = 1e-6
 
 
 def joint_vector(arm, values, what):
@@ -61,6 +64,26 @@ def check_mass_matrix(arm, q, what='start'):
     which = f' ({", ".join(light)} {verb} no mass or inertia)' if light else ''
     raise ArmError(f'{what}: the mass matrix of the planned joints is singular there{which}: '
                    'check the URDF inertials (every moving link needs a mass and inertia)')
+
+
+def check_not_leaving(arm, q, v, what='goal'):
+    """
+    Raise ArmError when a state on a position limit moves out of it.
+
+    The motion goes on past a goal with a velocity: from a limit, out of it.  (A plan's
+    published motion reaches the goal half a step before its last point, core/plan_reference.py,
+    so that point would lie past the limit too.)
+    """
+    for i, name in enumerate(arm.joint_names):
+        if q[i] >= arm.upper[i] and v[i] > OUTWARD_SPEED:
+            side, limit = 'upper', arm.upper[i]
+        elif q[i] <= arm.lower[i] and v[i] < -OUTWARD_SPEED:
+            side, limit = 'lower', arm.lower[i]
+        else:
+            continue
+        raise ArmError(f'{what}: {name} = {q[i]:.6g} is on its {side} limit {limit:.6g} with '
+                       f'velocity {v[i]:.6g} out of it: the arm would leave its limits right '
+                       'after; give a velocity away from the limit (or 0), or a goal inside it')
 
 
 def check_holdable(arm, q, what='goal'):
