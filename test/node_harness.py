@@ -186,6 +186,23 @@ def refused_inputs_handshake(ctx):
     time.sleep(0.5)    # joint_states has no reaction to wait for; give discovery a moment
 
 
+def wait_for_plans_to_end(ctx):
+    """
+    Wait until no plan published so far executes (the node clock past their ends + 0.6 s).
+
+    For tests that share one node in any order (pytest-randomly): a plan of another test to the
+    same goal would warm-start a test's goal on its remaining grid, and a braking stop the
+    test's state is close to would be its start (the node's rules, not what they test).
+    ctx.client must collect 'trajectory'.
+    """
+    ends = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+            + (m.points[-1].time_from_start.sec + 1e-9 * m.points[-1].time_from_start.nanosec)
+            for m in ctx.client.messages('trajectory') if m.points]
+    wait = max(ends, default=0.0) + 0.6 - time.time()    # + the 0.5 s it counts as executing
+    if wait > 0.0:
+        time.sleep(min(wait, 10.0))
+
+
 @contextlib.contextmanager
 def running_solver(log_dir, collect=(), depth=10):
     """

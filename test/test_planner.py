@@ -755,6 +755,41 @@ def test_a_replan_from_inside_the_margin_uses_half_the_true_clearance():
     assert goals.recovery_params(settings, np.array(X0)) is None        # clear of the margin
 
 
+def test_a_start_on_the_plan_predicted_inside_the_margin_is_planned_with_the_recovery_margin():
+    # The paper's plan around its circle, and a robot measured 30 ms behind it: the start
+    # predicted along the plan from there lies inside the margin (the plan keeps it at its
+    # nodes).  A goal then starts there with half the true clearance as its margin (it was
+    # refused: 'start state puts the arm inside obstacle 0 (inflated by the margin)').
+    from toc_ros.core.executing_plan import plan_from_result
+    from toc_ros.core.obstacles import model_clearance
+    settings = config()
+    goal = np.array([5 * math.pi / 12, 0.0, 1.0, 0.0])
+    base = settings.problem
+    result = solve(base, settings.options)
+    assert result.status is Status.SOLVED
+    plan = plan_from_result(result, 0.0, goal, 'goal', base.robot_model)
+    rows = np.array(base.obstacles)
+    inside = []
+    for k in range(1, len(plan.times) - 20):
+        now = plan.times[k] + 0.03
+        start = policy.goal_start_on_plan(plan, 4, plan.states[k], now, now, 0.15, -1.0)[0]
+        gap = float(model_clearance(base.robot_model, start[None, :], rows).min())
+        if 0.0 < gap < base.margin:
+            inside.append((start, gap, now))
+    assert inside
+    start, gap, now = inside[len(inside) // 2]
+    assert 'inflated by the margin' in goals.goal_refusal(settings, start, 'joint_states', goal,
+                                                          'goal')
+    assert goals.goal_refusal(settings, start, goals.ON_PLAN, goal, 'goal') is None
+    problem, guess, margin = goals.goal_problem(settings, start, goal, 'goal', plan, now,
+                                                goals.ON_PLAN)
+    assert margin == pytest.approx(0.5 * gap, rel=1e-9) and problem.margin == margin
+    replanned = solve(problem, settings.options, initial_guess=guess)
+    assert replanned.status is Status.SOLVED, replanned.message
+    clear = model_clearance(base.robot_model, replanned.states[1:], rows)
+    assert clear.min() >= margin - 1e-6
+
+
 def test_outcome_texts_of_goals_and_cycles():
     result = SimpleNamespace(status=Status.CANCELED, message='stopped', has_trajectory=False)
     assert goals.goal_outcome(result, 'preempted', 'x') == (Status.CANCELED,

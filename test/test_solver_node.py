@@ -24,7 +24,7 @@ from nav_msgs.srv import GetPlan
 from node_harness import (
     A, eq37, is_final, JOINTS, LATCHED, level_name, NEAR_GOAL,
     PAPER_GOAL, PAPER_X0, pose, pose_of, report, running_solver, SOLVE_TIMEOUT,
-    TEST_PARAMS, U_MAX)
+    TEST_PARAMS, U_MAX, wait_for_plans_to_end)
 import numpy as np
 import pytest
 from rcl_interfaces.srv import DescribeParameters, GetParameters
@@ -57,19 +57,8 @@ def solver(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def no_plan_executing(solver):
-    """
-    Start each test with no plan of an earlier one executing (its node clock past their ends).
-
-    The tests share one node and may run in any order (pytest-randomly): a plan of another test
-    to the same goal would warm-start a test's goal on its remaining grid, and a braking stop
-    the test's state is close to would be its start (the node's rules, not what it tests).
-    """
-    ends = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
-            + (m.points[-1].time_from_start.sec + 1e-9 * m.points[-1].time_from_start.nanosec)
-            for m in solver.client.messages('trajectory') if m.points]
-    wait = max(ends, default=0.0) + 0.6 - time.time()    # + the 0.5 s it counts as executing
-    if wait > 0.0:
-        time.sleep(min(wait, 10.0))
+    """Start each test with no plan of an earlier one executing (tests run in any order)."""
+    wait_for_plans_to_end(solver)
 
 
 def joint_state(x, names=JOINTS):

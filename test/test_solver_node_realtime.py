@@ -27,8 +27,8 @@ import math
 import time
 
 from node_harness import (
-    LATCHED, NEAR_GOAL, PAPER_GOAL, parameter_round_trips, pose_of, reports, running_solver,
-    wait_final)
+    JOINTS, LATCHED, NEAR_GOAL, PAPER_GOAL, PAPER_X0, parameter_round_trips, pose_of, reports,
+    running_solver, wait_final, wait_for_plans_to_end)
 import numpy as np
 import pytest
 from std_msgs.msg import Float64MultiArray
@@ -49,6 +49,23 @@ COLLECT = [(DiagnosticStatus, 'solver_node/progress', 1000),
 def solver(tmp_path_factory):
     with running_solver(tmp_path_factory.mktemp('realtime'), COLLECT, depth=50) as ctx:
         yield ctx
+
+
+@pytest.fixture(autouse=True)
+def at_rest_at_the_start(solver):
+    """
+    Start each test with no plan executing and the robot measured at rest at PAPER_X0.
+
+    The tests run in any order (pytest-randomly): after the replanning test the robot was
+    measured moving along a plan to PAPER_GOAL, and a goal to it then started on that plan's
+    remainder (a solve of a few iterations, not the long one a test needs).
+    """
+    from sensor_msgs.msg import JointState
+    wait_for_plans_to_end(solver)
+    for _ in range(3):
+        solver.joint_states.publish(JointState(
+            name=list(JOINTS), position=[PAPER_X0[0], PAPER_X0[2]], velocity=[0.0, 0.0]))
+        time.sleep(0.1)
 
 
 def test_parameters_answer_while_solving_100_circles_at_n_8000(solver):

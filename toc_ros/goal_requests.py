@@ -140,8 +140,9 @@ def goal_refusal(config, start, start_source, goal, source):
     Return why a joint goal is refused from start under config, or None when it is taken.
 
     Checked: the cylindrical extension against extension_limits, then the problem from the
-    start (a replan after a stop: with the recovery margin) to the goal.  URDF arms:
-    arm_goals.goal_refusal (their limits and collisions).
+    start (with the recovery margin for a replan after a stop and a start on the executing
+    plan: recovers) to the goal.  URDF arms: arm_goals.goal_refusal (their limits and
+    collisions).
     """
     if config.is_arm:
         return arm_goals.goal_refusal(config, start, start_source, goal)
@@ -150,7 +151,7 @@ def goal_refusal(config, start, start_source, goal, source):
         return (f'goal extension q2 = {goal[2]:.6g} m is outside extension_limits '
                 f'[{low:.6g}, {high:.6g}] m')
     flat = config.flat
-    if source == REPLAN:
+    if recovers(source, start_source):
         flat = recovery_params(config, start) or flat
     try:
         problem_from_parameters(flat, x0=start, x_goal=goal).validate()
@@ -159,19 +160,31 @@ def goal_refusal(config, start, start_source, goal, source):
     return None
 
 
-def goal_problem(config, start, goal, source, plan, now):
+def recovers(source, start_source):
+    """
+    Tell whether a goal's start inside the obstacle margin is planned with the recovery margin.
+
+    For the node's own starts: a replan after a stop (braking may end inside the margin), and a
+    start on the executing plan (the plan keeps the margin at its nodes only, and the state
+    predicted along it from a robot lagging it may lie inside: 5 mm with a 30 ms lag past the
+    paper's circle).  A user's goal from a measured state inside the margin is refused.
+    """
+    return source == REPLAN or start_source == ON_PLAN
+
+
+def goal_problem(config, start, goal, source, plan, now, start_source=None):
     """
     Return (problem, warm start or None, recovery margin or None) of a goal's solve.
 
-    A replan after a stop that ended inside the obstacle margin plans with the recovery margin;
-    plan: the executing plan when start is measured (its rest warm-starts a solve to the same
-    goal in fast mode).  Raises ProblemError (TypeError, ValueError) for data that do not make
-    a problem.
+    A start inside the obstacle margin plans with the recovery margin when it recovers
+    (``recovers``); plan: the executing plan when start is measured (its rest warm-starts a
+    solve to the same goal in fast mode).  Raises ProblemError (TypeError, ValueError) for data
+    that do not make a problem.
     """
     if config.is_arm:
         return arm_goals.goal_problem(config, start, goal), None, None
     flat, margin = config.flat, None
-    if source == REPLAN:
+    if recovers(source, start_source):
         recovery = recovery_params(config, start)
         if recovery is not None:
             flat, margin = recovery, recovery['obstacles.margin']

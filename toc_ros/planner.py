@@ -314,7 +314,7 @@ class Planner(ReplanCycles):
             problem, guess, margin = goals.goal_problem(
                 config, start, request.goal, request.source,
                 executing if start_source in ('joint_states', goals.ON_PLAN) else None,
-                port.now())
+                port.now(), start_source)
         except (ProblemError, TypeError, ValueError) as exc:   # parameters are validated
             self.refuse(request.source, str(exc))
             return
