@@ -530,3 +530,26 @@ def test_a_measured_state_is_stale_when_older_than_the_limit_or_from_a_clock_gon
     back = policy.stale_state(130.0, 100.0, 1.0)                  # a simulation reset
     assert back is not None and 'went back' in back
     assert policy.stale_state(100.0, 100.0, 0.01) is None
+
+
+def test_the_recovery_margin_counts_the_first_step_of_a_start_moving_into_the_margin():
+    rows = [(1.0, 1.0, 0.2)]
+    r = math.hypot(1.0, 1.0) - 0.2 - 0.012          # the hand 12 mm off the circle
+    toward = np.array([math.pi / 4, 0.0, r - 1.1, 0.5])   # extending toward it at 0.5 m/s
+    assert policy.recovery_margin(MODEL, toward, rows, 0.01) is None      # outside the margin
+    # One 10 ms step ahead the hand is 7 mm off: half of that is the margin.
+    assert policy.recovery_margin(MODEL, toward, rows, 0.01, step=0.01) == \
+        pytest.approx(0.5 * 0.007, rel=1e-6)
+    away = toward * np.array([1.0, 1.0, 1.0, -1.0])
+    assert policy.recovery_margin(MODEL, away, rows, 0.01, step=0.01) is None
+
+
+def test_a_failed_goal_from_the_plan_is_retried_with_half_the_margin_or_the_clearance():
+    rows = [(1.0, 1.0, 0.2)]
+    r = math.hypot(1.0, 1.0) - 0.2
+    at = lambda gap: np.array([math.pi / 4, 0.0, r - gap - 1.1, 0.0])    # noqa: E731
+    assert policy.retry_margin(MODEL, at(0.012), rows, 0.01) == pytest.approx(0.005)
+    assert policy.retry_margin(MODEL, at(0.004), rows, 0.01) == pytest.approx(0.002)
+    assert policy.retry_margin(MODEL, at(-0.001), rows, 0.01) is None     # inside the circle
+    assert policy.retry_margin(MODEL, at(0.012), rows, 0.0) is None
+    assert policy.retry_margin(MODEL, at(0.012), [], 0.01) is None

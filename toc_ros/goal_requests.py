@@ -81,10 +81,14 @@ def goal_start(config, measured, executing, now, measured_time=None, lead_scale=
     return (*start_state(config, measured), None)
 
 
-def recovery_params(config, start):
-    """Return the flat parameters of a replan from start inside the margin (None: as is)."""
+def recovery_params(config, start, step=0.0):
+    """
+    Return the flat parameters of a replan from start inside the margin (None: as is).
+
+    step: policy.recovery_margin's (a start on the executing plan: its step).
+    """
     margin = policy.recovery_margin(config.model, start, config.problem.obstacles,
-                                    config.problem.margin)
+                                    config.problem.margin, step)
     return None if margin is None else dict(config.flat, **{'obstacles.margin': margin})
 
 
@@ -185,7 +189,9 @@ def goal_problem(config, start, goal, source, plan, now, start_source=None):
         return arm_goals.goal_problem(config, start, goal), None, None
     flat, margin = config.flat, None
     if recovers(source, start_source):
-        recovery = recovery_params(config, start)
+        on_plan = start_source == ON_PLAN and plan is not None and len(plan.times) > 1
+        step = float(np.median(np.diff(plan.times))) if on_plan else 0.0
+        recovery = recovery_params(config, start, step)
         if recovery is not None:
             flat, margin = recovery, recovery['obstacles.margin']
     problem = problem_from_parameters(flat, x0=start, x_goal=goal)

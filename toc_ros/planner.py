@@ -335,6 +335,9 @@ class Planner(ReplanCycles):
             if start_source == goals.ON_PLAN and config.is_arm:
                 result, problem = self._rebased(executing, problem, result, config.options,
                                                 cancel)
+            elif start_source == goals.ON_PLAN and result.status in policy.RETRIED:
+                result, problem = self._with_less_margin(problem, result, guess, config,
+                                                         cancel)
         except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
             self._log.error(f'solver failed: {exc!r}')
             port.report(schema.refusal_report(
@@ -382,6 +385,20 @@ class Planner(ReplanCycles):
         else:
             self._log.error(text)
         port.report(report)
+
+    def _with_less_margin(self, problem, result, guess, config, cancel):
+        """Solve a failed goal from the executing plan again with policy.retry_margin."""
+        margin = policy.retry_margin(problem.robot_model, problem.x0, problem.obstacles,
+                                     problem.margin)
+        if margin is None:
+            return result, problem
+        self._log.warning(
+            f'{result.status.value} from the executing plan with margin {problem.margin:.4g} m '
+            f'(the robot moves into it): again with margin {margin:.4g} m')
+        retry = dataclasses.replace(problem, margin=margin)
+        again = solve(retry, config.options, progress=self._on_progress, cancel=cancel,
+                      initial_guess=guess)
+        return (again, retry) if again.status in schema.PUBLISHED else (result, problem)
 
     @staticmethod
     def _rebased(plan, problem, result, options, cancel):

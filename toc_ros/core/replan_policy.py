@@ -43,6 +43,7 @@ import numpy as np
 from toc_ros.core.executing_plan import nearest_node, true_conflict_time
 from toc_ros.core.obstacles import model_clearance
 from toc_ros.core.replan import predict, stop_later_is_clear
+from toc_ros.core.result import Status
 
 # A replan cycle needs at least this many nodes of the executing plan left (a cycle keeps its
 # plan's grid, so near the end of a plan cut to the largest cycle size few are left).
@@ -368,22 +369,50 @@ def retry_after_failed_cycle(reason, cycle_revision, revision, late):
     return reason != DATA_CHANGE or cycle_revision != revision or late
 
 
-def recovery_margin(model, start, rows, margin):
+def recovery_margin(model, start, rows, margin, step=0.0):
     """
     Return the obstacle margin of a replan from start when start is inside the margin, or None.
 
     For the replan after a stop: braking may end inside the margin (or pass inside it on its
     way into a circle that moved: braking_rest_start), and the plan out of there may use half
-    the start's true clearance as its margin.  None when start clears the margin or is inside
-    a circle.
+    the start's true clearance as its margin.  step [s] > 0: also the state one Euler step of
+    that length along the start's velocity, which no control changes (a start just outside
+    the margin moving into it: a start on the executing plan).  None when they clear the
+    margin or one is inside a circle.
     """
     rows = np.asarray(rows, dtype=float).reshape(-1, 3)
     if not len(rows) or np.shape(start) != (model.nx,):
         return None
-    gap = float(np.min(model_clearance(model, np.asarray(start, dtype=float)[None, :], rows)))
+    states = np.array([start, start], dtype=float)
+    n2 = 2 * model.n_joints
+    states[1, 0:n2:2] += max(step, 0.0) * states[1, 1:n2:2]
+    gap = float(np.min(model_clearance(model, states, rows)))
     if gap >= margin or gap <= 0.0:
         return None
     return 0.5 * gap
+
+
+# Outcomes of a goal's solve from the executing plan that are solved again with retry_margin.
+RETRIED = (Status.STALLED, Status.MAX_ITERATIONS)
+
+
+def retry_margin(model, start, rows, margin):
+    """
+    Return the obstacle margin of a failed goal's second solve from the executing plan, or None.
+
+    A start predicted along the plan for a robot lagging it can move into the margin faster
+    than any control stops it (the paper's robot 44 ms behind its plan, 2 mm outside the
+    margin: the best plan passes 0.3-1 mm inside it, so the solve stalls): the second solve
+    keeps half the margin (half the start's true clearance when that is smaller).  None
+    without obstacles, with a start inside a circle or a zero margin.
+    """
+    rows = np.asarray(rows, dtype=float).reshape(-1, 3)
+    if not len(rows) or not margin > 0.0 or np.shape(start) != (model.nx,):
+        return None
+    gap = float(np.min(model_clearance(model, np.asarray(start, dtype=float)[None, :], rows)))
+    if gap <= 0.0:
+        return None
+    return 0.5 * min(margin, gap)
 
 
 # What abandoning a goal does to the executing plan (cancel_goal_action).
