@@ -20,6 +20,7 @@ parser, controls re-integrated, every limit and clearance at every node) and com
 CasADi + IPOPT on the same transcription (toc_ros/bench/arm_reference.py).
 """
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -374,6 +375,38 @@ def test_a_goal_on_a_position_limit_moving_out_of_it_is_refused():
         result = solve(_problem('panda', x_goal=q + (velocity,) + (0.0,) * 6, n_intervals=20),
                        SolverOptions(max_iterations=1))
         assert result.status is not Status.INVALID_INPUT, result.message
+
+
+def test_a_goal_checked_before_is_checked_again_when_anything_it_depends_on_changed():
+    quick = SolverOptions(max_iterations=1)
+    problem = _problem('panda', n_int=20)
+    assert solve(problem, quick).status is not Status.INVALID_INPUT
+    assert solve(problem, quick).status is not Status.INVALID_INPUT    # (the checked goal)
+    arm = problem.model.arm
+    goal = np.asarray(problem.x_goal, dtype=float)[:arm.n]
+    tip = arm.frame_position(goal, problem.model.spheres.links[-1])
+    at_goal = problem.obstacles + ((*tip, 0.05),)
+    result = solve(dataclasses.replace(problem, obstacles=at_goal), quick)
+    assert result.status is Status.INVALID_INPUT and 'goal in collision' in result.message
+    # An obstacle 5 cm clear of the goal's spheres: the goal passes with the margin 0.02 m, and
+    # is refused with 0.06 m (the start, turned away, clears both).
+    from toc_ros.core.arms.clearances import obstacle_clearance, sphere_kinematics_batch
+    spheres = problem.model.spheres
+    centres = sphere_kinematics_batch(spheres, goal[None, :])[0][0]
+    above = tip + np.array([0.0, 0.0, 0.3])
+    gap = obstacle_clearance(centres, spheres.radii, np.array([[*above, 0.05]]), 0.0).min()
+    near = problem.obstacles + ((*above, 0.05 + gap - 0.05),)
+    assert solve(dataclasses.replace(problem, obstacles=near), quick).status \
+        is not Status.INVALID_INPUT
+    result = solve(dataclasses.replace(problem, obstacles=near, margin=0.06), quick)
+    assert result.status is Status.INVALID_INPUT and 'goal in collision' in result.message
+    upper = arm.upper.copy()
+    try:
+        arm.upper[0] = goal[0] - 0.01          # a limit changed in place
+        result = solve(problem, quick)
+        assert result.status is Status.INVALID_INPUT and 'outside its limits' in result.message
+    finally:
+        arm.upper[:] = upper
 
 
 def test_paper_mode_with_rk4_and_spheres_missing_are_refused():

@@ -70,7 +70,7 @@ class ArmEvaluator:
         self.integrator = integrator
         self.model = arm.model
         self.data = arm.model.createData()
-        self.pool = pin.ModelPool(arm.model, 1)
+        self._pool = None           # (pin.ModelPool: made when first used, accelerations)
         self.batch = pin_batch.workspace(arm.model)
         self.n = arm.n
         self.n_int = n_intervals
@@ -112,8 +112,10 @@ class ArmEvaluator:
         dq = np.asfortranarray(states[:, n:].T)
         tau = np.asfortranarray((self.effort * controls).T)
         out = np.empty((n, states.shape[0]), order='F')
+        if self._pool is None:
+            self._pool = pin.ModelPool(self.model, 1)
         started = time.perf_counter()
-        pin.abaInParallel(1, self.pool, q, dq, tau, out)
+        pin.abaInParallel(1, self._pool, q, dq, tau, out)
         self.pin_time += time.perf_counter() - started
         self.pin_calls += states.shape[0]
         return out.T

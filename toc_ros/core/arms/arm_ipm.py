@@ -370,13 +370,11 @@ class ArmInteriorPoint(FilterLineSearch):
         acceptable = 0
         while True:
             terms = self.ev.stage_terms(self.x, self.v, self.t, self.lam, self.hessian)
-            values, grads, curvature = self.ev.clearance_terms(
-                self.x[1:-1, :n], self.z)
             if self.rescale_duals:
+                # (before the sphere rows: their curvature is weighted by the rescaled duals)
                 self.rescale_duals = False
-                if self._rescale_duals(terms):
-                    values, grads, curvature = self.ev.clearance_terms(
-                        self.x[1:-1, :n], self.z)
+                self._rescale_duals(terms)
+            values, grads, curvature = self.ev.clearance_terms(self.x[1:-1, :n], self.z)
             dual, primal, compl, s_d, s_c = self._errors(terms, grads, values)
             e0 = max(dual / s_d, compl / s_c)
             self.primal, self.e0 = primal, e0    # (read by should_stop callbacks: cold_runs.py)

@@ -34,8 +34,10 @@ velocities from node 1 on (the start's are given, and may exceed their limits by
 START_VELOCITY_SLACK).
 """
 
+import collections
 import dataclasses
 import math
+import threading
 import time
 from typing import Optional
 
@@ -193,6 +195,35 @@ def _state(arm, values, what):
     return x
 
 
+# Goals that passed their checks (limits, mass matrix, collisions), most recent last: a
+# replanning node sends the same goal again and again, and the checks cost about as much as a
+# warm replan's iteration.  Keyed by everything they read; the entry holds the model and the
+# spheres it was checked with (ids are reused once an object is gone).
+_CHECKED_GOALS = collections.OrderedDict()
+_CHECKED_GOALS_LOCK = threading.Lock()
+CHECKED_GOALS = 32
+
+
+def _check_goal(robot, xg, obstacles, margin):
+    arm = robot.arm
+    spheres = robot.spheres if len(obstacles) or robot.self_collision else None
+    key = (id(arm.model), id(spheres), robot.self_collision, xg.tobytes(),
+           np.asarray(obstacles, dtype=float).tobytes(), float(margin), arm.lower.tobytes(),
+           arm.upper.tobytes(), arm.velocity.tobytes())
+    with _CHECKED_GOALS_LOCK:
+        held = _CHECKED_GOALS.get(key)
+        if held is not None and held[0] is arm.model and held[1] is spheres:
+            _CHECKED_GOALS.move_to_end(key)
+            return
+    check_state(arm, xg[:arm.n], xg[arm.n:], 'goal', spheres, obstacles, margin,
+                self_collision=robot.self_collision)
+    check_not_leaving(arm, xg[:arm.n], xg[arm.n:])
+    with _CHECKED_GOALS_LOCK:
+        _CHECKED_GOALS[key] = (arm.model, spheres)
+        while len(_CHECKED_GOALS) > CHECKED_GOALS:
+            _CHECKED_GOALS.popitem(last=False)
+
+
 def check_arm_problem(problem, options):
     """(robot, x0, x_goal, obstacles) after every check; ArmError with the reason otherwise."""
     options.validate()
@@ -219,12 +250,11 @@ def check_arm_problem(problem, options):
         raise ArmError("obstacles need the arm's collision spheres (give a sphere file)")
     x0 = _state(arm, problem.x0, 'start')
     xg = _state(arm, problem.x_goal, 'goal')
-    for x, what, slack in ((x0, 'start', START_VELOCITY_SLACK), (xg, 'goal', 0.0)):
-        check_state(arm, x[:arm.n], x[arm.n:], what,
-                    robot.spheres if len(obstacles) or robot.self_collision else None,
-                    obstacles, margin, self_collision=robot.self_collision,
-                    velocity_slack=slack)
-    check_not_leaving(arm, xg[:arm.n], xg[arm.n:])
+    check_state(arm, x0[:arm.n], x0[arm.n:], 'start',
+                robot.spheres if len(obstacles) or robot.self_collision else None,
+                obstacles, margin, self_collision=robot.self_collision,
+                velocity_slack=START_VELOCITY_SLACK)
+    _check_goal(robot, xg, obstacles, margin)
     return robot, x0, xg, obstacles
 
 

@@ -117,7 +117,10 @@ def check_state(arm, q, v=None, what='start', spheres=None, obstacles=None, marg
     """
     q = joint_vector(arm, q, f'{what} positions')
     v = np.zeros(arm.n) if v is None else joint_vector(arm, v, f'{what} velocities')
-    for i, name in enumerate(arm.joint_names):
+    fine = ((arm.lower <= q) & (q <= arm.upper)
+            & (np.abs(v) <= (1.0 + velocity_slack) * arm.velocity))
+    for i in np.flatnonzero(~fine):         # (the reason of the first joint that fails)
+        name = arm.joint_names[i]
         if not arm.lower[i] <= q[i] <= arm.upper[i]:
             raise ArmError(f'{what}: {name} = {q[i]:.6g} is outside its limits '
                            f'[{arm.lower[i]:.6g}, {arm.upper[i]:.6g}]')
