@@ -398,7 +398,8 @@ class Planner(ReplanCycles):
         retry = dataclasses.replace(problem, margin=margin)
         again = solve(retry, config.options, progress=self._on_progress, cancel=cancel,
                       initial_guess=guess)
-        return (again, retry) if again.status in schema.PUBLISHED else (result, problem)
+        # (a second failure reports the first; a cancel or timeout during it, itself)
+        return (result, problem) if again.status in policy.RETRIED else (again, retry)
 
     @staticmethod
     def _rebased(plan, problem, result, options, cancel):
