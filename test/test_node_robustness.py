@@ -21,7 +21,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.srv import GetPlan
 from node_harness import (
     is_final, JOINTS, level_name, NEAR_GOAL, PAPER_GOAL, PAPER_X0, pose,
-    pose_of, report, running_solver, SOLVE_TIMEOUT, TEST_PARAMS)
+    pose_of, report, running_solver, SOLVE_TIMEOUT, TEST_PARAMS, wait_for_plans_to_end)
 import psutil
 import pytest
 from rcl_interfaces.srv import GetParameters
@@ -204,6 +204,7 @@ def test_goals_after_the_joint_states_stopped_are_refused_until_they_come_again(
     finally:
         assert all(r.successful for r in client.set_parameters('solver_node',
                                                                {'max_state_age': 3600.0}))
+        wait_for_plans_to_end(solver)       # (the next test plans to NEAR_GOAL from rest)
 
 
 def test_200_goals_back_to_back(solver, record_property):
