@@ -32,7 +32,7 @@ import numpy_model as nm
 import pytest
 from toc_ros import goal_requests as goals, progress as schema
 from toc_ros import kernel_loader, planner as planner_module
-from toc_ros.core import Progress, replan_policy as policy, solve, Status
+from toc_ros.core import goal_starts as starts, Progress, replan_policy as policy, solve, Status
 from toc_ros.core.executing_plan import braking_plan, ExecutingPlan, Seed
 from toc_ros.core.model import RobotParams
 from toc_ros.core.models import CylindricalRobot
@@ -383,7 +383,7 @@ def test_a_goal_while_a_plan_moves_the_robot_starts_on_it_and_late_ones_go_farth
     _, q, _, _ = points(msg)
     # The measured state predicted to that node under the plan's controls (the robot's motion
     # there; the goal's Euler plan nodes are within millimetres of it).
-    start = policy.goal_start_on_plan(plan, 4, port.measured, port.measured_at, port.clock,
+    start = starts.goal_start_on_plan(plan, 4, port.measured, port.measured_at, port.clock,
                                       lead, port.config.node.replan_stitch)[0]
     np.testing.assert_allclose(q[0], start[0::2], atol=1e-9)
     assert np.max(np.abs(start - plan.states[node])) < 0.01
@@ -772,7 +772,7 @@ def test_a_start_on_the_plan_predicted_inside_the_margin_is_planned_with_the_rec
     inside = []
     for k in range(1, len(plan.times) - 20):
         now = plan.times[k] + 0.03
-        start = policy.goal_start_on_plan(plan, 4, plan.states[k], now, now, 0.15, -1.0)[0]
+        start = starts.goal_start_on_plan(plan, 4, plan.states[k], now, now, 0.15, -1.0)[0]
         gap = float(model_clearance(base.robot_model, start[None, :], rows).min())
         if 0.0 < gap < base.margin:
             inside.append((start, gap, now))
@@ -899,7 +899,7 @@ def test_a_braking_stop_into_a_circle_is_left_from_its_state_ahead_not_its_rest(
     circle = [(hand[0], hand[1], 0.05)]
     assert model_clearance(stop.model, rest[None, :], circle).min() < 0.0
     lead = 0.02
-    start, when = policy.braking_rest_start(stop, 10.5, 4, rows=circle, lead=lead)
+    start, when = starts.braking_rest_start(stop, 10.5, 4, rows=circle, lead=lead)
     k = int(np.searchsorted(stop.times, stop.elapsed(10.5) + lead))
     assert 0 < k < len(stop.times) - 1
     np.testing.assert_array_equal(start, stop.states[k])
@@ -907,7 +907,7 @@ def test_a_braking_stop_into_a_circle_is_left_from_its_state_ahead_not_its_rest(
     assert model_clearance(stop.model, start[None, :], circle).min() > 0.0
     # A circle elsewhere: the rest, as without circles.
     far = [(hand[0] + 1.0, hand[1] + 1.0, 0.05)]
-    start, when = policy.braking_rest_start(stop, 10.5, 4, rows=far, lead=lead)
+    start, when = starts.braking_rest_start(stop, 10.5, 4, rows=far, lead=lead)
     np.testing.assert_array_equal(start, rest)
     assert when == pytest.approx(stop.start + stop.duration)
 
@@ -916,25 +916,25 @@ def test_the_rest_of_a_braking_stop_is_a_goals_start_only_while_the_stop_execute
     moving = straight_plan(start=10.0, duration=1.0, result='a solve result')
     stop = braking_plan(moving, np.array([0.5, 1.0, 1.0, -0.5]), 10.5, 0.002)
     assert stop.braking and stop.times[-1] > 0.0
-    rest = policy.braking_rest_start(stop, 10.5, 4)
+    rest = starts.braking_rest_start(stop, 10.5, 4)
     assert rest is not None
     np.testing.assert_array_equal(rest[0], stop.states[-1])
     assert rest[1] == pytest.approx(10.5 + stop.times[-1])
-    assert policy.braking_rest_start(moving, 10.5, 4) is None          # not a stop
+    assert starts.braking_rest_start(moving, 10.5, 4) is None          # not a stop
     ended = 10.5 + stop.times[-1] + 1e-6
-    assert policy.braking_rest_start(stop, ended, 4) is None   # ended, no measured state
+    assert starts.braking_rest_start(stop, ended, 4) is None   # ended, no measured state
     # Ended, the robot still moving near its held end (overshot and pulled back): the rest,
     # from now; at rest there: its measured state is the start.
     moving_near = stop.states[-1] + np.array([0.01, 0.05, 0.0, 0.0])
-    rest = policy.braking_rest_start(stop, ended, 4, moving_near, ended)
+    rest = starts.braking_rest_start(stop, ended, 4, moving_near, ended)
     assert rest is not None and rest[1] == ended
     np.testing.assert_array_equal(rest[0], stop.states[-1])
     resting = stop.states[-1] + np.array([0.01, 0.0, 0.0, 0.0])
-    assert policy.braking_rest_start(stop, ended, 4, resting, ended) is None
-    assert policy.braking_rest_start(stop, 10.5, 6) is None            # another model
-    assert policy.braking_rest_start(None, 10.5, 4) is None
+    assert starts.braking_rest_start(stop, ended, 4, resting, ended) is None
+    assert starts.braking_rest_start(stop, 10.5, 6) is None            # another model
+    assert starts.braking_rest_start(None, 10.5, 4) is None
     # Measured on the stop: its rest; measured far off it (a reset plant): none.
     on_stop = stop.states[10]
-    assert policy.braking_rest_start(stop, 10.5, 4, on_stop, 10.5 + stop.times[10]) is not None
+    assert starts.braking_rest_start(stop, 10.5, 4, on_stop, 10.5 + stop.times[10]) is not None
     reset = np.array([0.2, 0.0, 1.0, 0.0])
-    assert policy.braking_rest_start(stop, 10.5, 4, reset, 10.5 + stop.times[10]) is None
+    assert starts.braking_rest_start(stop, 10.5, 4, reset, 10.5 + stop.times[10]) is None

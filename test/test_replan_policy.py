@@ -26,7 +26,7 @@ from types import SimpleNamespace
 import numpy as np
 import numpy_model as nm
 import pytest
-from toc_ros.core import Problem, replan_policy as policy, SolverOptions
+from toc_ros.core import goal_starts as starts, Problem, replan_policy as policy, SolverOptions
 from toc_ros.core.executing_plan import (braking_plan, ExecutingPlan, goal_warm_start,
                                          nearest_node, remaining_nodes, Seed,
                                          true_conflict_time, violation)
@@ -190,14 +190,14 @@ def test_recovery_margin_is_half_the_true_clearance_inside_the_margin():
     rows = [(*centre, 0.2)]
     gap = float(np.min(nm.clearance(x, rows)))
     assert gap == pytest.approx(0.05, abs=1e-9)
-    assert policy.recovery_margin(MODEL, x, rows, 0.1) == pytest.approx(0.5 * gap, abs=1e-9)
-    assert policy.recovery_margin(MODEL, x, rows, 0.05 - 1e-6) is None     # outside it
-    assert policy.recovery_margin(MODEL, x, [(*centre, 0.3)], 0.1) is None  # inside a circle
-    assert policy.recovery_margin(MODEL, x, [], 0.1) is None
-    assert policy.recovery_margin(MODEL, x[:3], rows, 0.1) is None
+    assert starts.recovery_margin(MODEL, x, rows, 0.1) == pytest.approx(0.5 * gap, abs=1e-9)
+    assert starts.recovery_margin(MODEL, x, rows, 0.05 - 1e-6) is None     # outside it
+    assert starts.recovery_margin(MODEL, x, [(*centre, 0.3)], 0.1) is None  # inside a circle
+    assert starts.recovery_margin(MODEL, x, [], 0.1) is None
+    assert starts.recovery_margin(MODEL, x[:3], rows, 0.1) is None
     # Several circles: the nearest decides.
     rows2 = rows + [(*(1.5 * e - 0.23 * normal), 0.2)]
-    assert policy.recovery_margin(MODEL, x, rows2, 0.1) == pytest.approx(0.015, abs=1e-9)
+    assert starts.recovery_margin(MODEL, x, rows2, 0.1) == pytest.approx(0.015, abs=1e-9)
 
 
 # -- cycle lead, grid, budget ---------------------------------------------------------------
@@ -229,11 +229,11 @@ def test_cycle_starts_on_the_first_plan_node_after_the_lead(plan):
 
 
 def test_a_goal_while_a_plan_moves_the_robot_starts_on_it_ahead(plan):
-    """policy.goal_start_on_plan: the plan's node at now + lead, its time, or its rest."""
+    """starts.goal_start_on_plan: the plan's node at now + lead, its time, or its rest."""
     moving = make_plan(start=10.0, result=SimpleNamespace())      # a solved plan, no stop
     now, lead = 10.3, 0.15
     measured = moving.states[25]                 # on the plan at 0.3 s, measured just now
-    start, stamp, rest = policy.goal_start_on_plan(moving, 4, measured, 10.3, now, lead, 0.0)
+    start, stamp, rest = starts.goal_start_on_plan(moving, 4, measured, 10.3, now, lead, 0.0)
     node = int(np.searchsorted(moving.times, 0.45))
     assert not rest and stamp == pytest.approx(10.0 + moving.times[node], abs=1e-12)
     assert moving.times[node] >= 0.45 - 1e-12 and moving.times[node - 1] < 0.45
@@ -243,24 +243,24 @@ def test_a_goal_while_a_plan_moves_the_robot_starts_on_it_ahead(plan):
     # Far behind the robot is what the old start was: the measured state itself.
     assert np.max(np.abs(start - measured)) > 0.05
     # A plan that ends before now + lead: its rest, from its end.
-    start, stamp, rest = policy.goal_start_on_plan(moving, 4, moving.states[90], 11.08, 11.1,
+    start, stamp, rest = starts.goal_start_on_plan(moving, 4, moving.states[90], 11.08, 11.1,
                                                    lead, 0.0)
     assert rest and stamp == pytest.approx(10.0 + T) and np.array_equal(start, moving.states[-1])
     # A robot at rest (the plan not started yet, or not followed) or no measured state: the
     # measured state is the start, as for any goal.
-    assert policy.goal_start_on_plan(moving, 4, X0, 9.9, 9.95, lead, 0.0) is None
-    assert policy.goal_start_on_plan(moving, 4, None, None, now, lead, 0.0) is None
+    assert starts.goal_start_on_plan(moving, 4, X0, 9.9, 9.95, lead, 0.0) is None
+    assert starts.goal_start_on_plan(moving, 4, None, None, now, lead, 0.0) is None
     # Within the stitch (replan.stitch -1: GOAL_STITCH for every model) of the plan: the
     # plan's own state at the node, the commanded reference there.
-    start, stamp, rest = policy.goal_start_on_plan(moving, 4, measured + [0.01, 0, 0, 0],
+    start, stamp, rest = starts.goal_start_on_plan(moving, 4, measured + [0.01, 0, 0, 0],
                                                    10.3, now, lead, -1.0)
     assert np.array_equal(start, moving.states[node]) and stamp == 10.0 + moving.times[node]
     # Over, a braking stop, another model, no plan: not this rule.
-    assert policy.goal_start_on_plan(moving, 4, X0, 11.3, 11.3, lead, 0.0) is None
+    assert starts.goal_start_on_plan(moving, 4, X0, 11.3, 11.3, lead, 0.0) is None
     stop = dataclasses.replace(moving, result=None, source='brake')
-    assert policy.goal_start_on_plan(stop, 4, measured, 10.3, now, lead, 0.0) is None
-    assert policy.goal_start_on_plan(moving, 6, measured, 10.3, now, lead, 0.0) is None
-    assert policy.goal_start_on_plan(None, 4, measured, 10.3, now, lead, 0.0) is None
+    assert starts.goal_start_on_plan(stop, 4, measured, 10.3, now, lead, 0.0) is None
+    assert starts.goal_start_on_plan(moving, 6, measured, 10.3, now, lead, 0.0) is None
+    assert starts.goal_start_on_plan(None, 4, measured, 10.3, now, lead, 0.0) is None
 
 
 def test_cycle_nodes_budget_and_reason():
@@ -522,34 +522,34 @@ def test_a_cycle_plans_with_the_replan_integrator_and_goals_keep_theirs():
 
 
 def test_a_measured_state_is_stale_when_older_than_the_limit_or_from_a_clock_gone_back():
-    assert policy.stale_state(None, 100.0, 1.0) is None          # none: initial_state
-    assert policy.stale_state(99.5, 100.0, 1.0) is None
-    assert policy.stale_state(99.0, 100.0, 1.0) is None          # exactly the limit
-    old = policy.stale_state(98.75, 100.0, 1.0)
+    assert starts.stale_state(None, 100.0, 1.0) is None          # none: initial_state
+    assert starts.stale_state(99.5, 100.0, 1.0) is None
+    assert starts.stale_state(99.0, 100.0, 1.0) is None          # exactly the limit
+    old = starts.stale_state(98.75, 100.0, 1.0)
     assert old is not None and '1.25 s ago' in old and 'max_state_age = 1 s' in old
-    back = policy.stale_state(130.0, 100.0, 1.0)                  # a simulation reset
+    back = starts.stale_state(130.0, 100.0, 1.0)                  # a simulation reset
     assert back is not None and 'went back' in back
-    assert policy.stale_state(100.0, 100.0, 0.01) is None
+    assert starts.stale_state(100.0, 100.0, 0.01) is None
 
 
 def test_the_recovery_margin_counts_the_first_step_of_a_start_moving_into_the_margin():
     rows = [(1.0, 1.0, 0.2)]
     r = math.hypot(1.0, 1.0) - 0.2 - 0.012          # the hand 12 mm off the circle
     toward = np.array([math.pi / 4, 0.0, r - 1.1, 0.5])   # extending toward it at 0.5 m/s
-    assert policy.recovery_margin(MODEL, toward, rows, 0.01) is None      # outside the margin
+    assert starts.recovery_margin(MODEL, toward, rows, 0.01) is None      # outside the margin
     # One 10 ms step ahead the hand is 7 mm off: half of that is the margin.
-    assert policy.recovery_margin(MODEL, toward, rows, 0.01, step=0.01) == \
+    assert starts.recovery_margin(MODEL, toward, rows, 0.01, step=0.01) == \
         pytest.approx(0.5 * 0.007, rel=1e-6)
     away = toward * np.array([1.0, 1.0, 1.0, -1.0])
-    assert policy.recovery_margin(MODEL, away, rows, 0.01, step=0.01) is None
+    assert starts.recovery_margin(MODEL, away, rows, 0.01, step=0.01) is None
 
 
 def test_a_failed_goal_from_the_plan_is_retried_with_half_the_margin_or_the_clearance():
     rows = [(1.0, 1.0, 0.2)]
     r = math.hypot(1.0, 1.0) - 0.2
     at = lambda gap: np.array([math.pi / 4, 0.0, r - gap - 1.1, 0.0])    # noqa: E731
-    assert policy.retry_margin(MODEL, at(0.012), rows, 0.01) == pytest.approx(0.005)
-    assert policy.retry_margin(MODEL, at(0.004), rows, 0.01) == pytest.approx(0.002)
-    assert policy.retry_margin(MODEL, at(-0.001), rows, 0.01) is None     # inside the circle
-    assert policy.retry_margin(MODEL, at(0.012), rows, 0.0) is None
-    assert policy.retry_margin(MODEL, at(0.012), [], 0.01) is None
+    assert starts.retry_margin(MODEL, at(0.012), rows, 0.01) == pytest.approx(0.005)
+    assert starts.retry_margin(MODEL, at(0.004), rows, 0.01) == pytest.approx(0.002)
+    assert starts.retry_margin(MODEL, at(-0.001), rows, 0.01) is None     # inside the circle
+    assert starts.retry_margin(MODEL, at(0.012), rows, 0.0) is None
+    assert starts.retry_margin(MODEL, at(0.012), [], 0.01) is None

@@ -30,7 +30,7 @@ import numpy as np
 
 from toc_ros import arm_goals
 from toc_ros.config import problem_from_parameters
-from toc_ros.core import ProblemError, replan_policy as policy, Status
+from toc_ros.core import goal_starts as starts, ProblemError, Status
 from toc_ros.core.executing_plan import goal_warm_start, violation
 from toc_ros.core.result import CLEARANCE_TOL
 
@@ -40,9 +40,9 @@ START_TOLERANCE_M = 1e-3
 REPLAN = 'replan'
 # The start_source of a goal solved while the robot brakes.
 BRAKING_REST = 'braking stop (its rest)'
-# ... and of one solved while the robot brakes into a true circle (policy.braking_rest_start).
+# ... and of one solved while the robot brakes into a true circle (starts.braking_rest_start).
 BRAKING_AHEAD = 'braking stop (its state at now + replan.lead: it rests inside a circle)'
-# ... and of one that arrives while a plan moves the robot (policy.goal_start_on_plan): its
+# ... and of one that arrives while a plan moves the robot (starts.goal_start_on_plan): its
 # plan must be published before the start's time (a strict stamp), else it is solved again.
 ON_PLAN = 'executing plan (its state at now + goal_lead)'
 # ... when that plan ends before then: its rest, from its end on.
@@ -61,19 +61,19 @@ def goal_start(config, measured, executing, now, measured_time=None, lead_scale=
     Return (start state, its source, earliest plan start [s, node clock] or None) of a goal.
 
     While a braking stop executes that the measured state (at measured_time) follows, the
-    stop's rest (policy.braking_rest_start), or its node at now + replan.lead when its path
+    stop's rest (starts.braking_rest_start), or its node at now + replan.lead when its path
     enters a true circle.  While another plan executes, its node at now + goal_lead x
-    lead_scale or its rest (policy.goal_start_on_plan: ON_PLAN, whose time is the plan's
+    lead_scale or its rest (starts.goal_start_on_plan: ON_PLAN, whose time is the plan's
     stamp, or ON_PLAN_REST).  Else start_state.
     """
     nx = np.shape(config.problem.x0)[0]
     rows = None if config.is_arm else config.problem.obstacles
-    rest = policy.braking_rest_start(executing, now, nx, measured, measured_time, rows,
+    rest = starts.braking_rest_start(executing, now, nx, measured, measured_time, rows,
                                      config.node.replan_lead)
     if rest is not None:
         at_rest = rest[1] >= executing.start + executing.duration
         return rest[0], BRAKING_REST if at_rest else BRAKING_AHEAD, rest[1]
-    on_plan = policy.goal_start_on_plan(
+    on_plan = starts.goal_start_on_plan(
         executing, nx, measured, measured_time, now, config.node.goal_lead * lead_scale,
         config.node.replan_stitch)
     if on_plan is not None:
@@ -85,9 +85,9 @@ def recovery_params(config, start, step=0.0):
     """
     Return the flat parameters of a replan from start inside the margin (None: as is).
 
-    step: policy.recovery_margin's (a start on the executing plan: its step).
+    step: starts.recovery_margin's (a start on the executing plan: its step).
     """
-    margin = policy.recovery_margin(config.model, start, config.problem.obstacles,
+    margin = starts.recovery_margin(config.model, start, config.problem.obstacles,
                                     config.problem.margin, step)
     return None if margin is None else dict(config.flat, **{'obstacles.margin': margin})
 

@@ -26,7 +26,7 @@ itself: the node gives it a *port*, an object with
 - ``snapshot()``: (settings, measured state of their model or None); ``settings()``: the
   settings only (cheap, called under the plan lock); ``measured_time()``: the node-clock time
   [s] of that measured state (None: none); ``measured_received()``: the node-clock time [s]
-  when it arrived (None: none; a goal is refused while it is stale, policy.stale_state);
+  when it arrived (None: none; a goal is refused while it is stale, starts.stale_state);
 - ``now()``: the node clock [s]; ``estimated_model(settings)``: (model, text) of the online
   estimate (replan.estimate);
 - ``publish_trajectory(msg, hold_effort=None)`` (hold_effort: an arm plan from rest's
@@ -35,7 +35,8 @@ itself: the node gives it a *port*, an object with
   ``logger`` (info, warning, error).
 
 The settings are a ``nodes.solver_settings.SolverNodeConfig``.  The policy it applies is
-core/replan_policy.py; see solver_node's docstring for the behaviour on the topics.
+core/replan_policy.py and core/goal_starts.py; see solver_node's docstring for the behaviour on
+the topics.
 """
 
 import dataclasses
@@ -47,8 +48,8 @@ import numpy as np
 from toc_ros import arm_config, arm_goals, conversions, goal_requests as goals
 from toc_ros import progress as schema
 from toc_ros.config import problem_from_parameters
+from toc_ros.core import goal_starts as starts, replan_policy as policy
 from toc_ros.core import ProblemError, Progress, solve, Status
-from toc_ros.core import replan_policy as policy
 from toc_ros.core.executing_plan import braking_plan, plan_from_result, true_conflict_time
 from toc_ros.execution_state import ExecutionState
 from toc_ros.goal_worker import GoalWorker, Request
@@ -110,7 +111,7 @@ class Planner(ReplanCycles):
         """Return why the measured state may not start a goal (too old), or None."""
         if measured is None:
             return None
-        return policy.stale_state(self._port.measured_received(), self._port.now(),
+        return starts.stale_state(self._port.measured_received(), self._port.now(),
                                   config.node.max_state_age)
 
     def refuse(self, source, reason):
@@ -335,7 +336,7 @@ class Planner(ReplanCycles):
             if start_source == goals.ON_PLAN and config.is_arm:
                 result, problem = self._rebased(executing, problem, result, config.options,
                                                 cancel)
-            elif start_source == goals.ON_PLAN and result.status in policy.RETRIED:
+            elif start_source == goals.ON_PLAN and result.status in starts.RETRIED:
                 result, problem = self._with_less_margin(problem, result, guess, config,
                                                          cancel)
         except Exception as exc:  # noqa: B902 - a core bug must not kill the worker thread
@@ -387,8 +388,8 @@ class Planner(ReplanCycles):
         port.report(report)
 
     def _with_less_margin(self, problem, result, guess, config, cancel):
-        """Solve a failed goal from the executing plan again with policy.retry_margin."""
-        margin = policy.retry_margin(problem.robot_model, problem.x0, problem.obstacles,
+        """Solve a failed goal from the executing plan again with starts.retry_margin."""
+        margin = starts.retry_margin(problem.robot_model, problem.x0, problem.obstacles,
                                      problem.margin)
         if margin is None:
             return result, problem
@@ -399,7 +400,7 @@ class Planner(ReplanCycles):
         again = solve(retry, config.options, progress=self._on_progress, cancel=cancel,
                       initial_guess=guess)
         # (a second failure reports the first; a cancel or timeout during it, itself)
-        return (result, problem) if again.status in policy.RETRIED else (again, retry)
+        return (result, problem) if again.status in starts.RETRIED else (again, retry)
 
     @staticmethod
     def _rebased(plan, problem, result, options, cancel):

@@ -27,11 +27,10 @@ forward by a lead (the time the solve and the transport need).  This module deci
   data, or must brake at once (``brake_can_wait``), until when at most (``brake_deadline``),
   and whether to try again after a failed
   cycle (``retry_after_failed_cycle``);
-- the obstacle margin of the replan out of a braking stop that ended inside the margin
-  (``recovery_margin``);
-- what abandoning a goal does to the executing plan (``cancel_goal_action``);
-- where a goal solved while the robot brakes starts (``braking_rest_start``);
-- whether a measured state is too old to start a goal from (``stale_state``).
+- what abandoning a goal does to the executing plan (``cancel_goal_action``).
+
+Where a goal starts (on the executing plan, at a braking stop's rest) and with which margin:
+goal_starts.py.
 """
 
 import dataclasses
@@ -40,10 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from toc_ros.core.executing_plan import nearest_node, true_conflict_time
-from toc_ros.core.obstacles import model_clearance
+from toc_ros.core.executing_plan import nearest_node
 from toc_ros.core.replan import predict, stop_later_is_clear
-from toc_ros.core.result import Status
 
 # A replan cycle needs at least this many nodes of the executing plan left (a cycle keeps its
 # plan's grid, so near the end of a plan cut to the largest cycle size few are left).
@@ -73,10 +70,6 @@ SEED_EXTRA_S = 0.05
 # started then still keeps every link out of them (brake_can_wait).  So the lead, which grows
 # with the measured cycle latency on a loaded machine, moves the braking decision earlier.
 BRAKE_HORIZON_S = 0.1
-# [rad, m] a measured state this far from a braking stop's reference does not follow it (a reset
-# plant): goals then start from the measured state, not from the stop's rest.  A plant that
-# brakes later than the reference (a heavier payload) stays within a few hundredths.
-BRAKING_FOLLOW_TOL = 0.2
 # Step of the braking trajectory that is published.
 BRAKE_STEP_S = 0.002
 # Step of the stop simulated to decide whether braking can wait: its path stays within 3e-4
@@ -125,26 +118,6 @@ def state_now(plan, measured, measured_time, now):
     if t0 < 0.0 or not t1 > t0:
         return measured
     return predict(model, measured, plan.times, plan.controls, t0, t1)
-
-
-def stale_state(received, now, max_age):
-    """
-    Return why a measured state received at node-clock time received [s] is stale, or None.
-
-    Stale: received more than max_age [s] before now, or after now (the clock went back, a
-    simulation reset: the state is from before it).  None also when nothing was received
-    (received None: goals then start from initial_state).
-    """
-    if received is None:
-        return None
-    age = now - received
-    if 0.0 <= age <= max_age:
-        return None
-    when = (f'{age:.3g} s ago' if age > 0.0
-            else f'{-age:.3g} s after now (the node clock went back)')
-    return (f'no recent joint_states: the newest was received {when} (max_state_age = '
-            f'{max_age:g} s), so the robot may not be where it was; planning from it could start '
-            'a motion from the wrong state')
 
 
 def at_rest(model, x):
@@ -369,99 +342,8 @@ def retry_after_failed_cycle(reason, cycle_revision, revision, late):
     return reason != DATA_CHANGE or cycle_revision != revision or late
 
 
-def recovery_margin(model, start, rows, margin, step=0.0):
-    """
-    Return the obstacle margin of a replan from start when start is inside the margin, or None.
-
-    For the replan after a stop: braking may end inside the margin (or pass inside it on its
-    way into a circle that moved: braking_rest_start), and the plan out of there may use half
-    the start's true clearance as its margin.  step [s] > 0: also the state one Euler step of
-    that length along the start's velocity, which no control changes (a start just outside
-    the margin moving into it: a start on the executing plan).  None when they clear the
-    margin or one is inside a circle.
-    """
-    rows = np.asarray(rows, dtype=float).reshape(-1, 3)
-    if not len(rows) or np.shape(start) != (model.nx,):
-        return None
-    states = np.array([start, start], dtype=float)
-    n2 = 2 * model.n_joints
-    states[1, 0:n2:2] += max(step, 0.0) * states[1, 1:n2:2]
-    gap = float(np.min(model_clearance(model, states, rows)))
-    if gap >= margin or gap <= 0.0:
-        return None
-    return 0.5 * gap
-
-
-# Outcomes of a goal's solve from the executing plan that are solved again with retry_margin.
-RETRIED = (Status.STALLED, Status.MAX_ITERATIONS)
-
-
-def retry_margin(model, start, rows, margin):
-    """
-    Return the obstacle margin of a failed goal's second solve from the executing plan, or None.
-
-    A start predicted along the plan for a robot lagging it can move into the margin faster
-    than any control stops it (the paper's robot 44 ms behind its plan, 2 mm outside the
-    margin: the best plan passes 0.3-1 mm inside it, so the solve stalls): the second solve
-    keeps half the margin (half the start's true clearance when that is smaller).  None
-    without obstacles, with a start inside a circle or a zero margin.
-    """
-    rows = np.asarray(rows, dtype=float).reshape(-1, 3)
-    if not len(rows) or not margin > 0.0 or np.shape(start) != (model.nx,):
-        return None
-    gap = float(np.min(model_clearance(model, np.asarray(start, dtype=float)[None, :], rows)))
-    if gap <= 0.0:
-        return None
-    return 0.5 * min(margin, gap)
-
-
 # What abandoning a goal does to the executing plan (cancel_goal_action).
 BRAKE, HOLD, NOTHING = 'brake', 'hold', 'nothing'
-
-
-# [rad or m] a goal that arrives while a plan moves the robot starts on the plan's own state
-# while the robot is within this of it (replan.stitch -1, for every model).
-GOAL_STITCH = ARM_STITCH
-
-
-def goal_start_on_plan(plan, nx, measured, measured_time, now, lead, stitch):
-    """
-    Return (start state, its time [s, node clock], whether it is the plan's rest) or None.
-
-    A goal that arrives while plan moves the robot cannot start from the measured state: its
-    plan would be stamped when it is published, a solve later, and the robot has moved on
-    along plan meanwhile, so the reference would jump back (a Panda goal solved in 0.33 s
-    jumped it by 0.37 rad).  It starts on plan instead, at its node at or after now + lead,
-    from the plan's state there while the robot is within stitch of plan, else the measured
-    state predicted to it (cycle_start_state; stitch < 0: GOAL_STITCH for every model, as a
-    goal's start should continue the commanded reference); its plan applies from that node's
-    time, and the robot follows plan until then.  When plan ends before now + lead: its final
-    state, at rest from its end; so also when it is over and the newest measured state is
-    from before its end.  None (the measured state is the start) when no measured state is
-    known or it is at rest, and when plan is a braking stop (braking_rest_start), of another
-    model (nx), or over by the measured state.
-    """
-    if plan is None or plan.braking or plan.states.shape[1] != nx:
-        return None
-    if measured is None or np.shape(measured) != (nx,) or measured_time is None \
-            or at_rest(plan.model, measured):
-        return None
-    measured_at = plan.elapsed(state_time(measured_time, now))
-    elapsed = plan.elapsed(now)
-    if elapsed >= plan.duration and measured_at >= plan.duration:
-        return None
-    start_at = elapsed + float(lead)
-    if start_at >= plan.duration:
-        return np.array(plan.states[-1], dtype=float), plan.start + plan.duration, True
-    node = int(np.searchsorted(plan.times, max(start_at, 0.0)))
-    start_at = float(plan.times[node])
-    if measured_at < 0.0 or measured_at > start_at:
-        # Measured before plan started (or stamped oddly): plan's own state there.
-        return np.array(plan.states[node], dtype=float), plan.start + start_at, False
-    deviation = plan.deviation(measured, measured_at)
-    start = cycle_start_state(plan, measured, measured_at, start_at, deviation,
-                              GOAL_STITCH if stitch < 0.0 else stitch)
-    return np.asarray(start, dtype=float), plan.start + start_at, False
 
 
 def cancel_goal_action(plan, now, measured):
@@ -484,42 +366,3 @@ def cancel_goal_action(plan, now, measured):
 def cycle_allowed(plan, replanning, ready):
     """Tell whether replan cycles may run for plan: replanning on, ready, its goal active."""
     return replanning and ready and plan is not None and plan.replannable
-
-
-def braking_rest_start(plan, now, nx, measured=None, measured_time=None, rows=None, lead=0.0):
-    """
-    Return (rest state, rest time [s, node clock]) of a braking stop executing at now, or None.
-
-    A goal solved while the robot brakes (the replan after a stop, or a new goal) starts where
-    the stop rests, and its plan applies from the rest time on: the measured state is moving,
-    and a plan from it would start where the robot was when the solve began, however long the
-    solve takes (on a loaded machine, hundreds of milliseconds of braking later).  The stop's
-    rest is where the plant will be, as long as the robot follows the stop: None when a
-    measured state (at measured_time) is more than BRAKING_FOLLOW_TOL off it (a plant reset,
-    a robot moved by hand), and when plan is no braking stop or its state is not of size nx
-    (another model).  After the stop's end the robot may still be moving (a short stop the
-    controller overshot and now pulls back to its held end): the rest holds, from now, until a
-    measured state is at rest (then that is the start) or none is known.
-
-    rows (the true circles, planar models): a stop whose path from now enters one (a circle
-    that moved into it after the stop was made) does not rest anywhere a plan may start
-    from: the start is then the stop's node at or after now + lead [s], and its time, so
-    that the plan steers out while the robot still moves (with the recovery margin when it
-    is inside the obstacle margin there).
-    """
-    if plan is None or not plan.braking or plan.states.shape[1] != nx:
-        return None
-    known = measured is not None and np.shape(measured) == (nx,) and measured_time is not None
-    if known and plan.deviation(measured, plan.elapsed(state_time(measured_time, now))) \
-            > BRAKING_FOLLOW_TOL:
-        return None
-    rest = np.array(plan.states[-1], dtype=float)
-    elapsed = plan.elapsed(now)
-    if elapsed < plan.duration:
-        if rows is not None and true_conflict_time(plan, rows, elapsed) is not None:
-            k = min(int(np.searchsorted(plan.times, elapsed + lead)), len(plan.times) - 1)
-            return np.array(plan.states[k], dtype=float), plan.start + float(plan.times[k])
-        return rest, plan.start + plan.duration
-    if not known or at_rest(plan.model, measured):
-        return None
-    return rest, float(now)

@@ -27,8 +27,8 @@ This module only translates messages and wires them: the topic inputs are solver
 the execute.* action client solver_execution.py; the solves, cycles and stops are planner.py
 (free of rclpy), the worker goal_worker.py, the goals' checks and problems goal_requests.py,
 the executing plan's bookkeeping execution_state.py, the policy (when a cycle is due, its lead
-and grid, braking) core/replan_policy.py; URDF arms are translated by the arm_* modules
-(arm_config, arm_model, arm_goals, arm_inputs, arm_markers).
+and grid, braking) core/replan_policy.py, where goals start core/goal_starts.py; URDF arms are
+translated by the arm_* modules (arm_config, arm_model, arm_goals, arm_inputs, arm_markers).
 
 Run: ``ros2 run toc_ros solver_node --ros-args --params-file config/toc_ros.yaml``
 """

@@ -204,9 +204,8 @@ _CHECKED_GOALS_LOCK = threading.Lock()
 CHECKED_GOALS = 32
 
 
-def _check_goal(robot, xg, obstacles, margin):
+def _check_goal(robot, spheres, xg, obstacles, margin):
     arm = robot.arm
-    spheres = robot.spheres if len(obstacles) or robot.self_collision else None
     key = (id(arm.model), id(spheres), robot.self_collision, xg.tobytes(),
            np.asarray(obstacles, dtype=float).tobytes(), float(margin), arm.lower.tobytes(),
            arm.upper.tobytes(), arm.velocity.tobytes())
@@ -250,11 +249,10 @@ def check_arm_problem(problem, options):
         raise ArmError("obstacles need the arm's collision spheres (give a sphere file)")
     x0 = _state(arm, problem.x0, 'start')
     xg = _state(arm, problem.x_goal, 'goal')
-    check_state(arm, x0[:arm.n], x0[arm.n:], 'start',
-                robot.spheres if len(obstacles) or robot.self_collision else None,
-                obstacles, margin, self_collision=robot.self_collision,
-                velocity_slack=START_VELOCITY_SLACK)
-    _check_goal(robot, xg, obstacles, margin)
+    spheres = robot.spheres if len(obstacles) or robot.self_collision else None
+    check_state(arm, x0[:arm.n], x0[arm.n:], 'start', spheres, obstacles, margin,
+                self_collision=robot.self_collision, velocity_slack=START_VELOCITY_SLACK)
+    _check_goal(robot, spheres, xg, obstacles, margin)
     return robot, x0, xg, obstacles
 
 
